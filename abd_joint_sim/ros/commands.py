@@ -1,0 +1,234 @@
+"""Torque and enable commands between ROS callbacks and the simulation step, in plain Python.
+
+Subscription callbacks hand incoming values to :class:`CommandBuffer`, which validates them
+(finite, right length, known actuated joint), clamps torques to the effort limits and keeps
+the latest value per joint as *pending*. At the next step boundary the node calls
+:meth:`CommandBuffer.apply`, which writes the pending values into the world (latest command
+wins; nothing changes in the middle of a step), runs the command-timeout bookkeeping and
+returns what took effect so the node can log and record it.
+
+The command timeout counts simulated time: a joint whose last torque command took effect at
+``t_cmd`` has its torque set to 0 at the first step boundary with ``t - t_cmd >= timeout``.
+Simulated time makes it deterministic (a recorded run replays identically) and consistent
+with controllers that run on ``/clock``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Iterable, Optional, Protocol, Sequence
+
+
+class CommandTarget(Protocol):
+    """What :meth:`CommandBuffer.apply` needs from the world."""
+
+    time: float
+
+    def set_torque(self, joint_name: str, value: float) -> None: ...
+
+    def set_torque_enabled(self, joint_name: str, flag: bool) -> None: ...
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """A refused command: which joint (or None for a whole array), the value, the reason."""
+
+    joint: Optional[str]
+    value: object
+    reason: str
+
+    def __str__(self) -> str:
+        who = f'joint {self.joint!r}' if self.joint is not None else 'array command'
+        return f'{who}: {self.value!r} rejected: {self.reason}'
+
+
+@dataclass(frozen=True)
+class Clamp:
+    joint: str
+    requested: float
+    applied: float
+    limit: float
+
+    def __str__(self) -> str:
+        return (f'joint {self.joint!r}: torque {self.requested:g} N m clamped to '
+                f'{self.applied:g} (effort limit {self.limit:g})')
+
+
+@dataclass
+class Applied:
+    """What took effect at one step boundary (all lists empty when nothing did)."""
+
+    time: float
+    torques: dict[str, float] = field(default_factory=dict)
+    """joint -> torque [N m] written into the world (after clamping)."""
+    enables: dict[str, bool] = field(default_factory=dict)
+    timed_out: list[str] = field(default_factory=list)
+    """Joints whose torque was set to 0 by the command timeout at this boundary."""
+    array: Optional[list[float]] = None
+    """The array command that took effect (clamped), in `joints` order, if any."""
+    enable_all: Optional[bool] = None
+    """The all-joints enable command that took effect, if any."""
+    sources: dict[str, str] = field(default_factory=dict)
+    """joint -> 'array' or 'joint': which topic its torque came from."""
+
+    def __bool__(self) -> bool:
+        return bool(self.torques or self.enables or self.timed_out)
+
+
+class CommandBuffer:
+    """Pending torque/enable commands, effort limits and the command timeout.
+
+    Parameters
+    ----------
+    actuated:
+        Names of the joints that accept commands (the world's actuated joints).
+    order:
+        Joint order of the array command (a subset or permutation of `actuated`).
+    effort_limits:
+        One positive limit [N m] per joint of `order`, or empty for none.
+    command_timeout:
+        Simulated seconds [s]; 0 = off.
+    """
+
+    def __init__(self, actuated: Sequence[str], order: Sequence[str],
+                 effort_limits: Sequence[float] = (), command_timeout: float = 0.0):
+        self.actuated = list(actuated)
+        self._actuated_set = set(self.actuated)
+        self.order = list(order) if order else list(self.actuated)
+        bad = [j for j in self.order if j not in self._actuated_set]
+        if bad:
+            raise ValueError(
+                f'parameter \'joints\': {bad} not actuated joints of the scene '
+                f'(actuated: {self.actuated})')
+        if len(set(self.order)) != len(self.order):
+            raise ValueError(f'parameter \'joints\': duplicate names in {self.order}')
+        self.limits: dict[str, float] = {}
+        self.set_effort_limits(effort_limits)
+        self.command_timeout = float(command_timeout)
+        self._pending_torque: dict[str, tuple[float, str]] = {}
+        self._pending_enable: dict[str, bool] = {}
+        self._pending_array: Optional[list[float]] = None
+        self._pending_enable_all: Optional[bool] = None
+        self._last_command_time: dict[str, float] = {}
+        self._last_value: dict[str, float] = {}
+        self._timed_out: set[str] = set()
+
+    # -- configuration -----------------------------------------------------------------
+    def set_effort_limits(self, limits: Sequence[float]) -> None:
+        limits = list(limits)
+        if limits and len(limits) != len(self.order):
+            raise ValueError(
+                f'parameter \'effort_limits\': {len(limits)} values for {len(self.order)} '
+                f'joints {self.order}; give one per joint (in `joints` order) or none')
+        for j, lim in zip(self.order, limits):
+            if not (lim > 0.0):
+                raise ValueError(f'parameter \'effort_limits\': {lim} for joint {j!r} not > 0')
+        self.limits = dict(zip(self.order, (float(x) for x in limits)))
+
+    # -- from subscription callbacks ---------------------------------------------------
+    def _clamp(self, joint: str, value: float) -> tuple[float, Optional[Clamp]]:
+        lim = self.limits.get(joint)
+        if lim is None or abs(value) <= lim:
+            return value, None
+        applied = math.copysign(lim, value)
+        return applied, Clamp(joint, value, applied, lim)
+
+    def _check_joint(self, joint: str) -> Optional[str]:
+        if joint not in self._actuated_set:
+            return f'not an actuated joint (actuated: {self.actuated})'
+        return None
+
+    def command_torque(self, joint: str, value: float) -> tuple[list[Rejection], list[Clamp]]:
+        """Queue one joint's torque [N m]. Returns (rejections, clamps)."""
+        reason = self._check_joint(joint)
+        if reason is None and not math.isfinite(value):
+            reason = 'torque must be finite'
+        if reason is not None:
+            return [Rejection(joint, value, reason)], []
+        applied, clamp = self._clamp(joint, float(value))
+        self._pending_torque[joint] = (applied, 'joint')
+        return [], [clamp] if clamp else []
+
+    def command_array(self, values: Iterable[float]) -> tuple[list[Rejection], list[Clamp]]:
+        """Queue torques for all joints of `order`; a wrong length or a non-finite entry
+        rejects the whole array (nothing is queued)."""
+        values = [float(v) for v in values]
+        if len(values) != len(self.order):
+            return [Rejection(None, values,
+                              f'expected {len(self.order)} values (joints {self.order}), '
+                              f'got {len(values)}')], []
+        bad = [Rejection(j, v, 'torque must be finite; whole array ignored')
+               for j, v in zip(self.order, values) if not math.isfinite(v)]
+        if bad:
+            return bad, []
+        clamps = []
+        applied_values = []
+        for j, v in zip(self.order, values):
+            a, c = self._clamp(j, v)
+            applied_values.append(a)
+            if c:
+                clamps.append(c)
+            self._pending_torque[j] = (a, 'array')
+        self._pending_array = applied_values
+        return [], clamps
+
+    def command_enable(self, joint: str, flag: bool) -> list[Rejection]:
+        reason = self._check_joint(joint)
+        if reason is not None:
+            return [Rejection(joint, flag, reason)]
+        self._pending_enable[joint] = bool(flag)
+        return []
+
+    def command_enable_all(self, flag: bool) -> None:
+        # Later per-joint enables override; an all-joints command overrides earlier ones.
+        for j in self.actuated:
+            self._pending_enable[j] = bool(flag)
+        self._pending_enable_all = bool(flag)
+
+    @property
+    def has_pending(self) -> bool:
+        return bool(self._pending_torque or self._pending_enable)
+
+    def clear(self) -> None:
+        """Drop pending commands and forget command times (used on reset)."""
+        self._pending_torque.clear()
+        self._pending_enable.clear()
+        self._pending_array = None
+        self._pending_enable_all = None
+        self._last_command_time.clear()
+        self._last_value.clear()
+        self._timed_out.clear()
+
+    # -- at the step boundary ----------------------------------------------------------
+    def apply(self, world: CommandTarget) -> Applied:
+        """Write pending commands into `world`, then apply the command timeout."""
+        now = float(world.time)
+        out = Applied(time=now, array=self._pending_array, enable_all=self._pending_enable_all)
+        for joint, flag in self._pending_enable.items():
+            world.set_torque_enabled(joint, flag)
+            out.enables[joint] = flag
+        for joint, (value, source) in self._pending_torque.items():
+            world.set_torque(joint, value)
+            out.torques[joint] = value
+            out.sources[joint] = source
+            self._last_command_time[joint] = now
+            self._last_value[joint] = value
+            self._timed_out.discard(joint)
+        self._pending_torque.clear()
+        self._pending_enable.clear()
+        self._pending_array = None
+        self._pending_enable_all = None
+        if self.command_timeout > 0.0:
+            for joint, t_cmd in self._last_command_time.items():
+                if joint in self._timed_out:
+                    continue
+                if now - t_cmd >= self.command_timeout - 1e-9:
+                    self._timed_out.add(joint)
+                    if self._last_value.get(joint, 0.0) != 0.0:
+                        world.set_torque(joint, 0.0)
+                        out.timed_out.append(joint)
+        return out
+
+    def seconds_since_command(self, joint: str, now: float) -> Optional[float]:
+        t = self._last_command_time.get(joint)
+        return None if t is None else now - t

@@ -1,0 +1,99 @@
+"""Messages <-> plain values for sim_node (no DDS needed; only message classes)."""
+from __future__ import annotations
+
+import math
+from typing import Iterable, Mapping, Optional, Sequence
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
+
+NS_PER_S = 1_000_000_000
+
+
+def seconds_to_ns(t: float) -> int:
+    """Simulation time [s] -> integer nanoseconds (rounded to the nearest ns)."""
+    return int(round(float(t) * NS_PER_S))
+
+
+def ns_to_time_msg(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def time_msg_to_seconds(stamp: Time) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def time_msg_to_ns(stamp: Time) -> int:
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[float],
+                    velocity: Iterable[float], effort: Iterable[float],
+                    frame_id: str = '') -> JointState:
+    """A JointState with all four arrays filled (copied) and of equal length."""
+    msg = JointState()
+    msg.header.stamp = ns_to_time_msg(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.name = list(names)
+    msg.position = [float(x) for x in np.asarray(position, dtype=float).ravel()]
+    msg.velocity = [float(x) for x in np.asarray(velocity, dtype=float).ravel()]
+    msg.effort = [float(x) for x in np.asarray(effort, dtype=float).ravel()]
+    n = len(msg.name)
+    if not (len(msg.position) == len(msg.velocity) == len(msg.effort) == n):
+        raise ValueError(
+            f'joint state arrays differ in length: name {n}, position {len(msg.position)}, '
+            f'velocity {len(msg.velocity)}, effort {len(msg.effort)}')
+    return msg
+
+
+def clock_msg(stamp_ns: int) -> Clock:
+    return Clock(clock=ns_to_time_msg(stamp_ns))
+
+
+def float64_msg(value: float) -> Float64:
+    return Float64(data=float(value))
+
+
+def bool_msg(flag: bool) -> Bool:
+    return Bool(data=bool(flag))
+
+
+def float64_array_msg(values: Iterable[float], label: str = 'joints') -> Float64MultiArray:
+    data = [float(v) for v in values]
+    msg = Float64MultiArray(data=data)
+    msg.layout.dim = [MultiArrayDimension(label=label, size=len(data), stride=len(data))]
+    return msg
+
+
+def array_values(msg: Float64MultiArray) -> list[float]:
+    """The values of an array command (`data`, honouring `layout.data_offset`)."""
+    return [float(v) for v in msg.data[msg.layout.data_offset:]]
+
+
+def _kv(key: str, value: object) -> KeyValue:
+    if isinstance(value, float):
+        text = 'nan' if math.isnan(value) else f'{value:.6g}'
+    else:
+        text = str(value)
+    return KeyValue(key=key, value=text)
+
+
+def diagnostics_msg(stamp_ns: int, name: str, hardware_id: str, level_ok: bool,
+                    message: str, values: Mapping[str, object],
+                    warn: Optional[bool] = None) -> DiagnosticArray:
+    """One DiagnosticStatus (OK or WARN) in a DiagnosticArray stamped with sim time."""
+    msg = DiagnosticArray()
+    msg.header.stamp = ns_to_time_msg(stamp_ns)
+    status = DiagnosticStatus()
+    status.level = DiagnosticStatus.OK if level_ok else DiagnosticStatus.WARN
+    status.name = name
+    status.hardware_id = hardware_id
+    status.message = message
+    status.values = [_kv(k, v) for k, v in values.items()]
+    msg.status = [status]
+    return msg

@@ -1,0 +1,501 @@
+"""sim_node: steps an abd_joint_sim World and talks ROS 2 (see README "Topics & services").
+
+The node is thin: parameters come from :mod:`.params`, commands are validated, clamped and
+buffered by :mod:`.commands`, messages are built by :mod:`.convert`. Callbacks only fill the
+pending-command buffer; the step timer applies it at the step boundary, steps, publishes
+copies and records. ``rclpy.spin`` runs a single-threaded executor, so callbacks never
+overlap with a step and the buffer needs no lock.
+"""
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+import time
+from typing import Any, Optional
+
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64, Float64MultiArray
+from std_srvs.srv import Trigger
+from diagnostic_msgs.msg import DiagnosticArray
+import yaml
+
+from . import convert
+from .commands import Applied, CommandBuffer
+from .params import (check_live_value, coerce, config_from_values, default_scene_path,
+                     NODE_NAME, PARAMS, PARAMS_BY_NAME)
+
+JOINT_STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
+COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+
+TOPIC_JOINT_STATES = 'joint_states'
+TOPIC_CLOCK = '/clock'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+TOPIC_TORQUE_ARRAY = 'joint_torque_commands'
+TOPIC_TORQUE_JOINT = 'joint_torque/{joint}'
+TOPIC_ENABLE_ALL = 'joint_torque_enable'
+TOPIC_ENABLE_JOINT = 'joint_torque_enable/{joint}'
+
+DIAGNOSTICS_PERIOD = 1.0      # s of wall time
+AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
+MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
+LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
+
+
+class SimNode(Node):
+    """ROS 2 front of an abd_joint_sim ``World``."""
+
+    def __init__(self, **kwargs: Any):
+        super().__init__(NODE_NAME, **kwargs)
+        # Parameters -> config (read once; live ones re-applied by the post-set callback).
+        self.config = config_from_values(self._declare_parameters())
+
+        # Scene and world. Imported here so that `--help`-like failures stay cheap.
+        from abd_joint_sim import Scene, World
+        self.scene = Scene.from_yaml(self.config.scene)
+        self.world = World(self.scene, dt=self.config.time_step or None)
+        self.joint_names = list(self.world.joint_names)
+        self.actuated = list(self.world.actuated_joint_names)
+        self.commands = CommandBuffer(self.actuated, self.config.joints,
+                                      self.config.effort_limits, self.config.command_timeout)
+        self.config.joints = list(self.commands.order)
+
+        self.paused = bool(self.config.start_paused)
+        self.steps = 0
+        self._next_publish_ns = 0
+        self._anchor_wall = time.monotonic()
+        self._anchor_sim = self.world.time
+        self._stats_wall = time.monotonic()
+        self._stats_steps = 0
+        self._not_converged = 0
+        self._warned_disabled: set[str] = set()
+        self._closed = False
+
+        # Publishers.
+        self.joint_state_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES,
+                                                     JOINT_STATE_QOS)
+        self.clock_pub = self.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+
+        # Subscriptions: only actuated joints get command topics.
+        self.command_subs = [
+            self.create_subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY,
+                                     self._on_torque_array, COMMAND_QOS),
+            self.create_subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all, COMMAND_QOS),
+        ]
+        for joint in self.actuated:
+            self.command_subs.append(self.create_subscription(
+                Float64, TOPIC_TORQUE_JOINT.format(joint=joint),
+                lambda msg, j=joint: self._on_torque_joint(j, msg), COMMAND_QOS))
+            self.command_subs.append(self.create_subscription(
+                Bool, TOPIC_ENABLE_JOINT.format(joint=joint),
+                lambda msg, j=joint: self._on_enable_joint(j, msg), COMMAND_QOS))
+
+        # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
+        self.service_handles = [
+            self.create_service(Trigger, '~/pause', self._srv_pause),
+            self.create_service(Trigger, '~/unpause', self._srv_unpause),
+            self.create_service(Trigger, '~/step', self._srv_step),
+            self.create_service(Trigger, '~/reset', self._srv_reset),
+        ]
+
+        # Recording (optional; failures never stop the simulation).
+        self.recorder = None
+        if self.config.record:
+            self._open_recorder(self.config.record)
+
+        self.add_on_set_parameters_callback(self._vet_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        # Timers: stepping (period from dt and the real-time factor) and diagnostics (wall).
+        self.step_timer = None
+        self._make_step_timer()
+        self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
+
+        self._log_start()
+        # The initial state, so subscribers see t = 0 even when starting paused.
+        self._publish_state(force=True)
+
+    # ---------------------------------------------------------------- parameters ----
+    def _declare_parameters(self) -> dict[str, Any]:
+        values = {}
+        for spec in PARAMS:
+            default = spec.default
+            if spec.name == 'scene':
+                default = default_scene_path()
+            dynamic = not isinstance(default, (str, bool))
+            descriptor = ParameterDescriptor(description=spec.description,
+                                             read_only=spec.read_only,
+                                             dynamic_typing=dynamic)
+            param = self.declare_parameter(spec.name, default, descriptor)
+            values[spec.name] = param.value
+        return values
+
+    def _vet_parameters(self, params) -> SetParametersResult:
+        for p in params:
+            reason = check_live_value(p.name, p.value, len(self.commands.order))
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params) -> None:
+        for p in params:
+            if p.name not in PARAMS_BY_NAME:
+                continue
+            value = coerce(p.name, p.value)
+            setattr(self.config, p.name, value)
+            if p.name == 'real_time_factor':
+                self._make_step_timer()
+            elif p.name == 'publish_rate':
+                self._next_publish_ns = 0
+            elif p.name == 'command_timeout':
+                self.commands.command_timeout = value
+            elif p.name == 'effort_limits':
+                self.commands.set_effort_limits(value)
+            self.get_logger().info(f'parameter {p.name} = {value!r}')
+
+    # ------------------------------------------------------------------- timing ----
+    def _make_step_timer(self) -> None:
+        if self.step_timer is not None:
+            self.destroy_timer(self.step_timer)
+        rtf = self.config.real_time_factor
+        period = 0.0 if rtf == 0.0 else min(max(self.world.dt / rtf, 0.001), 0.05)
+        self._reanchor()
+        self.step_timer = self.create_timer(period, self._on_step_timer)
+
+    def _reanchor(self) -> None:
+        self._anchor_wall = time.monotonic()
+        self._anchor_sim = self.world.time
+
+    def _on_step_timer(self) -> None:
+        if self.paused:
+            return
+        rtf = self.config.real_time_factor
+        if rtf == 0.0:
+            deadline = time.monotonic() + AFAP_BATCH_WALL
+            while not self.paused and time.monotonic() < deadline:
+                self._step_once()
+            return
+        target = self._anchor_sim + rtf * (time.monotonic() - self._anchor_wall)
+        n = int(math.floor((target - self.world.time) / self.world.dt + 1e-6))
+        n_max = max(1, int(math.ceil(MAX_LAG_WALL * rtf / self.world.dt)))
+        if n > n_max:
+            self.get_logger().warn(
+                f'cannot keep up with real_time_factor {rtf:g}: '
+                f'{(n - n_max) * self.world.dt:.3f} s of simulated time dropped behind; '
+                'continuing slower than requested', throttle_duration_sec=10.0)
+            n = n_max
+            self._reanchor()
+        for _ in range(n):
+            if self.paused:
+                break
+            self._step_once()
+
+    # -------------------------------------------------------------------- steps ----
+    def _step_once(self, force_publish: bool = False) -> bool:
+        """Apply pending commands at the boundary, take one step, publish. False on failure."""
+        applied = self.commands.apply(self.world)
+        if applied:
+            self._on_applied(applied)
+        try:
+            report = self.world.step()
+        except Exception as exc:  # noqa: BLE001 - keep the node alive, say why, pause
+            self.get_logger().error(
+                f'step at t={self.world.time:.6f} s failed: {exc}; simulation paused '
+                '(call ~/reset, or ~/unpause to retry)')
+            self.paused = True
+            return False
+        self.steps += 1
+        self._stats_steps += 1
+        if not getattr(report, 'converged', True):
+            self._not_converged += 1
+            self.get_logger().warn(
+                f'Newton did not converge at t={self.world.time:.6f} s '
+                f'({getattr(report, "newton_iterations", "?")} iterations)',
+                throttle_duration_sec=LOG_THROTTLE)
+        for text in getattr(report, 'warnings', None) or ():
+            self.get_logger().warn(f'step: {text}', throttle_duration_sec=LOG_THROTTLE)
+        self._publish_state(force=force_publish)
+        return True
+
+    def _on_applied(self, applied: Applied) -> None:
+        for joint in applied.timed_out:
+            self.get_logger().warn(
+                f'joint {joint!r}: no torque command for {self.commands.command_timeout:g} s '
+                f'(simulated) -> torque set to 0 until the next command')
+        for joint, value in applied.torques.items():
+            if value != 0.0 and not self.world.torque_enabled(joint):
+                if joint not in self._warned_disabled:
+                    self._warned_disabled.add(joint)
+                    self.get_logger().warn(
+                        f'joint {joint!r}: torque {value:g} N m stored but the torque is '
+                        f'disabled; publish true on '
+                        f'{TOPIC_ENABLE_JOINT.format(joint=joint)} to apply it')
+        for joint, flag in applied.enables.items():
+            if flag:
+                self._warned_disabled.discard(joint)
+        if self.recorder is not None:
+            self._record_commands(applied)
+
+    def _publish_state(self, force: bool = False) -> None:
+        t_ns = convert.seconds_to_ns(self.world.time)
+        clock = convert.clock_msg(t_ns)
+        self.clock_pub.publish(clock)
+        self._record('/clock', t_ns, clock)
+        rate = self.config.publish_rate
+        if not force and rate > 0.0 and t_ns < self._next_publish_ns:
+            return
+        if rate > 0.0:
+            period_ns = max(1, int(round(1e9 / rate)))
+            self._next_publish_ns = (t_ns // period_ns + 1) * period_ns
+        msg = convert.joint_state_msg(
+            t_ns, self.joint_names, self.world.joint_angles(), self.world.joint_velocities(),
+            self.world.applied_torques(), self.config.frame_id)
+        self.joint_state_pub.publish(msg)
+        self._record('/joint_states', t_ns, msg)
+
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic()
+        wall = max(now - self._stats_wall, 1e-9)
+        achieved_rtf = self._stats_steps * self.world.dt / wall
+        self._stats_wall, self._stats_steps = now, 0
+        last = getattr(self.world, 'last_step', None)
+        converged = bool(getattr(last, 'converged', True)) if last is not None else True
+        values = {
+            'sim_time': float(self.world.time),
+            'steps': self.steps,
+            'paused': self.paused,
+            'time_step': float(self.world.dt),
+            'real_time_factor_requested': float(self.config.real_time_factor),
+            'real_time_factor_achieved': float(achieved_rtf),
+            'newton_iterations': getattr(last, 'newton_iterations', 0),
+            'line_search_iterations': getattr(last, 'line_search_iterations', 0),
+            'converged': converged,
+            'not_converged_steps_total': self._not_converged,
+            'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
+            'substeps': getattr(last, 'substeps', 1),
+            'recording': self.recorder is not None,
+        }
+        ok = converged and not (getattr(last, 'warnings', None) or [])
+        message = 'paused' if self.paused else ('running' if ok else 'solver warnings')
+        t_ns = convert.seconds_to_ns(self.world.time)
+        msg = convert.diagnostics_msg(t_ns, f'{self.get_name()}: solver', NODE_NAME, ok,
+                                      message, values)
+        self.diagnostics_pub.publish(msg)
+        self._record('/diagnostics', t_ns, msg)
+
+    # ------------------------------------------------------------ subscriptions ----
+    def _report(self, rejections, clamps) -> None:
+        for r in rejections:
+            self.get_logger().warn(str(r), throttle_duration_sec=LOG_THROTTLE)
+        for c in clamps:
+            self.get_logger().warn(str(c), throttle_duration_sec=LOG_THROTTLE)
+
+    def _on_torque_array(self, msg: Float64MultiArray) -> None:
+        self._report(*self.commands.command_array(convert.array_values(msg)))
+
+    def _on_torque_joint(self, joint: str, msg: Float64) -> None:
+        self._report(*self.commands.command_torque(joint, msg.data))
+
+    def _on_enable_joint(self, joint: str, msg: Bool) -> None:
+        self._report(self.commands.command_enable(joint, msg.data), [])
+
+    def _on_enable_all(self, msg: Bool) -> None:
+        self.commands.command_enable_all(msg.data)
+
+    # ----------------------------------------------------------------- services ----
+    def _srv_pause(self, request, response):
+        was = self.paused
+        self.paused = True
+        response.success = True
+        response.message = f'paused at t={self.world.time:.6f} s' + (' (already)' if was else '')
+        return response
+
+    def _srv_unpause(self, request, response):
+        was = self.paused
+        self.paused = False
+        self._reanchor()
+        response.success = True
+        response.message = (f'running from t={self.world.time:.6f} s'
+                            + ('' if was else ' (was not paused)'))
+        return response
+
+    def _srv_step(self, request, response):
+        if not self.paused:
+            response.success = False
+            response.message = 'not paused: call ~/pause first'
+            return response
+        ok = self._step_once(force_publish=True)
+        response.success = ok
+        response.message = f't={self.world.time:.6f} s'
+        return response
+
+    def _srv_reset(self, request, response):
+        self.world.reset()
+        self.commands.clear()
+        for joint in self.actuated:
+            self.world.set_torque(joint, 0.0)
+        self._warned_disabled.clear()
+        self._next_publish_ns = 0
+        self._reanchor()
+        self._publish_state(force=True)
+        self.get_logger().info('reset: initial state, t=0, torque commands cleared')
+        response.success = True
+        response.message = f'reset to t={self.world.time:.6f} s'
+        return response
+
+    # ---------------------------------------------------------------- recording ----
+    def _open_recorder(self, path: str) -> None:
+        try:
+            from abd_joint_sim.record.bag import BagWriter
+            params_text = yaml.safe_dump({NODE_NAME: {'ros__parameters': self.config.as_dict()}},
+                                         sort_keys=False)
+            scene_text = getattr(self.scene, 'source_text', '') or ''
+            custom = {
+                'abd_joint_sim.scene_path': self.config.scene,
+                'abd_joint_sim.scene_yaml': scene_text,
+                'abd_joint_sim.parameters_yaml': params_text,
+                'abd_joint_sim.time_step': repr(float(self.world.dt)),
+                'abd_joint_sim.joints': ','.join(self.commands.order),
+            }
+            attachments = {'scene.yaml': scene_text.encode(),
+                           'parameters.yaml': params_text.encode()}
+            writer = BagWriter(path, custom_data=custom, attachments=attachments)
+            writer.open()
+            writer.add_topic('/joint_states', 'sensor_msgs/msg/JointState', qos='reliable')
+            writer.add_topic('/clock', 'rosgraph_msgs/msg/Clock', qos='best_effort')
+            writer.add_topic('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                             qos='reliable')
+            writer.add_topic(self._abs(TOPIC_TORQUE_ARRAY), 'std_msgs/msg/Float64MultiArray',
+                             qos='reliable')
+            writer.add_topic(self._abs(TOPIC_ENABLE_ALL), 'std_msgs/msg/Bool', qos='reliable')
+            for joint in self.actuated:
+                writer.add_topic(self._abs(TOPIC_TORQUE_JOINT.format(joint=joint)),
+                                 'std_msgs/msg/Float64', qos='reliable')
+                writer.add_topic(self._abs(TOPIC_ENABLE_JOINT.format(joint=joint)),
+                                 'std_msgs/msg/Bool', qos='reliable')
+        except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
+            self.get_logger().error(f'recording to {path!r} disabled: {exc}')
+            self.recorder = None
+            self.config.record = ''
+            return
+        self.recorder = writer
+
+    def _abs(self, topic: str) -> str:
+        """Fully qualified topic name (namespace applied), as it appears on the graph."""
+        return self.resolve_topic_name(topic)
+
+    def _record(self, topic: str, stamp_ns: int, msg) -> None:
+        if self.recorder is None:
+            return
+        try:
+            self.recorder.write(topic, stamp_ns, msg)
+        except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
+            self.get_logger().error(f'recording stopped: writing {topic} failed: {exc}')
+            self._close_recorder()
+
+    def _record_commands(self, applied: Applied) -> None:
+        """Commands as they took effect (log time = simulated time of the step boundary).
+
+        Same-time messages are written in the order a replay must apply them: per-joint
+        enables, then the array command, then per-joint torques that superseded it.
+        """
+        t_ns = convert.seconds_to_ns(applied.time)
+        for joint, flag in applied.enables.items():
+            self._record(self._abs(TOPIC_ENABLE_JOINT.format(joint=joint)), t_ns,
+                         convert.bool_msg(flag))
+        if applied.array is not None:
+            self._record(self._abs(TOPIC_TORQUE_ARRAY), t_ns,
+                         convert.float64_array_msg(applied.array))
+        for joint, value in applied.torques.items():
+            if applied.sources.get(joint) == 'joint':
+                self._record(self._abs(TOPIC_TORQUE_JOINT.format(joint=joint)), t_ns,
+                             convert.float64_msg(value))
+
+    def _close_recorder(self) -> None:
+        recorder, self.recorder = self.recorder, None
+        if recorder is None:
+            return
+        try:
+            recorder.close()
+            self.get_logger().info(f'bag closed: {self.config.record}')
+        except Exception as exc:  # noqa: BLE001
+            self.get_logger().error(f'closing the bag {self.config.record!r} failed: {exc}')
+
+    # ------------------------------------------------------------------ logging ----
+    def _log_start(self) -> None:
+        c = self.config
+        rtf = 'as fast as possible' if c.real_time_factor == 0 else f'{c.real_time_factor:g}'
+        enabled = [j for j in self.actuated if self.world.torque_enabled(j)]
+        limits = (', '.join(f'{j}={v:g}' for j, v in self.commands.limits.items())
+                  or 'none')
+        ns = self.get_namespace().rstrip('/')
+        self.get_logger().info(
+            f'scene {c.scene} | dt {self.world.dt:g} s | joints {self.joint_names} | '
+            f'actuated {self.actuated} (torque enabled: {enabled or "none"}) | '
+            f'publishing {ns}/{TOPIC_JOINT_STATES} '
+            f'({"every step" if c.publish_rate == 0 else f"{c.publish_rate:g} Hz"}), '
+            f'{TOPIC_CLOCK}, {TOPIC_DIAGNOSTICS} | commands {ns}/{TOPIC_TORQUE_ARRAY} '
+            f'(order {self.commands.order}), {ns}/joint_torque/<joint>, '
+            f'{ns}/{TOPIC_ENABLE_ALL}[/<joint>] | services ~/pause ~/unpause ~/step ~/reset | '
+            f'real-time factor {rtf} | {"paused" if self.paused else "running"} | '
+            f'command timeout {f"{c.command_timeout:g} s" if c.command_timeout else "off"} | '
+            f'effort limits {limits} | '
+            f'recording {c.record if self.recorder is not None else "off"}')
+
+    # ---------------------------------------------------------------- shutdown ----
+    def close(self) -> None:
+        """Stop stepping and finalise the bag (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.paused = True
+        self._close_recorder()
+
+
+def _raise_keyboard_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(args: Optional[list[str]] = None) -> int:
+    rclpy.init(args=args)
+    # SIGTERM (kill, systemd, launch) ends the node like Ctrl-C, so the bag is finalised.
+    signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    node = None
+    status = 0
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # noqa: BLE001 - a bad scene/parameter: one clear line, exit 1
+        from abd_joint_sim.errors import SceneError
+        if isinstance(exc, (SceneError, ValueError, FileNotFoundError, KeyError)):
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {exc}')
+            status = 1
+        else:
+            raise
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())

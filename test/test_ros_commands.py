@@ -1,0 +1,161 @@
+"""CommandBuffer, parameter table and message conversion: plain Python, no DDS."""
+import math
+
+import pytest
+
+from abd_joint_sim.ros import convert
+from abd_joint_sim.ros.commands import CommandBuffer
+from abd_joint_sim.ros.params import (check_live_value, coerce, config_from_values, PARAMS,
+                                      resolve_scene)
+
+
+class FakeWorld:
+    def __init__(self, names):
+        self.time = 0.0
+        self.torque = {n: 0.0 for n in names}
+        self.enabled = {n: True for n in names}
+        self.calls = []
+
+    def set_torque(self, joint, value):
+        self.calls.append(('torque', joint, value))
+        self.torque[joint] = value
+
+    def set_torque_enabled(self, joint, flag):
+        self.calls.append(('enable', joint, flag))
+        self.enabled[joint] = flag
+
+
+def make(order=(), limits=(), timeout=0.0):
+    return CommandBuffer(['shoulder', 'elbow'], list(order), list(limits), timeout)
+
+
+def test_pending_until_apply_and_latest_wins():
+    buf, world = make(), FakeWorld(['shoulder', 'elbow'])
+    buf.command_torque('shoulder', 1.0)
+    buf.command_torque('shoulder', 2.0)
+    assert world.calls == []          # nothing reaches the world before the step boundary
+    applied = buf.apply(world)
+    assert world.torque == {'shoulder': 2.0, 'elbow': 0.0}
+    assert applied.torques == {'shoulder': 2.0} and applied.sources == {'shoulder': 'joint'}
+    assert not buf.apply(world)       # nothing pending any more
+
+
+def test_array_order_length_and_nonfinite():
+    buf, world = make(order=['elbow', 'shoulder']), FakeWorld(['shoulder', 'elbow'])
+    rej, _ = buf.command_array([1.0, 2.0, 3.0])
+    assert len(rej) == 1 and 'expected 2 values' in str(rej[0])
+    rej, _ = buf.command_array([1.0, math.nan])
+    assert rej and 'shoulder' in str(rej[0]) and 'nan' in str(rej[0])
+    assert not buf.has_pending        # rejected as a whole
+    assert buf.command_array([1.0, 2.0]) == ([], [])
+    applied = buf.apply(world)
+    assert world.torque == {'shoulder': 2.0, 'elbow': 1.0}
+    assert applied.array == [1.0, 2.0]
+
+
+def test_per_joint_after_array_wins():
+    buf, world = make(), FakeWorld(['shoulder', 'elbow'])
+    buf.command_array([1.0, 2.0])
+    buf.command_torque('elbow', 5.0)
+    applied = buf.apply(world)
+    assert world.torque == {'shoulder': 1.0, 'elbow': 5.0}
+    assert applied.sources == {'shoulder': 'array', 'elbow': 'joint'}
+
+
+def test_rejects_unknown_and_nonfinite_joint_commands():
+    buf = make()
+    rej, _ = buf.command_torque('wrist', 1.0)
+    assert rej and 'wrist' in str(rej[0]) and 'not an actuated joint' in str(rej[0])
+    rej, _ = buf.command_torque('elbow', math.inf)
+    assert rej and "'elbow'" in str(rej[0]) and 'inf' in str(rej[0])
+    assert buf.command_enable('wrist', True)
+    assert not buf.has_pending
+
+
+def test_effort_limits_clamp_and_say_so():
+    buf, world = make(limits=[2.0, 3.0]), FakeWorld(['shoulder', 'elbow'])
+    rej, clamps = buf.command_array([5.0, -10.0])
+    assert rej == [] and len(clamps) == 2
+    assert 'clamped to -3' in str(clamps[1])
+    buf.apply(world)
+    assert world.torque == {'shoulder': 2.0, 'elbow': -3.0}
+    with pytest.raises(ValueError, match='effort_limits'):
+        make(limits=[1.0])
+    with pytest.raises(ValueError, match='effort_limits'):
+        make(limits=[1.0, 0.0])
+
+
+def test_enable_all_then_per_joint():
+    buf, world = make(), FakeWorld(['shoulder', 'elbow'])
+    buf.command_enable_all(False)
+    buf.command_enable('elbow', True)
+    applied = buf.apply(world)
+    assert world.enabled == {'shoulder': False, 'elbow': True}
+    assert applied.enable_all is False
+
+
+def test_command_timeout_in_simulated_time():
+    buf, world = make(timeout=0.5), FakeWorld(['shoulder', 'elbow'])
+    buf.command_torque('shoulder', 3.0)
+    buf.apply(world)
+    world.time = 0.49
+    assert not buf.apply(world).timed_out
+    world.time = 0.5
+    assert buf.apply(world).timed_out == ['shoulder']
+    assert world.torque['shoulder'] == 0.0
+    world.time = 0.7
+    assert not buf.apply(world).timed_out   # reported once
+    buf.command_torque('shoulder', 1.0)      # a new command restarts it
+    buf.apply(world)
+    assert world.torque['shoulder'] == 1.0
+    world.time = 1.2
+    assert buf.apply(world).timed_out == ['shoulder']
+
+
+def test_timeout_off_and_bad_joint_order():
+    buf, world = make(), FakeWorld(['shoulder', 'elbow'])
+    buf.command_torque('shoulder', 3.0)
+    buf.apply(world)
+    world.time = 100.0
+    assert not buf.apply(world) and world.torque['shoulder'] == 3.0
+    with pytest.raises(ValueError, match='not actuated'):
+        make(order=['wrist'])
+    with pytest.raises(ValueError, match='duplicate'):
+        make(order=['elbow', 'elbow'])
+
+
+def test_parameter_table_and_coercion():
+    names = [p.name for p in PARAMS]
+    for needed in ('scene', 'time_step', 'real_time_factor', 'publish_rate', 'start_paused',
+                   'command_timeout', 'effort_limits', 'joints', 'record', 'frame_id'):
+        assert needed in names
+    assert all(p.description for p in PARAMS)
+    cfg = config_from_values({'real_time_factor': 0, 'effort_limits': [3, 4.5],
+                              'joints': None, 'scene': ''})
+    assert cfg.real_time_factor == 0.0 and isinstance(cfg.real_time_factor, float)
+    assert cfg.effort_limits == [3.0, 4.5] and cfg.joints == []
+    assert cfg.scene.endswith('default.yaml')
+    assert resolve_scene('hinge').endswith('scenes/hinge.yaml')
+    with pytest.raises(ValueError, match="'publish_rate'"):
+        coerce('publish_rate', -1.0)
+    with pytest.raises(ValueError, match="'real_time_factor'"):
+        coerce('real_time_factor', 'fast')
+    assert check_live_value('scene', 'x.yaml') and 'read-only' in check_live_value('scene', 'x')
+    assert check_live_value('real_time_factor', 2.0) is None
+    assert 'needs 2 values' in check_live_value('effort_limits', [1.0], n_joints=2)
+    assert check_live_value('use_sim_time', True) is None
+
+
+def test_convert_messages():
+    msg = convert.joint_state_msg(1_500_000_000, ['a', 'b'], [0.1, 0.2], [1.0, 2.0],
+                                  [0.0, 3.0], 'base')
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1, 500_000_000)
+    assert len(msg.name) == len(msg.position) == len(msg.velocity) == len(msg.effort) == 2
+    with pytest.raises(ValueError, match='differ in length'):
+        convert.joint_state_msg(0, ['a'], [0.1, 0.2], [1.0], [0.0])
+    assert convert.seconds_to_ns(0.1 * 3) == 300_000_000
+    assert convert.time_msg_to_ns(convert.clock_msg(123456789012).clock) == 123456789012
+    arr = convert.float64_array_msg([1.0, 2.0])
+    assert convert.array_values(arr) == [1.0, 2.0]
+    d = convert.diagnostics_msg(0, 'x', 'y', False, 'm', {'converged': False, 'it': 3})
+    assert d.status[0].values[0].value == 'False'
