@@ -1,0 +1,246 @@
+"""Model: the immutable, compiled form of a Scene (arrays, index maps, term selection).
+
+Conventions (shared/spec/PHYSICS.md §1, §3, §4):
+- body state ``q = [p, a1, a2, a3]`` (12,), the a's being the ROWS of A; a rest point x̄ is
+  at ``x = A x̄ + p = J(x̄) q`` with ``J(x̄) = [I3 | I3 ⊗ x̄ᵀ]``.
+- mass matrix from the dyadic mass (m, m x̄_c, S); gravity in q-space is ``[g, 0...]``.
+- every joint stores its anchors in each body's rest frame, in the same order P0, P1 on both
+  bodies (§9), and its angle basis (n̄, b̄) per body.
+Arrays are made read-only: a Model is shared by worlds, tests and studies.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Scene
+
+
+def rpy_matrix(rpy) -> np.ndarray:
+    """URDF convention: R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def skew(w) -> np.ndarray:
+    """[w]x with [w]x v = w x v; batched over leading axes."""
+    w = np.asarray(w, dtype=float)
+    out = np.zeros(w.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
+    return out
+
+
+def point_jacobian(xbar) -> np.ndarray:
+    """J(x̄) = [I3 | I3 ⊗ x̄ᵀ], shape (..., 3, 12)."""
+    xbar = np.asarray(xbar, dtype=float)
+    J = np.zeros(xbar.shape[:-1] + (3, 12))
+    for r in range(3):
+        J[..., r, r] = 1.0
+        J[..., r, 3 + 3 * r:6 + 3 * r] = xbar
+    return J
+
+
+def mass_properties(body):
+    """(mass, com (3,), S (3,3) about the body origin, volume, half extents (3,)) of a BodySpec."""
+    s, rho = body.shape, body.density
+    com = np.zeros(3)
+    if s.kind == 'box':
+        a, b, c = s.size
+        vol = a * b * c
+        m = rho * vol
+        S = m * np.diag([a * a, b * b, c * c]) / 12.0
+        half = np.array([a, b, c]) / 2
+    elif s.kind == 'sphere':
+        (R,) = s.size
+        vol = 4.0 / 3.0 * math.pi * R ** 3
+        m = rho * vol
+        S = m * R * R / 5.0 * np.eye(3)
+        half = np.full(3, R)
+    elif s.kind == 'cylinder':             # axis along the body's z, as in URDF
+        R, L = s.size
+        vol = math.pi * R * R * L
+        m = rho * vol
+        S = np.diag([m * R * R / 4, m * R * R / 4, m * L * L / 12])
+        half = np.array([R, R, L / 2])
+    else:                                   # rigid data: inertia about the COM
+        m, com = s.mass, np.array(s.com, dtype=float)
+        vol = s.volume if s.volume > 0 else m / 1000.0
+        I_cm = np.array(s.inertia, dtype=float).reshape(3, 3)
+        I_o = I_cm + m * (com @ com * np.eye(3) - np.outer(com, com))
+        S_o = 0.5 * np.trace(I_o) * np.eye(3) - I_o      # S = ½ tr(I_o) I − I_o
+        # S above is about the origin: it already contains m c cᵀ.
+        half = np.sqrt(np.maximum(np.diag(S_o - m * np.outer(com, com)) / m * 3.0, 1e-12))
+        return m, com, S_o, vol, half + np.abs(com)
+    return m, com, S, vol, half
+
+
+def mass_matrix(m, com, S) -> np.ndarray:
+    """12x12 ABD mass matrix (PHYSICS.md §1)."""
+    M = np.zeros((12, 12))
+    M[0:3, 0:3] = m * np.eye(3)
+    for k in range(3):
+        M[k, 3 + 3 * k:6 + 3 * k] = m * com
+        M[3 + 3 * k:6 + 3 * k, k] = m * com
+        M[3 + 3 * k:6 + 3 * k, 3 + 3 * k:6 + 3 * k] = S
+    return M
+
+
+def joint_basis(t):
+    """(n, b) orthonormal to the unit axis t, with b = t × n (PHYSICS.md §4)."""
+    test = np.array([0.0, 1.0, 0.0]) if abs(t[0]) > 0.9 else np.array([1.0, 0.0, 0.0])
+    n = np.cross(t, test)
+    n /= np.linalg.norm(n)
+    b = np.cross(t, n)
+    b /= np.linalg.norm(b)
+    return n, b
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """Compiled scene. Shapes: B bodies, J joints; per-term index arrays select joints.
+
+    Attributes ending in ``_joints`` are indices into the joint arrays of the joints that
+    carry that term (empty when the scene has none, and then the term is not built).
+    """
+
+    dt: float                       #: [s] step size
+    gravity: np.ndarray             #: [m/s^2] (3,)
+    integrator: str                 #: 'bdf1' | 'bdf2'
+    newton: object                  #: NewtonSpec
+    body_names: tuple
+    body_fixed: np.ndarray          #: (B,) bool
+    body_mass: np.ndarray           #: [kg] (B,)
+    body_com: np.ndarray            #: [m] (B,3) rest-frame centre of mass
+    body_M: np.ndarray              #: (B,12,12) mass matrices
+    body_Minv: np.ndarray           #: (B,12,12) their inverses
+    body_volume: np.ndarray         #: [m^3] (B,)
+    body_kappa: np.ndarray          #: [Pa] (B,)
+    body_corners: np.ndarray        #: [m] (B,8,3) rest bounding-box corners (convergence test)
+    body_size: np.ndarray           #: [m] (B,) bounding-box diagonal
+    body_q0: np.ndarray             #: (B,12) initial state
+    body_v0: np.ndarray             #: (B,12) initial velocity
+    joint_names: tuple
+    joint_parent: np.ndarray        #: (J,) body index i (left)
+    joint_child: np.ndarray         #: (J,) body index j (right)
+    joint_anchor0: np.ndarray       #: [m] (J,2,3) x̄0 in the parent's, child's rest frame
+    joint_anchor1: np.ndarray       #: [m] (J,2,3) x̄1 likewise (same order on both bodies)
+    joint_K: np.ndarray             #: [kg] (J,) gamma (m_i + m_j)
+    joint_hessian: np.ndarray       #: (J,24,24) constant Hessian of the UID 18 energy
+    joint_nbar: np.ndarray          #: (J,2,3) n̄ in parent, child frames
+    joint_bbar: np.ndarray          #: (J,2,3) b̄ in parent, child frames
+    joint_init_angle: np.ndarray    #: [rad] (J,)
+    torque_joints: np.ndarray       #: (T,) joints with UID 668
+    torque_value0: np.ndarray       #: [N m] (T,)
+    torque_enabled0: np.ndarray     #: (T,) bool
+    torque_effort_limit: np.ndarray  #: [N m] (T,) inf = none
+    drive_joints: np.ndarray        #: (D,) joints with UID 19
+    drive_K: np.ndarray             #: (D,)
+    drive_aim0: np.ndarray          #: [rad] (D,)
+    drive_passive0: np.ndarray      #: (D,) bool
+    drive_enabled0: np.ndarray      #: (D,) bool
+    limit_joints: np.ndarray        #: (L,) joints with UID 670
+    limit_lower: np.ndarray         #: [rad] (L,)
+    limit_upper: np.ndarray         #: [rad] (L,)
+    limit_strength: np.ndarray      #: (L,)
+
+    @property
+    def body_count(self) -> int:
+        return len(self.body_names)
+
+    @property
+    def joint_count(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def has_gravity(self) -> bool:
+        return bool(np.any(self.gravity != 0.0)) and not bool(np.all(self.body_fixed))
+
+
+def compile_scene(scene: Scene, dt: float | None = None) -> Model:
+    """Turn a validated Scene into a Model; `dt` overrides the scene's step size."""
+    B = len(scene.bodies)
+    index = {b.name: k for k, b in enumerate(scene.bodies)}
+    mass, com, M, Minv, vol, corners, q0, v0, R0 = [], [], [], [], [], [], [], [], []
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    for b in scene.bodies:
+        m, c, S, v, half = mass_properties(b)
+        Mb = mass_matrix(m, c, S)
+        R = rpy_matrix(b.rpy)
+        mass.append(m), com.append(c), M.append(Mb), Minv.append(np.linalg.inv(Mb)), vol.append(v)
+        centre = c if b.shape.kind == 'inertial' else np.zeros(3)
+        corners.append(centre + signs * half)
+        q0.append(np.concatenate([b.position, R.ravel()]))
+        # x = A x̄ + p with dA/dt = [ω]x A: a rigid motion with angular velocity ω about p.
+        v0.append(np.concatenate([b.velocity, (skew(b.angular_velocity) @ R).ravel()]))
+        R0.append(R)
+    corners = np.array(corners)
+    size = np.linalg.norm(corners.max(axis=1) - corners.min(axis=1), axis=1)
+
+    J = len(scene.joints)
+    parent = np.array([index[j.parent] for j in scene.joints], dtype=np.int64)
+    child = np.array([index[j.child] for j in scene.joints], dtype=np.int64)
+    anchor0, anchor1 = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
+    nbar, bbar = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
+    K = np.zeros(J)
+    H = np.zeros((J, 24, 24))
+    for k, j in enumerate(scene.joints):
+        P0, P1 = np.array(j.p0), np.array(j.p1)
+        t = (P1 - P0) / np.linalg.norm(P1 - P0)
+        n, bvec = joint_basis(t)
+        D = []
+        for side, body in enumerate((parent[k], child[k])):
+            R, p = R0[body], q0[body][:3]
+            anchor0[k, side] = R.T @ (P0 - p)       # x̄ = T⁻¹ P for a rigid initial pose
+            anchor1[k, side] = R.T @ (P1 - p)
+            nbar[k, side], bbar[k, side] = R.T @ n, R.T @ bvec
+        K[k] = j.strength_ratio * (mass[parent[k]] + mass[child[k]])
+        for anchors in (anchor0[k], anchor1[k]):
+            Dk = np.hstack([point_jacobian(anchors[0]), -point_jacobian(anchors[1])])  # (3,24)
+            D.append(Dk)
+        H[k] = K[k] * sum(Dk.T @ Dk for Dk in D)
+
+    def sel(pred):
+        return np.array([k for k, j in enumerate(scene.joints) if pred(j)], dtype=np.int64)
+
+    tj = sel(lambda j: j.external_torque is not None)
+    dj = sel(lambda j: j.driving is not None)
+    lj = sel(lambda j: j.limit is not None)
+    jt = [scene.joints[k] for k in tj]
+    jd = [scene.joints[k] for k in dj]
+    jl = [scene.joints[k] for k in lj]
+    model = Model(
+        dt=float(dt if dt else scene.dt), gravity=np.array(scene.gravity, float),
+        integrator=scene.integrator, newton=scene.newton,
+        body_names=scene.body_names, body_fixed=np.array([b.fixed for b in scene.bodies], bool),
+        body_mass=np.array(mass), body_com=np.array(com), body_M=np.array(M),
+        body_Minv=np.array(Minv), body_volume=np.array(vol),
+        body_kappa=np.array([b.kappa for b in scene.bodies], float), body_corners=corners,
+        body_size=size, body_q0=np.array(q0), body_v0=np.array(v0),
+        joint_names=scene.joint_names, joint_parent=parent, joint_child=child,
+        joint_anchor0=anchor0, joint_anchor1=anchor1, joint_K=K, joint_hessian=H,
+        joint_nbar=nbar, joint_bbar=bbar,
+        joint_init_angle=np.array([j.init_angle for j in scene.joints], float),
+        torque_joints=tj, torque_value0=np.array([j.external_torque.torque for j in jt], float),
+        torque_enabled0=np.array([j.external_torque.enabled for j in jt], bool),
+        torque_effort_limit=np.array([j.external_torque.effort_limit for j in jt], float),
+        drive_joints=dj,
+        drive_K=np.array([j.driving.strength_ratio * (mass[index[j.parent]] + mass[index[j.child]])
+                          for j in jd], float),
+        drive_aim0=np.array([j.driving.aim_angle for j in jd], float),
+        drive_passive0=np.array([j.driving.passive for j in jd], bool),
+        drive_enabled0=np.array([j.driving.enabled for j in jd], bool),
+        limit_joints=lj, limit_lower=np.array([j.limit.lower for j in jl], float),
+        limit_upper=np.array([j.limit.upper for j in jl], float),
+        limit_strength=np.array([j.limit.strength for j in jl], float),
+    )
+    for value in model.__dict__.values():
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+    return model

@@ -1,0 +1,94 @@
+"""Newton's method with backtracking line search on the incremental potential.
+
+    Π(q) = (s/2) Σ_free (q − q̃)ᵀ M (q − q̃) + Σ_terms E(q)
+
+with s = 1 (BDF1) or 1/β = 9/4 (BDF2) (PHYSICS.md §2). Each iteration solves H Δq = −∇Π with
+H the sum of PSD(-projected) term Hessians plus sM (so H is positive definite on free DOFs),
+then halves α until Π(q + αΔq) ≤ Π(q) (roundoff slack 1e-12|Π|).
+Convergence (libuipc defaults): every free body's bounding-box corners move less than
+velocity_tol·h under Δq, and max |Δq[3:12]| ≤ transrate_tol·h. Hitting max_iterations, a
+failed line search or a non-finite value is returned as a Status, never hidden.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class Status(enum.Enum):
+    CONVERGED = 'converged'
+    MAX_ITERATIONS = 'max_iterations'
+    LINE_SEARCH_FAILED = 'line_search_failed'
+    NONFINITE = 'nonfinite'
+
+
+@dataclass(frozen=True)
+class NewtonResult:
+    q: np.ndarray
+    status: Status
+    iterations: int
+    line_search_iterations: int
+    last_step_size: float       #: [m] largest corner displacement in the last Newton step
+
+
+class NewtonSolver:
+    def __init__(self, model, terms, system):
+        self.model = model
+        self.terms = terms
+        self.system = system
+        self.free = ~model.body_fixed
+
+    def potential(self, q, q_tilde, scale, ctx) -> float:
+        d = (q - q_tilde)[self.free]
+        E = 0.5 * scale * float(np.einsum('bi,bij,bj->', d, self.model.body_M[self.free], d))
+        for term in self.terms:
+            E += term.energy(q, ctx)
+        return E
+
+    def minimize(self, q_start, q_tilde, scale, ctx) -> NewtonResult:
+        m = self.model
+        spec = m.newton
+        h = ctx.h
+        B, J = m.body_count, m.joint_count
+        q = q_start.copy()
+        free = self.free
+        corners = m.body_corners[free]
+        ls_total = 0
+        E = self.potential(q, q_tilde, scale, ctx)
+        disp = np.inf
+        for it in range(1, spec.max_iterations + 1):
+            grad = np.zeros((B, 12))
+            diag = np.zeros((B, 12, 12))
+            pair = np.zeros((J, 12, 12))
+            grad[free] = scale * np.einsum('bij,bj->bi', m.body_M[free], (q - q_tilde)[free])
+            diag[free] = scale * m.body_M[free]
+            for term in self.terms:
+                term.accumulate(q, ctx, grad, diag, pair)
+            dq = self.system.solve(diag, pair, grad)
+            if not np.all(np.isfinite(dq)):
+                return NewtonResult(q, Status.NONFINITE, it, ls_total, np.inf)
+            dqf = dq[free]
+            move = dqf[:, None, :3] + np.einsum('bkc,brc->bkr', corners, dqf[:, 3:12].reshape(-1, 3, 3))
+            disp = float(np.max(np.linalg.norm(move, axis=2))) if len(dqf) else 0.0
+            rate = float(np.max(np.abs(dqf[:, 3:12]))) if len(dqf) else 0.0
+            converged = disp <= spec.velocity_tol * h and rate <= spec.transrate_tol * h
+            alpha = 1.0
+            for _ in range(spec.line_search_max):
+                E_new = self.potential(q + alpha * dq, q_tilde, scale, ctx)
+                if E_new <= E + 1e-12 * abs(E):
+                    break
+                alpha *= 0.5
+                ls_total += 1
+            else:
+                if converged:      # the remaining step is below tolerance: accept q as is
+                    return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
+                return NewtonResult(q, Status.LINE_SEARCH_FAILED, it, ls_total, disp)
+            if not np.isfinite(E_new):
+                return NewtonResult(q, Status.NONFINITE, it, ls_total, disp)
+            q = q + alpha * dq
+            E = E_new
+            if converged:
+                return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
+        return NewtonResult(q, Status.MAX_ITERATIONS, spec.max_iterations, ls_total, disp)

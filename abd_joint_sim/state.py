@@ -1,0 +1,53 @@
+"""State (what changes per step) and Control (the inputs written between steps).
+
+`State` is exactly the integration state (MuJoCo's sense): two worlds with equal Model and
+State step identically. `Control` holds the per-term inputs, prefixed by their term.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+
+@dataclass
+class State:
+    time: float                 #: [s]
+    q: np.ndarray               #: (B,12) body states [p, a1, a2, a3]
+    v: np.ndarray               #: (B,12) dq/dt
+    q_prev: np.ndarray          #: (B,12) q one step back (BDF2 history; = q at start)
+    v_prev: np.ndarray          #: (B,12) v one step back
+    joint_angle: np.ndarray     #: [rad] (J,) multi-turn angle including init_angle
+    joint_velocity: np.ndarray  #: [rad/s] (J,)
+    step_count: int = 0
+    history_dt: float = 0.0     #: [s] step size q_prev/v_prev belong to; 0 = no history (BDF2 restarts)
+
+    @classmethod
+    def initial(cls, model) -> 'State':
+        q, v = model.body_q0.copy(), model.body_v0.copy()
+        v[model.body_fixed] = 0.0
+        return cls(0.0, q, v, q.copy(), v.copy(), model.joint_init_angle.copy(),
+                   np.zeros(model.joint_count))
+
+    def copy(self) -> 'State':
+        return State(**{f.name: (getattr(self, f.name).copy()
+                                 if isinstance(getattr(self, f.name), np.ndarray)
+                                 else getattr(self, f.name)) for f in fields(self)})
+
+
+@dataclass
+class Control:
+    torque_value: np.ndarray    #: [N m] (T,) per UID 668 joint (model.torque_joints order)
+    torque_enabled: np.ndarray  #: (T,) bool
+    drive_aim: np.ndarray       #: [rad] (D,) absolute aim angle (includes init_angle)
+    drive_enabled: np.ndarray   #: (D,) bool
+    drive_passive: np.ndarray   #: (D,) bool
+
+    @classmethod
+    def initial(cls, model) -> 'Control':
+        return cls(model.torque_value0.copy(), model.torque_enabled0.copy(),
+                   model.drive_aim0.copy(), model.drive_enabled0.copy(),
+                   model.drive_passive0.copy())
+
+    def copy(self) -> 'Control':
+        return Control(*(getattr(self, f.name).copy() for f in fields(self)))

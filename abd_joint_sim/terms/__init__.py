@@ -1,0 +1,1 @@
+from .base import EnergyTerm, StepContext  # noqa: F401
