@@ -1,0 +1,356 @@
+"""BagWriter: record rclpy messages into a rosbag2 bag (Jazzy, MCAP storage).
+
+A bag is a directory ``<path>/`` with ``metadata.yaml`` and ``<name>_0.mcap`` (``name`` =
+basename of ``path``), exactly what ``ros2 bag record -s mcap`` leaves, so ``ros2 bag
+info/play``, Foxglove, ``rosbags`` and ``mcap_ros2`` read it. Message bytes come from
+``rclpy.serialization.serialize_message``: the same CDR that travels on DDS.
+
+Crash behaviour: ``metadata.yaml`` is written (provisionally) at ``open()`` and again on each
+``add_topic()``, and rewritten complete on ``close()``. MCAP data is written in chunks of about
+``chunk_size`` bytes straight to the file descriptor (no user-space buffer), so a process
+killed with SIGKILL loses at most the chunk being filled; ``recover()`` turns such a bag
+into a complete one. See docs/bag-format.md.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from mcap.writer import CompressionType, IndexType, Writer
+from rclpy.serialization import serialize_message
+
+from . import metadata as md
+from .msgdef import (full_type_name, message_class, message_definition, MessageTypeError,
+                     type_description_hash)
+
+DEFAULT_CHUNK_SIZE = 64 * 1024
+"""Bytes of (uncompressed) messages per MCAP chunk: at most this much is lost on SIGKILL."""
+
+PROFILE = 'ros2'
+LIBRARY = f"abd_joint_sim.record; mcap-python/{version('mcap')}"
+
+_COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD,
+                'lz4': CompressionType.LZ4}
+_MEDIA_TYPES = {'.yaml': 'application/yaml', '.yml': 'application/yaml',
+                '.json': 'application/json', '.txt': 'text/plain', '.urdf': 'application/xml',
+                '.xml': 'application/xml'}
+
+
+class BagError(RuntimeError):
+    """A bag could not be created, written, read or recovered.
+
+    The message names the bag path (and topic) and what happened. Raised instead of
+    ``OSError`` so a recorder can stop recording and keep the simulation running.
+    """
+
+
+def media_type(name: str) -> str:
+    """Guess an attachment's media type from its name (``application/octet-stream`` else)."""
+    return _MEDIA_TYPES.get(Path(name).suffix.lower(), 'application/octet-stream')
+
+
+class _FdSink:
+    """Unbuffered file sink for ``mcap.Writer``: every record reaches the kernel at once.
+
+    ``mcap.Writer`` wraps raw files in a ``BufferedWriter``; bytes left in that buffer die
+    with the process. Writing through ``os.write`` means a SIGKILL loses only what the
+    writer still holds in memory (the open chunk).
+    """
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.position = 0
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        view = memoryview(data)
+        while view:
+            written = os.write(self.fd, view)
+            view = view[written:]
+            self.position += written
+        return len(data)
+
+    def tell(self) -> int:
+        return self.position
+
+    def flush(self) -> None:
+        """Nothing is buffered here; ``os.write`` already handed the bytes to the kernel."""
+
+
+@dataclass
+class _Topic:
+    record: md.TopicRecord
+    channel_id: int
+    cls: Any
+
+
+class BagWriter:
+    """Write a rosbag2 (MCAP) bag; use as a context manager or ``open()``/``close()``.
+
+    Not thread-safe: call it from one thread (the node's single-threaded executor).
+
+    :param path: bag directory to create; must not exist.
+    :param custom_data: strings stored in ``metadata.yaml`` ``custom_data`` and in the MCAP
+        ``rosbag2`` metadata record (we keep the scene YAML and effective parameters here).
+    :param attachments: files stored as MCAP attachments at open, e.g. ``{'scene.yaml': b...}``.
+    :param chunk_size: uncompressed bytes per MCAP chunk; the most a SIGKILL can lose.
+    :param compression: chunk compression, ``'zstd'`` (default), ``'lz4'`` or ``'none'``;
+        all three are read by rosbag2's MCAP plugin, Foxglove, rosbags and mcap_ros2.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *,
+                 custom_data: dict[str, str] | None = None,
+                 attachments: dict[str, bytes] | None = None,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE,
+                 compression: str = 'zstd') -> None:
+        self.path = Path(path)
+        if not self.path.name or self.path.name in ('.', '..'):
+            raise BagError(f"bag path '{path}' has no usable basename to name the bag file")
+        self.mcap_path = self.path / f'{self.path.name}_0.mcap'
+        self.metadata_path = self.path / 'metadata.yaml'
+        self._custom_data: dict[str, str] = {}
+        for key, value in (custom_data or {}).items():
+            self._check_custom(key, value)
+            self._custom_data[key] = value
+        self._attachments = dict(attachments or {})
+        for name, data in self._attachments.items():
+            if not isinstance(name, str) or not isinstance(data, (bytes, bytearray)):
+                raise BagError(f"bag '{self.path}': attachment {name!r} must map a str name "
+                               f'to bytes, got {type(data).__name__}')
+        if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
+            raise BagError(f"bag '{self.path}': chunk_size {chunk_size!r} is not an int >= 1")
+        if compression not in _COMPRESSION:
+            raise BagError(f"bag '{self.path}': compression '{compression}' is not one of "
+                           f'{sorted(_COMPRESSION)}')
+        self._chunk_size = chunk_size
+        self._compression = _COMPRESSION[compression]
+        self._summary = md.BagSummary(file_name=self.mcap_path.name)
+        self._topics: dict[str, _Topic] = {}
+        self._schema_ids: dict[str, int] = {}
+        self._writer: Writer | None = None
+        self._fd: int | None = None
+        self._state = 'new'  # new -> open -> closed | failed -> closed
+        self.error: str | None = None
+        """Why recording stopped, once a write has failed; ``None`` while healthy."""
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Create the bag directory, the MCAP file (header, attachments) and metadata.yaml."""
+        if self._state != 'new':
+            raise BagError(f"bag '{self.path}' cannot be opened: it is {self._state}")
+        try:
+            self.path.mkdir(parents=True, exist_ok=False)
+        except FileExistsError:
+            raise BagError(f"bag '{self.path}' exists already, not overwriting") from None
+        except OSError as exc:
+            raise BagError(f"bag '{self.path}': cannot create the directory: {exc}") from None
+        try:
+            self._fd = os.open(self.mcap_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                               | getattr(os, 'O_CLOEXEC', 0), 0o644)
+            writer = Writer(_FdSink(self._fd), chunk_size=self._chunk_size,
+                            compression=self._compression, index_types=IndexType.ALL,
+                            repeat_channels=True, repeat_schemas=True, use_chunking=True,
+                            use_statistics=True, use_summary_offsets=True)
+            writer.start(profile=PROFILE, library=LIBRARY)
+            now = time.time_ns()
+            # log_time 0: the attachment belongs before the first simulated instant.
+            for name, data in self._attachments.items():
+                writer.add_attachment(create_time=now, log_time=0, name=name,
+                                      media_type=media_type(name), data=bytes(data))
+        except OSError as exc:
+            self._release()
+            self._state = 'failed'
+            raise BagError(f"bag '{self.path}': cannot write {self.mcap_path.name}: {exc}") \
+                from None
+        self._writer = writer
+        self._state = 'open'
+        try:
+            self._write_metadata_yaml()
+        except BagError:
+            self._release()  # open() failed: no context manager will close us
+            raise
+
+    def close(self) -> None:
+        """Finish the MCAP (summary, statistics, indexes) and write the final metadata.yaml.
+
+        Idempotent. After a failed write it only releases the file: the bag keeps the chunks
+        written before the failure and its provisional metadata.yaml (use ``recover()``).
+        """
+        if self._state in ('new', 'closed'):
+            self._state = 'closed'
+            return
+        if self._state == 'failed':
+            self._release()
+            self._state = 'closed'
+            return
+        assert self._writer is not None and self._fd is not None
+        try:
+            self._writer.add_metadata(
+                'rosbag2', {'serialized_metadata': md.dump_yaml(
+                    md.bag_information(self._summary, self._custom_data))})
+            self._writer.finish()
+            os.fsync(self._fd)
+        except OSError as exc:
+            self._fail(f'finishing {self.mcap_path.name} failed: {exc}')
+            self._release()
+            self._state = 'closed'
+            raise BagError(f"bag '{self.path}': {self.error}") from None
+        self._release()
+        self._state = 'closed'
+        self._write_metadata_yaml()
+
+    def __enter__(self) -> BagWriter:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    # -- recording ---------------------------------------------------------------------------
+
+    def add_topic(self, topic: str, msg_type: str, qos: str = 'reliable',
+                  depth: int = 10) -> None:
+        """Register ``topic`` with ``msg_type`` (``'sensor_msgs/msg/JointState'``).
+
+        :param qos: reliability the topic is published with, ``'reliable'`` or
+            ``'best_effort'`` (``/clock``); durability is volatile, history keep-last.
+        :param depth: history depth of the publisher.
+        """
+        self._require_open(topic)
+        if not isinstance(topic, str) or not topic.startswith('/'):
+            raise BagError(f"bag '{self.path}': topic {topic!r} is not a fully qualified name "
+                           "(it must start with '/')")
+        if topic in self._topics:
+            raise BagError(f"bag '{self.path}': topic '{topic}' is registered already "
+                           f"(as {self._topics[topic].record.msg_type})")
+        try:
+            profile = md.qos_profile(qos, depth)
+            full_type = full_type_name(msg_type)
+            cls = message_class(full_type)
+            schema_text = message_definition(full_type)
+        except (ValueError, MessageTypeError) as exc:
+            raise BagError(f"bag '{self.path}': topic '{topic}': {exc}") from None
+        type_hash = type_description_hash(full_type)
+        record = md.TopicRecord(topic, full_type, [profile], type_hash)
+        assert self._writer is not None
+        channel_meta = {'offered_qos_profiles': md.dump_qos_profiles(record.qos_profiles),
+                        'topic_type_hash': type_hash}
+        try:
+            if full_type not in self._schema_ids:
+                self._schema_ids[full_type] = self._writer.register_schema(
+                    name=full_type, encoding='ros2msg', data=schema_text.encode('utf-8'))
+            channel_id = self._writer.register_channel(
+                topic=topic, message_encoding=md.SERIALIZATION_FORMAT,
+                schema_id=self._schema_ids[full_type], metadata=channel_meta)
+        except OSError as exc:
+            raise self._fail(f"registering topic '{topic}' failed: {exc}") from None
+        self._topics[topic] = _Topic(record, channel_id, cls)
+        self._summary.topics.append(record)
+        self._write_metadata_yaml()
+
+    def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
+        """Record ``msg`` on ``topic`` at simulation time ``stamp_ns`` (log = publish time).
+
+        Raises BagError (and stops the recording) if the bytes cannot be written.
+        """
+        self._require_open(topic)
+        entry = self._topics.get(topic)
+        if entry is None:
+            raise BagError(f"bag '{self.path}': topic '{topic}' was not added (add_topic)")
+        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
+            raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
+                           'an int >= 0 (nanoseconds)')
+        if type(msg) is not entry.cls:
+            raise BagError(f"bag '{self.path}': topic '{topic}' records "
+                           f'{entry.record.msg_type}, got {type(msg).__module__}.'
+                           f'{type(msg).__name__}')
+        try:
+            data = serialize_message(msg)
+        except Exception as exc:  # rclpy raises TypeError/ValueError/RuntimeError variants
+            raise BagError(f"bag '{self.path}': topic '{topic}': cannot serialise: {exc}") \
+                from None
+        assert self._writer is not None
+        try:
+            self._writer.add_message(channel_id=entry.channel_id, log_time=stamp_ns,
+                                     data=data, publish_time=stamp_ns, sequence=0)
+        except OSError as exc:
+            raise self._fail(f"writing a message on '{topic}' failed: {exc}") from None
+        entry.record.message_count += 1
+        self._summary.add_stamp(stamp_ns)
+
+    def flush(self) -> None:
+        """Close the open chunk and hand it to the kernel (e.g. when the simulation pauses)."""
+        self._require_open()
+        assert self._writer is not None
+        try:
+            self._writer.flush()
+        except OSError as exc:
+            raise self._fail(f'flushing failed: {exc}') from None
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Set one ``custom_data`` entry (strings only, as rosbag2 stores them)."""
+        if self._state not in ('new', 'open'):
+            raise BagError(f"bag '{self.path}' is {self._state}: cannot set custom_data")
+        self._check_custom(key, value)
+        self._custom_data[key] = value
+        if self._state == 'open':
+            self._write_metadata_yaml()
+
+    @property
+    def message_count(self) -> int:
+        """Messages written so far."""
+        return self._summary.message_count
+
+    @property
+    def is_open(self) -> bool:
+        return self._state == 'open'
+
+    # -- helpers -----------------------------------------------------------------------------
+
+    def _check_custom(self, key: Any, value: Any) -> None:
+        if not isinstance(key, str) or not isinstance(value, str):
+            raise BagError(f"bag '{self.path}': custom_data {key!r}: {value!r} must map str to "
+                           'str (rosbag2 stores strings only)')
+
+    def _require_open(self, topic: str | None = None) -> None:
+        if self._state == 'open':
+            return
+        where = f"bag '{self.path}'" + (f" topic '{topic}'" if topic else '')
+        if self._state == 'failed':
+            raise BagError(f'{where}: recording stopped after an error: {self.error}')
+        raise BagError(f'{where}: the bag is {self._state}, not open')
+
+    def _fail(self, reason: str) -> BagError:
+        """Stop recording (no further writes) and return the error to raise."""
+        self._state = 'failed'
+        self.error = reason
+        return BagError(f"bag '{self.path}': {reason}; recording stopped (the chunks written "
+                        'before are kept; see recover())')
+
+    def _release(self) -> None:
+        self._writer = None
+        if self._fd is not None:
+            try:
+                os.close(self._fd)
+            except OSError:
+                pass
+            self._fd = None
+
+    def _write_metadata_yaml(self) -> None:
+        """Write metadata.yaml atomically (temp file + rename), so it is never half written."""
+        text = md.metadata_yaml(self._summary, self._custom_data)
+        tmp = self.metadata_path.with_name('.metadata.yaml.tmp')
+        try:
+            tmp.write_text(text, encoding='utf-8')
+            os.replace(tmp, self.metadata_path)
+        except OSError as exc:
+            if self._state == 'open':
+                raise self._fail(f'writing metadata.yaml failed: {exc}') from None
+            raise BagError(f"bag '{self.path}': writing metadata.yaml failed: {exc}") from None

@@ -1,0 +1,130 @@
+"""Read our bags back as rclpy messages, for replay tools and tests.
+
+Uses the MCAP summary (chunk indexes) to yield messages in log-time order, i.e. in
+simulation step order. A bag whose writer was killed has no summary: ``recover()`` it first.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from mcap.reader import make_reader
+from rclpy.serialization import deserialize_message
+import yaml
+
+from .bag import BagError
+from .msgdef import message_class, MessageTypeError
+
+
+def mcap_file(path: str | os.PathLike[str]) -> Path:
+    """Return the MCAP file of a bag directory (from metadata.yaml) or ``path`` itself."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise BagError(f"bag '{path}' does not exist")
+    info = _metadata(path)
+    names = (info or {}).get('relative_file_paths') or []
+    if names:
+        return path / names[0]
+    found = sorted(path.glob('*.mcap'))
+    if not found:
+        raise BagError(f"bag '{path}' has no .mcap file")
+    return found[0]
+
+
+def _metadata(bag_dir: Path) -> dict[str, Any] | None:
+    meta = bag_dir / 'metadata.yaml'
+    if not meta.is_file():
+        return None
+    try:
+        loaded = yaml.safe_load(meta.read_text(encoding='utf-8'))
+        return dict(loaded['rosbag2_bagfile_information'])
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
+        raise BagError(f"bag '{bag_dir}': metadata.yaml is unreadable: {exc}") from None
+
+
+def _open_indexed(file: Path, handle: Any) -> Any:
+    reader = make_reader(handle)
+    try:
+        summary = reader.get_summary()
+    except Exception as exc:  # truncated file: the footer bytes are garbage of any kind
+        raise BagError(f"bag file '{file}' has no valid summary ({type(exc).__name__}: {exc}); "
+                       'was the recorder killed? run abd_joint_sim.record.recover() on the '
+                       'bag') from None
+    if summary is None:
+        raise BagError(f"bag file '{file}' has no summary; run recover() on the bag")
+    return reader
+
+
+def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
+                  ) -> Iterator[tuple[str, str, int, Any]]:
+    """Yield ``(topic, msg_type, log_time_ns, message)`` in log-time order.
+
+    :param path: bag directory or its ``.mcap`` file.
+    :param topics: only these topics (all when ``None``).
+    """
+    file = mcap_file(path)
+    wanted = None if topics is None else list(topics)
+    try:
+        handle = open(file, 'rb')
+    except OSError as exc:
+        raise BagError(f"bag file '{file}': {exc}") from None
+    with handle:
+        reader = _open_indexed(file, handle)
+        classes: dict[str, Any] = {}
+        try:
+            for schema, channel, message in reader.iter_messages(topics=wanted,
+                                                                 log_time_order=True):
+                if schema is None:
+                    raise BagError(f"bag file '{file}': topic '{channel.topic}' has no schema")
+                cls = classes.get(schema.name)
+                if cls is None:
+                    cls = classes[schema.name] = message_class(schema.name)
+                yield (channel.topic, schema.name, message.log_time,
+                       deserialize_message(message.data, cls))
+        except BagError:
+            raise
+        except MessageTypeError as exc:
+            raise BagError(f"bag file '{file}': {exc}") from None
+        except Exception as exc:  # mcap raises McapError, struct.error, EndOfFile, ...
+            raise BagError(f"bag file '{file}': reading failed: {type(exc).__name__}: {exc}") \
+                from None
+
+
+def read_custom_data(path: str | os.PathLike[str]) -> dict[str, str]:
+    """Return ``custom_data`` from metadata.yaml (or, for a bare ``.mcap``, its rosbag2 record)."""
+    path = Path(path)
+    if path.is_dir():
+        info = _metadata(path)
+        if info is not None:
+            return dict(info.get('custom_data') or {})
+    file = mcap_file(path)
+    try:
+        with open(file, 'rb') as handle:
+            reader = _open_indexed(file, handle)
+            for record in reader.iter_metadata():
+                if record.name == 'rosbag2':
+                    info = yaml.safe_load(record.metadata.get('serialized_metadata', '')) or {}
+                    return dict(info.get('custom_data') or {})
+    except BagError:
+        raise
+    except Exception as exc:
+        raise BagError(f"bag file '{file}': reading metadata failed: {exc}") from None
+    return {}
+
+
+def read_attachments(path: str | os.PathLike[str]) -> dict[str, bytes]:
+    """Return the MCAP attachments by name (e.g. ``{'scene.yaml': b'...'}``)."""
+    file = mcap_file(path)
+    try:
+        with open(file, 'rb') as handle:
+            reader = _open_indexed(file, handle)
+            return {a.name: bytes(a.data) for a in reader.iter_attachments()}
+    except BagError:
+        raise
+    except Exception as exc:
+        raise BagError(f"bag file '{file}': reading attachments failed: {exc}") from None
