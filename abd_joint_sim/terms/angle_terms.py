@@ -96,7 +96,7 @@ class Limit(_AngleTerm):
         b = (lo - x) / ws
         E = np.where(above, s * a ** 3, np.where(below, s * b ** 3, 0.0))
         d1 = np.where(above, 3 * s * a * a / ws, np.where(below, -3 * s * b * b / ws, 0.0))
-        d2 = np.where(above, 6 * s * a / ws, np.where(below, 6 * s * b / ws, 0.0))
+        d2 = np.where(above, 6 * s * a / ws ** 2, np.where(below, 6 * s * b / ws ** 2, 0.0))
         e = x - lo
         E = np.where(zero, s * np.abs(e) ** 3, E)
         d1 = np.where(zero, 3 * s * np.abs(e) * e, d1)

@@ -1,0 +1,60 @@
+"""Scene builders and helpers shared by the physics tests (no rclpy)."""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+
+from abd_joint_sim import Scene, World
+from abd_joint_sim.scene import load_yaml
+
+SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
+
+
+def scene_dict(name: str) -> dict:
+    return load_yaml((SCENES / f'{name}.yaml').read_text())
+
+
+def world_from(d: dict, **overrides) -> World:
+    d = copy.deepcopy(d)
+    d.update(overrides)
+    return World(Scene.from_dict(d))
+
+
+def box(name, pos, size=(0.4, 0.4, 0.4), fixed=False, **kw):
+    return dict(name=name, box=list(size), density=1000.0, position=list(pos), fixed=fixed, **kw)
+
+
+def hinge_dict(**kw):
+    """Reference scene of PHYSICS.md §7 (I_axis = 24.747)."""
+    d = scene_dict('hinge')
+    d.update(kw)
+    return d
+
+
+def random_rotation(rng):
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    return q
+
+
+def rotation_about(axis, phi):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
+
+
+def chain_dict(n_links, *, dt=0.001, torque=1.0, gravity=(0.0, 0.0, 0.0), link=0.2):
+    """A fixed base plus n free links along +x joined by vertical hinges, all actuated."""
+    bodies = [box('base', (0.0, 0.0, 0.0), (link, link, link), fixed=True)]
+    joints = []
+    for k in range(1, n_links + 1):
+        bodies.append(box(f'link{k}', (k * link, 0.0, 0.0), (link, 0.5 * link, 0.5 * link)))
+        x = (k - 0.5) * link
+        joints.append(dict(name=f'j{k}', parent=bodies[k - 1]['name'], child=f'link{k}',
+                           p0=[x, 0.0, -0.1], p1=[x, 0.0, 0.1],
+                           external_torque=dict(torque=torque, enabled=True)))
+    return dict(dt=dt, gravity=list(gravity), bodies=bodies, joints=joints)
