@@ -14,22 +14,21 @@ import sys
 import textwrap
 import time
 
+from abd_joint_sim.record import (BagError, BagWriter, read_attachments, read_custom_data,
+                                  read_messages, recover)
+from abd_joint_sim.record.metadata import INFINITE
+from abd_joint_sim.record.msgdef import DELIMITER
+from ament_index_python.packages import get_package_share_directory
+from builtin_interfaces.msg import Time
 from mcap.reader import make_reader, NonSeekingReader
 from mcap_ros2.reader import read_ros2_messages
 import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import get_typestore, Stores
-import yaml
-
-from ament_index_python.packages import get_package_share_directory
-from abd_joint_sim.record import (BagError, BagWriter, read_attachments, read_custom_data,
-                                  read_messages, recover)
-from abd_joint_sim.record.metadata import INFINITE
-from abd_joint_sim.record.msgdef import DELIMITER
-from builtin_interfaces.msg import Time
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 JOINTS = ['shoulder', 'elbow', 'wrist']
@@ -139,7 +138,8 @@ def test_rosbags_reads_every_message(bag):
         types = {c.topic: c.msgtype for c in reader.connections}
         assert types == {topic: spec[0] for topic, spec in TOPICS.items()}
         for conn, t, raw in reader.messages():
-            got.append((conn.topic, t, from_any(conn.topic, reader.deserialize(raw, conn.msgtype))))
+            msg = reader.deserialize(raw, conn.msgtype)
+            got.append((conn.topic, t, from_any(conn.topic, msg)))
     assert_same(got, want)
 
 
@@ -293,7 +293,8 @@ def test_every_compression_round_trips(tmp_path, compression):
     with AnyReader([tmp_path / 'bag'],
                    default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         for conn, t, raw in reader.messages():
-            got.append((conn.topic, t, from_any(conn.topic, reader.deserialize(raw, conn.msgtype))))
+            msg = reader.deserialize(raw, conn.msgtype)
+            got.append((conn.topic, t, from_any(conn.topic, msg)))
     assert_same(got, want)
 
 

@@ -14,11 +14,11 @@ into a complete one. See docs/bag-format.md.
 
 from __future__ import annotations
 
-import os
-import time
 from dataclasses import dataclass
 from importlib.metadata import version
+import os
 from pathlib import Path
+import time
 from types import TracebackType
 from typing import Any
 

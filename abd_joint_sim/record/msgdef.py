@@ -16,8 +16,8 @@ from __future__ import annotations
 import functools
 import importlib
 import json
-import re
 from pathlib import Path
+import re
 from typing import Any
 
 from ament_index_python.packages import get_package_share_directory, PackageNotFoundError

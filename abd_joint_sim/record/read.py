@@ -6,8 +6,8 @@ simulation step order. A bag whose writer was killed has no summary: ``recover()
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable, Iterator
+import os
 from pathlib import Path
 from typing import Any
 

@@ -10,8 +10,8 @@ metadata.yaml. The damaged original is kept beside it as ``<name>_0.mcap.orig``.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
+import os
 from pathlib import Path
 from typing import Any
 
