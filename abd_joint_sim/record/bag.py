@@ -233,8 +233,8 @@ class BagWriter:
         try:
             profile = md.qos_profile(qos, depth)
             full_type = full_type_name(msg_type)
+            schema_text = message_definition(full_type)  # names the package if it is missing
             cls = message_class(full_type)
-            schema_text = message_definition(full_type)
         except (ValueError, MessageTypeError) as exc:
             raise BagError(f"bag '{self.path}': topic '{topic}': {exc}") from None
         type_hash = type_description_hash(full_type)
