@@ -140,6 +140,7 @@ class Scene:
 
     @classmethod
     def from_dict(cls, data: Any, *, source: str = '<dict>', source_text: str | None = None) -> 'Scene':
+        data = _plain(data)
         if source_text is None:
             source_text = yaml.safe_dump(data, sort_keys=False) if isinstance(data, dict) else ''
         return _Parser(source).scene(data, source_text)
@@ -155,6 +156,17 @@ class Scene:
     @property
     def joint_names(self) -> tuple:
         return tuple(j.name for j in self.joints)
+
+
+def _plain(data):
+    """Plain Python containers and scalars (numpy scalars and arrays converted)."""
+    if isinstance(data, dict):
+        return {k: _plain(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_plain(v) for v in data]
+    if hasattr(data, 'tolist') and not isinstance(data, (str, bytes)):   # numpy scalar/array
+        return _plain(data.tolist())
+    return data
 
 
 class _Parser:

@@ -248,12 +248,18 @@ class World:
         """One (sub-)step; returns None or a failure description (state then invalid)."""
         m, s = self.model, self.state
         free = ~m.body_fixed
+        # BDF2 needs one step of history at this h. Without it (first step, after a reset,
+        # a dt change or sub-stepping) the step is taken with BDF1: the reference's start
+        # q₋₁ = q₀, v₋₁ = v₀ leaves a velocity deficit of h·a/3 that BDF2 never damps, which
+        # makes it first order globally (docs/decisions.md).
+        bdf2 = m.integrator == 'bdf2' and s.history_dt == h
+        # Forces are explicit. The torque's generalized force turns with A, so evaluating it
+        # at qⁿ lags by O(h): fine for BDF1, but BDF2 takes them at the extrapolation
+        # 2qⁿ − qⁿ⁻¹ = q(t+h) + O(h²) to stay second order.
+        q_force = 2 * s.q - s.q_prev if bdf2 else s.q
         acc = np.zeros((m.body_count, 12))
         for f in self.forces:
-            f.acceleration(s.q, self.control, acc, report.warnings)
-        bdf2 = m.integrator == 'bdf2'
-        if bdf2 and s.history_dt != h:        # no history for this h: start as BDF2 does
-            s.q_prev, s.v_prev = s.q.copy(), s.v.copy()
+            f.acceleration(q_force, self.control, acc, report.warnings)
         if bdf2:
             q_tilde = (4 * s.q - s.q_prev) / 3 + 2.0 / 9.0 * h * (4 * s.v - s.v_prev) + BETA_BDF2 * h * h * acc
             scale = 1.0 / BETA_BDF2

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-from typing import Iterable, Optional, Protocol, Sequence
+from typing import Iterable, Mapping, Optional, Protocol, Sequence
 
 
 class CommandTarget(Protocol):
@@ -88,10 +88,14 @@ class CommandBuffer:
         One positive limit [N m] per joint of `order`, or empty for none.
     command_timeout:
         Simulated seconds [s]; 0 = off.
+    scene_limits:
+        joint -> effort limit [N m] the scene itself imposes (inf = none); the tighter of
+        the two limits applies, so every clamp is reported here.
     """
 
     def __init__(self, actuated: Sequence[str], order: Sequence[str],
-                 effort_limits: Sequence[float] = (), command_timeout: float = 0.0):
+                 effort_limits: Sequence[float] = (), command_timeout: float = 0.0,
+                 scene_limits: Optional[Mapping[str, float]] = None):
         self.actuated = list(actuated)
         self._actuated_set = set(self.actuated)
         self.order = list(order) if order else list(self.actuated)
@@ -102,6 +106,8 @@ class CommandBuffer:
                 f'(actuated: {self.actuated})')
         if len(set(self.order)) != len(self.order):
             raise ValueError(f'parameter \'joints\': duplicate names in {self.order}')
+        self.scene_limits = {j: float(v) for j, v in (scene_limits or {}).items()
+                             if math.isfinite(v) and v > 0.0}
         self.limits: dict[str, float] = {}
         self.set_effort_limits(effort_limits)
         self.command_timeout = float(command_timeout)
@@ -123,7 +129,10 @@ class CommandBuffer:
         for j, lim in zip(self.order, limits):
             if not (lim > 0.0):
                 raise ValueError(f'parameter \'effort_limits\': {lim} for joint {j!r} not > 0')
-        self.limits = dict(zip(self.order, (float(x) for x in limits)))
+        self.param_limits = dict(zip(self.order, (float(x) for x in limits)))
+        self.limits = dict(self.scene_limits)
+        for j, lim in self.param_limits.items():
+            self.limits[j] = min(lim, self.limits.get(j, math.inf))
 
     # -- from subscription callbacks ---------------------------------------------------
     def _clamp(self, joint: str, value: float) -> tuple[float, Optional[Clamp]]:
@@ -208,7 +217,9 @@ class CommandBuffer:
             world.set_torque_enabled(joint, flag)
             out.enables[joint] = flag
         for joint, (value, source) in self._pending_torque.items():
-            world.set_torque(joint, value)
+            result = world.set_torque(joint, value)
+            if isinstance(result, float):   # the world's own clamp, if any
+                value = result
             out.torques[joint] = value
             out.sources[joint] = source
             self._last_command_time[joint] = now

@@ -71,7 +71,8 @@ class SimNode(Node):
         self.joint_names = list(self.world.joint_names)
         self.actuated = list(self.world.actuated_joint_names)
         self.commands = CommandBuffer(self.actuated, self.config.joints,
-                                      self.config.effort_limits, self.config.command_timeout)
+                                      self.config.effort_limits, self.config.command_timeout,
+                                      scene_limits=self._scene_effort_limits())
         self.config.joints = list(self.commands.order)
 
         self.paused = bool(self.config.start_paused)
@@ -83,6 +84,7 @@ class SimNode(Node):
         self._stats_steps = 0
         self._not_converged = 0
         self._warned_disabled: set[str] = set()
+        self._throttle: dict = {}
         self._closed = False
 
         # Publishers.
@@ -129,6 +131,13 @@ class SimNode(Node):
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
         self._publish_state(force=True)
+
+    def _scene_effort_limits(self) -> dict[str, float]:
+        model = getattr(self.world, 'model', None)
+        limits = getattr(model, 'torque_effort_limit', None)
+        if limits is None:
+            return {}
+        return {j: float(v) for j, v in zip(self.actuated, limits)}
 
     # ---------------------------------------------------------------- parameters ----
     def _declare_parameters(self) -> dict[str, Any]:
@@ -188,22 +197,27 @@ class SimNode(Node):
         if rtf == 0.0:
             deadline = time.monotonic() + AFAP_BATCH_WALL
             while not self.paused and time.monotonic() < deadline:
-                self._step_once()
+                if not self._step_once():
+                    break
             return
-        target = self._anchor_sim + rtf * (time.monotonic() - self._anchor_wall)
-        n = int(math.floor((target - self.world.time) / self.world.dt + 1e-6))
-        n_max = max(1, int(math.ceil(MAX_LAG_WALL * rtf / self.world.dt)))
-        if n > n_max:
+        now = time.monotonic()
+        dt = self.world.dt
+        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
+                MAX_LAG_WALL * rtf + dt:
             self.get_logger().warn(
-                f'cannot keep up with real_time_factor {rtf:g}: '
-                f'{(n - n_max) * self.world.dt:.3f} s of simulated time dropped behind; '
-                'continuing slower than requested', throttle_duration_sec=10.0)
-            n = n_max
+                f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
+                f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
+                throttle_duration_sec=10.0)
             self._reanchor()
-        for _ in range(n):
-            if self.paused:
+            self._anchor_wall -= dt / rtf   # allow one step now
+        target = self._anchor_sim + rtf * (now - self._anchor_wall)
+        # Step while the end of the next step is not ahead of real time x rtf, and give the
+        # executor back after AFAP_BATCH_WALL so commands and services are never starved.
+        deadline = now + AFAP_BATCH_WALL
+        while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
+               and time.monotonic() < deadline):
+            if not self._step_once():
                 break
-            self._step_once()
 
     # -------------------------------------------------------------------- steps ----
     def _step_once(self, force_publish: bool = False) -> bool:
@@ -299,11 +313,25 @@ class SimNode(Node):
         self._record('/diagnostics', t_ns, msg)
 
     # ------------------------------------------------------------ subscriptions ----
+    def _warn_throttled(self, key, text: str) -> None:
+        """Warn at most once per LOG_THROTTLE s per key (rclpy throttles per call site,
+        which would hide a second joint's or a second reason's message)."""
+        now = time.monotonic()
+        last, suppressed = self._throttle.get(key, (-math.inf, 0))
+        if now - last < LOG_THROTTLE:
+            self._throttle[key] = (last, suppressed + 1)
+            return
+        if suppressed:
+            text += f' ({suppressed} similar message(s) suppressed)'
+        self._throttle[key] = (now, 0)
+        self.get_logger().warn(text)
+
     def _report(self, rejections, clamps) -> None:
         for r in rejections:
-            self.get_logger().warn(str(r), throttle_duration_sec=LOG_THROTTLE)
+            kind = r.reason.split(' ')[0]
+            self._warn_throttled(('reject', r.joint, kind), str(r))
         for c in clamps:
-            self.get_logger().warn(str(c), throttle_duration_sec=LOG_THROTTLE)
+            self._warn_throttled(('clamp', c.joint, c.applied > 0), str(c))
 
     def _on_torque_array(self, msg: Float64MultiArray) -> None:
         self._report(*self.commands.command_array(convert.array_values(msg)))

@@ -1,0 +1,209 @@
+"""UID 668 torque and the joint angle, against PHYSICS.md §4-5 (virtual work, signs,
+antisymmetry, enable gating, singular guard, multi-turn angle)."""
+import numpy as np
+import pytest
+import scipy.linalg
+
+from abd_joint_sim import Scene, World
+from abd_joint_sim.angles import joint_theta
+from abd_joint_sim.model import skew
+from abd_joint_sim.terms.forces import ExternalTorque
+
+from physics_helpers import box, hinge_dict, random_rotation, rotation_about, world_from
+
+
+def _tilted_world(axis=(0.3, -0.5, 0.8), rpy_child=(0.4, -0.2, 1.1)):
+    """A free pair with a skew axis and rotated bodies, so no basis is axis-aligned."""
+    axis = np.array(axis) / np.linalg.norm(axis)
+    c = np.array([0.1, 0.2, -0.1])
+    d = dict(dt=0.005, bodies=[box('p', c - 0.25 * np.array([1, 0, 0]), rpy=[0.3, 0.2, -0.5]),
+                               box('c', c + 0.25 * np.array([1, 0, 0]), rpy=list(rpy_child))],
+             joints=[dict(name='j', parent='p', child='c', p0=list(c - 0.2 * axis), p1=list(c + 0.2 * axis),
+                          external_torque=dict(torque=0.0, enabled=True))])
+    return World(Scene.from_dict(d)), axis, c
+
+
+@pytest.mark.parametrize('phi', [-3.0, -1.2, -0.1, 0.0, 0.4, 1.5, 3.1])
+def test_rotating_child_by_phi_about_t_reads_phi(phi):
+    w, axis, c = _tilted_world()
+    q = w.state.q.copy()
+    R = rotation_about(axis, phi)
+    A = q[1, 3:12].reshape(3, 3)
+    q[1, 3:12] = (R @ A).ravel()                      # rotate the child about +t by phi
+    q[1, :3] = c + R @ (q[1, :3] - c)
+    theta = joint_theta(w.model, q, np.arange(1))[0]
+    assert theta == pytest.approx(phi, abs=1e-12)
+    assert w.max_joint_separation() < 1e-12
+
+
+def test_rotating_parent_by_phi_reads_minus_phi():
+    w, axis, c = _tilted_world()
+    q = w.state.q.copy()
+    q[0, 3:12] = (rotation_about(axis, 0.7) @ q[0, 3:12].reshape(3, 3)).ravel()
+    assert joint_theta(w.model, q, np.arange(1))[0] == pytest.approx(-0.7, abs=1e-12)
+
+
+def test_generalized_force_does_virtual_work_tau_e_dot_domega():
+    """F^A : δA = τ ê·δω for δA = [δω]x A, by finite differences of a rigid rotation, for
+    rotated and for sheared (affine) A alike."""
+    w, axis, _ = _tilted_world()
+    torque = ExternalTorque.build(w.model)
+    rng = np.random.default_rng(4)
+    tau = 7.5
+    for shear in (0.0, 0.2):
+        q = w.state.q.copy()
+        for b in (0, 1):
+            q[b, 3:12] = (random_rotation(rng) @ (np.eye(3) + shear * rng.normal(size=(3, 3)))).ravel()
+        F, skipped = torque.generalized_force(q, np.array([tau]))
+        assert skipped == []
+        e_i, e_j = torque.axes(q)
+        for b, e in ((0, e_i[0]), (1, e_j[0])):
+            dw = rng.normal(size=3)
+            eps = 1e-6
+            A = q[b, 3:12].reshape(3, 3)
+            K = skew(dw)                                    # [dw]x
+            dA = (scipy.linalg.expm(eps * K) @ A - scipy.linalg.expm(-eps * K) @ A) / (2 * eps)
+            work = float(F[b, 3:12] @ dA.ravel())
+            assert work == pytest.approx(tau * float(e @ dw), rel=1e-7)
+            assert not F[b, :3].any(), 'a pure torque has no translational part'
+
+
+def test_axes_are_exactly_antisymmetric_and_follow_p0_to_p1():
+    w, axis, _ = _tilted_world()
+    torque = ExternalTorque.build(w.model)
+    rng = np.random.default_rng(1)
+    q = w.state.q.copy()
+    q[:, 3:12] += 1e-3 * rng.normal(size=(2, 9))        # roundoff-level drift between bodies
+    e_i, e_j = torque.axes(q)
+    assert np.array_equal(e_i, -e_j)                   # bit-exact third law
+    assert float(e_j[0] @ axis) > 0.999                # child axis along +t = p1 - p0
+
+
+@pytest.mark.parametrize('integrator', ['bdf1', 'bdf2'])
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_positive_torque_increases_the_angle(integrator, sign):
+    w = world_from(hinge_dict(), integrator=integrator)
+    w.set_torque('hinge', sign * 1000.0)
+    w.step(5)
+    assert np.sign(w.joint_angles()[0]) == sign and np.sign(w.joint_velocities()[0]) == sign
+    assert w.applied_torques()[0] == sign * 1000.0
+
+
+def test_free_pair_turns_child_positive_parent_negative():
+    w, axis, c = _tilted_world()
+    w.set_torque('j', 2.0)
+    w.step(10)
+    _, Ap = w.body_pose('p')
+    _, Ac = w.body_pose('c')
+    q0 = w.model.body_q0
+    rot_p = Ap @ q0[0, 3:12].reshape(3, 3).T
+    rot_c = Ac @ q0[1, 3:12].reshape(3, 3).T
+    ang = lambda R: np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2
+    assert ang(rot_c) @ axis > 0 > ang(rot_p) @ axis
+    assert w.joint_angles()[0] > 0
+
+
+def test_disabled_torque_does_nothing_and_reenabling_applies_current_value():
+    w = world_from(hinge_dict())
+    q0 = w.state.q.copy()
+    w.set_torque('hinge', 500.0)
+    w.set_torque_enabled('hinge', False)
+    assert w.applied_torques()[0] == 0.0
+    w.step(5)
+    assert np.abs(w.state.q - q0).max() < 1e-12 and w.joint_angles()[0] == 0.0
+    w.set_torque_enabled('hinge', True)
+    w.step(5)
+    ref = world_from(hinge_dict())
+    ref.set_torque('hinge', 500.0)
+    ref.step(5)
+    assert w.joint_angles()[0] == pytest.approx(ref.joint_angles()[0], rel=1e-9)
+
+
+def test_disabling_mid_run_stops_the_acceleration():
+    w = world_from(hinge_dict(), dt=0.001)
+    w.set_torque('hinge', 1000.0)
+    w.step(50)
+    w.set_torque_enabled('hinge', False)
+    w.step(1)
+    v1 = w.joint_velocities()[0]
+    w.step(50)
+    v2 = w.joint_velocities()[0]
+    assert v1 > 1.0
+    # Free spinning: without the torque it would have gained 50*h*alpha = 2 rad/s. What is
+    # left is BDF1 damping and the elastic rebound of joint and body (well under 1 %).
+    assert abs(v2 - v1) < 0.01 * v1
+
+
+def test_singular_affine_matrix_gets_no_torque_and_is_reported():
+    w = world_from(hinge_dict())
+    w.set_torque('hinge', 10.0)
+    q = w.state.q
+    q[1, 3:12] = np.array([[1, 0, 0], [0, 1, 0], [1, 1e-8, 1e-8]]).ravel()   # rank ~2
+    torque = ExternalTorque.build(w.model)
+    F, skipped = torque.generalized_force(q, np.array([10.0]))
+    assert skipped == [1] and not F[1].any()
+    warnings = []
+    acc = np.zeros((2, 12))
+    torque.acceleration(q, w.control, acc, warnings)
+    assert any('near-singular' in m and "'arm'" in m for m in warnings)
+
+
+def test_angle_is_multi_turn_and_continuous():
+    w = world_from(hinge_dict(), dt=0.002)
+    w.set_torque('hinge', 2000.0)
+    angles = []
+    while w.joint_angles()[0] < 3 * 2 * np.pi + 1.0:
+        w.step()
+        angles.append(w.joint_angles()[0])
+        assert len(angles) < 5000
+    steps = np.diff(angles)
+    assert angles[-1] > 6 * np.pi and np.all(steps > 0) and steps.max() < 0.5
+    # the wrapped angle of the final state agrees modulo 2 pi
+    wrapped = joint_theta(w.model, w.state.q, np.arange(1))[0]
+    assert np.remainder(angles[-1] - wrapped + np.pi, 2 * np.pi) - np.pi == pytest.approx(0.0, abs=1e-9)
+
+
+def test_init_angle_offsets_the_reported_angle():
+    d = hinge_dict()
+    d['joints'][0]['init_angle'] = 0.5
+    w = world_from(d)
+    assert w.joint_angles()[0] == 0.5
+    w.set_torque('hinge', 1000.0)
+    w.step(5)
+    ref = world_from(hinge_dict())
+    ref.set_torque('hinge', 1000.0)
+    ref.step(5)
+    assert w.joint_angles()[0] == pytest.approx(0.5 + ref.joint_angles()[0], abs=1e-12)
+
+
+def test_joint_velocity_is_the_derivative_of_the_angle():
+    h = 0.001
+    w = world_from(hinge_dict(), dt=h, newton=dict(velocity_tol=1e-4, transrate_tol=1e-4))
+    w.set_torque('hinge', 1000.0)
+    w.step(100)
+    a0 = w.joint_angles()[0]
+    w.step(1)
+    # BDF1: v_n = (q_n - q_{n-1})/h, so dθ/dt = ∇θ·v_n is the backward difference + O(h θ'')
+    backward = (w.joint_angles()[0] - a0) / h
+    assert w.joint_velocities()[0] == pytest.approx(backward, abs=h * 40.4)
+
+
+def test_control_rejects_unknown_unactuated_and_non_finite():
+    d = hinge_dict()
+    d['bodies'].append(box('extra', (2.0, 0, 0)))
+    d['joints'].append(dict(name='passive', parent='arm', child='extra', p0=[1.5, 0, 0], p1=[1.5, 0, 1]))
+    w = world_from(d)
+    with pytest.raises(KeyError, match='unknown joint'):
+        w.set_torque('nope', 1.0)
+    with pytest.raises(ValueError, match='not actuated'):
+        w.set_torque('passive', 1.0)
+    with pytest.raises(ValueError, match='not finite'):
+        w.set_torque('hinge', float('nan'))
+    assert w.actuated_joint_names == ('hinge',)
+
+
+def test_effort_limit_clamps():
+    d = hinge_dict()
+    d['joints'][0]['external_torque']['effort_limit'] = 50.0
+    w = world_from(d)
+    assert w.set_torque('hinge', 80.0) == 50.0 and w.set_torque('hinge', -80.0) == -50.0
