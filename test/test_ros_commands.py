@@ -159,3 +159,13 @@ def test_convert_messages():
     assert convert.array_values(arr) == [1.0, 2.0]
     d = convert.diagnostics_msg(0, 'x', 'y', False, 'm', {'converged': False, 'it': 3})
     assert d.status[0].values[0].value == 'False'
+
+
+def test_scene_limits_combine_with_parameter_limits():
+    buf = CommandBuffer(['shoulder', 'elbow'], [], [10.0, 10.0], 0.0,
+                        scene_limits={'shoulder': 50.0, 'elbow': 5.0})
+    assert buf.limits == {'shoulder': 10.0, 'elbow': 5.0}
+    _, clamps = buf.command_torque('elbow', 7.0)
+    assert clamps and clamps[0].applied == 5.0
+    buf.set_effort_limits([])
+    assert buf.limits == {'shoulder': 50.0, 'elbow': 5.0}

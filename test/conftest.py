@@ -1,0 +1,158 @@
+"""Shared fixtures for the tests, and helpers for the real-DDS tests (sim_node in its own
+process, a probe node in the test process).
+
+DDS rules (shared/spec/ROS.md): every ROS process runs with
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, each test gets its own ROS_DOMAIN_ID, and nothing
+is published before discovery has matched. Every wait is bounded, so a hung node fails the
+test instead of hanging the suite (there is no pytest-timeout here).
+"""
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+from typing import Callable, Optional
+
+import pytest
+
+# Before anything can import rclpy: no DDS traffic may leave loopback.
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+
+REPO = Path(__file__).resolve().parents[1]
+SCENES = REPO / 'abd_joint_sim' / 'scenes'
+
+_domain_counter = itertools.count()
+_probe_counter = itertools.count()
+
+
+def next_domain_id() -> int:
+    """A ROS_DOMAIN_ID in 1..100 for one test, different for consecutive tests of a run and
+    (by the pid) unlikely to collide with a concurrent run on the same machine."""
+    return (os.getpid() * 13 + next(_domain_counter) * 37) % 100 + 1
+
+
+def ros_env(domain_id: int, log_dir: Path, extra_pythonpath: Optional[str] = None) -> dict:
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_LOG_DIR'] = str(log_dir)
+    env['PYTHONUNBUFFERED'] = '1'
+    env['RCUTILS_LOGGING_BUFFERED_STREAM'] = '0'
+    env['RCUTILS_COLORIZED_OUTPUT'] = '0'
+    paths = [p for p in (extra_pythonpath, str(REPO), env.get('PYTHONPATH')) if p]
+    env['PYTHONPATH'] = os.pathsep.join(paths)
+    return env
+
+
+class NodeProcess:
+    """sim_node (or any command) in its own process; output goes to a log file."""
+
+    def __init__(self, cmd: list[str], env: dict, log_path: Path, cwd: Path = REPO):
+        self.cmd = cmd
+        self.log_path = log_path
+        self._log = open(log_path, 'wb')
+        self.proc = subprocess.Popen(cmd, env=env, cwd=str(cwd), stdout=self._log,
+                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+
+    @classmethod
+    def sim_node(cls, tmp_path: Path, domain_id: int, params: dict, name: str = 'node'):
+        args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args']
+        for key, value in params.items():
+            args += ['-p', f'{key}:={_param_text(value)}']
+        log_dir = tmp_path / f'{name}_ros_log'
+        log_dir.mkdir(exist_ok=True)
+        return cls(args, ros_env(domain_id, log_dir), tmp_path / f'{name}.log')
+
+    def output(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text(errors='replace')
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> int:
+        """Signal the process (by PID) and wait; SIGKILL if it does not end in time."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+                self._log.close()
+                raise AssertionError(
+                    f'{self.cmd[:3]} did not stop within {timeout} s of signal {sig}:\n'
+                    + self.output()[-3000:])
+        self._log.close()
+        return self.proc.returncode
+
+
+def _param_text(value) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(_param_text(v) for v in value) + ']'
+    if isinstance(value, str):
+        return value if value else "''"
+    return repr(value)
+
+
+class Probe:
+    """A node in the test process, in its own rclpy context on the test's domain."""
+
+    def __init__(self, domain_id: int, name: Optional[str] = None):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        name = name or f'probe_{os.getpid()}_{next(_probe_counter)}'
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float, what: str,
+                 log: Optional[NodeProcess] = None):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            value = predicate()
+            if value:
+                return value
+            self.executor.spin_once(timeout_sec=0.05)
+        value = predicate()
+        if value:
+            return value
+        tail = ('\n--- node output ---\n' + log.output()[-4000:]) if log else ''
+        raise AssertionError(f'timed out after {timeout} s waiting for {what}{tail}')
+
+    def wait_matched_subscriber(self, publisher, timeout: float = 20.0, log=None) -> None:
+        self.wait_for(lambda: publisher.get_subscription_count() > 0, timeout,
+                      f'a subscriber on {publisher.topic_name}', log)
+
+    def call(self, client, request, timeout: float = 10.0, log=None):
+        self.wait_for(lambda: client.service_is_ready(), 20.0,
+                      f'service {client.srv_name}', log)
+        future = client.call_async(request)
+        self.wait_for(future.done, timeout, f'the answer of {client.srv_name}', log)
+        return future.result()
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def domain_id() -> int:
+    return next_domain_id()
