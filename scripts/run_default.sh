@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # README's first command: set everything up, build the package with colcon into ./install,
-# and run sim_node on the packaged default scene with recording on, as
+# and run sim_node on the packaged default scene with recording on (./bags/<timestamp>), as
 # `ros2 run abd_joint_sim sim_node` would. Extra arguments are passed to the node, e.g.
 #   bash scripts/run_default.sh --ros-args -p real_time_factor:=0.5 -p record:=''
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 # shellcheck source=env.sh
-source scripts/env.sh
+source scripts/env.sh "$ROOT/requirements-test.txt"
 set -euo pipefail
 
 mkdir -p "$ROOT/log"
@@ -15,31 +15,30 @@ echo "[run_default] colcon build -> $ROOT/install (log: $ROOT/log)" >&2
 if ! colcon build --base-paths . --build-base build --install-base install \
         --event-handlers console_cohesion- summary- status- terminal_title- \
         > "$ROOT/log/colcon_build.out" 2>&1 < /dev/null; then
-    cat "$ROOT/log/colcon_build.out" >&2 2>/dev/null || true
-    mkdir -p "$ROOT/log"
-echo "[run_default] colcon build failed" >&2
+    cat "$ROOT/log/colcon_build.out" >&2 || true
+    echo "[run_default] colcon build failed" >&2
     exit 1
 fi
 
-# What `source install/setup.bash` does for this package, without relying on the generated
-# scripts (they need a bash with the colcon prefix tools): put the install prefix on
-# AMENT_PREFIX_PATH and its site-packages on PYTHONPATH.
-PREFIX="$ROOT/install/abd_joint_sim"
-[ -d "$PREFIX" ] || PREFIX="$ROOT/install"          # --merge-install layout
-SITE="$(python -c 'import sys; print("python%d.%d" % sys.version_info[:2])')"
-export AMENT_PREFIX_PATH="$PREFIX:$AMENT_PREFIX_PATH"
-export PYTHONPATH="$PREFIX/lib/$SITE/site-packages${PYTHONPATH:+:$PYTHONPATH}"
+# `source install/local_setup.bash`, as on a full ROS install: puts the install prefix on
+# AMENT_PREFIX_PATH and its site-packages on PYTHONPATH. Done by hand if the script is missing.
+if [ -f "$ROOT/install/local_setup.bash" ]; then
+    set +u
+    # shellcheck disable=SC1091
+    source "$ROOT/install/local_setup.bash"
+    set -u
+else
+    PREFIX="$ROOT/install/abd_joint_sim"
+    SITE="$(python -c 'import sys; print("python%d.%d" % sys.version_info[:2])')"
+    export AMENT_PREFIX_PATH="$PREFIX:$AMENT_PREFIX_PATH"
+    export PYTHONPATH="$PREFIX/lib/$SITE/site-packages${PYTHONPATH:+:$PYTHONPATH}"
+fi
 
 # `ros2 run abd_joint_sim sim_node`: <prefix>/lib/<pkg>/<exe> found through the ament index.
-EXE="$(python - <<'PY'
-import os
-from ament_index_python.packages import get_package_prefix
-print(os.path.join(get_package_prefix('abd_joint_sim'), 'lib', 'abd_joint_sim', 'sim_node'))
-PY
-)"
+EXE="$(python -c 'import os; from ament_index_python.packages import get_package_prefix as p
+print(os.path.join(p("abd_joint_sim"), "lib", "abd_joint_sim", "sim_node"))')"
 BAG="$ROOT/bags/$(date +%Y%m%d-%H%M%S)"
 mkdir -p "$ROOT/bags"
-echo "[run_default] $EXE (recording to $BAG; Ctrl-C stops and closes the bag)" >&2
-# A packaged node script starts with a '#!' line pointing at the venv's python.
-# Later --ros-args sections win, so `-p record:=''` from the caller turns recording off.
+echo "[run_default] $EXE (recording to $BAG; Ctrl-C stops the node and closes the bag)" >&2
+# Later --ros-args sections win, so `--ros-args -p record:=''` from the caller turns it off.
 exec "$EXE" --ros-args -p "record:=$BAG" "$@"

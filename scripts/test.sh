@@ -6,7 +6,7 @@
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT" || exit 1
 # shellcheck source=env.sh
-source scripts/env.sh || { echo "[test] environment set-up failed" >&2; exit 1; }
+source scripts/env.sh "$ROOT/requirements-test.txt" || { echo "[test] environment set-up failed" >&2; exit 1; }
 export PYTHONDONTWRITEBYTECODE=1
 timeout --signal=INT --kill-after=30 "${ABD_TEST_TIMEOUT:-1200}" \
     python -m pytest -q -p no:cacheprovider test "$@" < /dev/null

@@ -460,9 +460,16 @@ class SimNode(Node):
             return
         try:
             recorder.close()
-            self.get_logger().info(f'bag closed: {self.config.record}')
+            self._log_late('INFO', f'bag closed: {self.config.record}')
         except Exception as exc:  # noqa: BLE001
-            self.get_logger().error(f'closing the bag {self.config.record!r} failed: {exc}')
+            self._log_late('ERROR', f'closing the bag {self.config.record!r} failed: {exc}')
+
+    def _log_late(self, level: str, text: str) -> None:
+        """Log also after Ctrl-C/SIGTERM shut the context down (rosout is gone then)."""
+        if self.context.ok():
+            getattr(self.get_logger(), level.lower())(text)
+        else:
+            print(f'[{level}] [{self.get_name()}]: {text}', file=sys.stderr, flush=True)
 
     # ------------------------------------------------------------------ logging ----
     def _log_start(self) -> None:
