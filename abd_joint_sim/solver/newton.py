@@ -4,7 +4,7 @@
 
 with s = 1 (BDF1) or 1/β = 9/4 (BDF2) (PHYSICS.md §2). Each iteration solves H Δq = −∇Π with
 H the sum of PSD(-projected) term Hessians plus sM (so H is positive definite on free DOFs),
-then halves α until Π(q + αΔq) ≤ Π(q) (roundoff slack 1e-12|Π|).
+then halves α until Π(q + αΔq) ≤ Π(q) (roundoff slack ROUNDOFF·|Π|).
 Convergence (libuipc defaults): every free body's bounding-box corners move less than
 velocity_tol·h under Δq, and max |Δq[3:12]| ≤ transrate_tol·h. Hitting max_iterations, a
 failed line search or a non-finite value is returned as a Status, never hidden.
@@ -15,6 +15,10 @@ import enum
 from dataclasses import dataclass
 
 import numpy as np
+
+# Every term of Π is nonnegative and computed without cancellation, so Π's rounding error
+# is a small multiple of eps·Π; below this relative decrement Newton cannot improve q.
+ROUNDOFF = 1e-12
 
 
 class Status(enum.Enum):
@@ -74,10 +78,15 @@ class NewtonSolver:
             disp = float(np.max(np.linalg.norm(move, axis=2))) if len(dqf) else 0.0
             rate = float(np.max(np.abs(dqf[:, 3:12]))) if len(dqf) else 0.0
             converged = disp <= spec.velocity_tol * h and rate <= spec.transrate_tol * h
+            # At the roundoff floor the line search cannot see a decrease any more: when the
+            # predicted decrease −½gᵀΔq is below the rounding error of Π, q is as good as
+            # double precision allows, whatever the tolerances ask.
+            if -0.5 * float(np.sum(grad[free] * dqf)) <= ROUNDOFF * abs(E):
+                return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
             alpha = 1.0
             for _ in range(spec.line_search_max):
                 E_new = self.potential(q + alpha * dq, q_tilde, scale, ctx)
-                if E_new <= E + 1e-12 * abs(E):
+                if E_new <= E + ROUNDOFF * abs(E):
                     break
                 alpha *= 0.5
                 ls_total += 1
@@ -89,6 +98,6 @@ class NewtonSolver:
                 return NewtonResult(q, Status.NONFINITE, it, ls_total, disp)
             q = q + alpha * dq
             E = E_new
-            if converged:
+            if converged and alpha == 1.0:     # a cut step left part of Δq undone: go on
                 return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
         return NewtonResult(q, Status.MAX_ITERATIONS, spec.max_iterations, ls_total, disp)

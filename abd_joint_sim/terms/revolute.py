@@ -23,22 +23,29 @@ class RevoluteJoint(EnergyTerm):
     def __init__(self, model):
         self.model = model
         self.joints = np.arange(model.joint_count)
+        # point Jacobians (J, anchor a, side k, 3, 12)
+        self.jac = np.stack([point_jacobian(model.joint_anchor0), point_jacobian(model.joint_anchor1)], axis=1)
 
     @classmethod
     def build(cls, model):
         return cls(model) if model.joint_count else None
 
-    def _z(self, q):
+    def _separations(self, q):
+        """J(x̄a_i) q_i − J(x̄a_j) q_j for a = 0, 1: (J,2,3). Computed as differences of
+        positions, not as zᵀHz, whose terms (K|x|²) cancel catastrophically."""
         m = self.model
-        return np.concatenate([q[m.joint_parent], q[m.joint_child]], axis=1)   # (J,24)
+        xi = np.einsum('jarc,jc->jar', self.jac[:, :, 0], q[m.joint_parent])
+        xj = np.einsum('jarc,jc->jar', self.jac[:, :, 1], q[m.joint_child])
+        return xi - xj
 
     def energy(self, q, ctx):
-        z = self._z(q)
-        return 0.5 * float(np.einsum('ja,jab,jb->', z, self.model.joint_hessian, z))
+        d = self._separations(q)
+        return 0.5 * float(np.sum(self.model.joint_K * np.einsum('jar,jar->j', d, d)))
 
     def accumulate(self, q, ctx, grad, diag, pair, project=True):
-        z = self._z(q)
-        g = np.einsum('jab,jb->ja', self.model.joint_hessian, z)
+        d = self.model.joint_K[:, None, None] * self._separations(q)
+        g = np.concatenate([np.einsum('jarc,jar->jc', self.jac[:, :, 0], d),
+                            -np.einsum('jarc,jar->jc', self.jac[:, :, 1], d)], axis=1)
         add_pair_gradient(self.model, self.joints, g, grad, ALL)
         add_pair_hessian(self.model, self.joints, self.model.joint_hessian, diag, pair, ALL)
 

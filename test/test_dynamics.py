@@ -1,0 +1,243 @@
+"""Whole-step physics against analytic solutions and conservation laws (PHYSICS.md §2, §7)."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.integrate
+import scipy.optimize
+
+from abd_joint_sim import Scene, World
+from abd_joint_sim.solver import linsolve
+
+from physics_helpers import box, chain_dict, hinge_dict, scene_dict, world_from
+
+I_AXIS = 64 * 0.32 / 12 + 64 * 0.36          # 0.4 m cube, COM 0.6 m from the axis
+TIGHT = dict(velocity_tol=1e-5, transrate_tol=1e-5)
+
+
+def test_reference_scene_angular_acceleration_is_40_4():
+    """libuipc tests 74/80: tau = 1000 N m on I_axis = 24.747 kg m^2."""
+    assert I_AXIS == pytest.approx(24.747, abs=1e-3)
+    w = world_from(hinge_dict())
+    w.set_torque('hinge', 1000.0)
+    w.step(5)
+    t, h = w.time, w.dt
+    alpha = 2 * w.joint_angles()[0] / (t * (t + h))     # BDF1: θ_n = ½α t_n (t_n + h)
+    assert alpha == pytest.approx(40.4, rel=0.01)
+
+
+def test_bdf1_matches_its_discrete_solution_and_is_first_order():
+    """θ_n = ½α t_n² + ½α h t_n for implicit Euler; the error vs ½αt² halves with h."""
+    tau, T = 100.0, 0.4
+    alpha = tau / I_AXIS
+    errors = []
+    for h in (0.02, 0.01, 0.005):
+        w = world_from(hinge_dict(), dt=h, newton=TIGHT)
+        w.set_torque('hinge', tau)
+        w.step(int(round(T / h)))
+        theta = w.joint_angles()[0]
+        assert theta == pytest.approx(0.5 * alpha * T * T + 0.5 * alpha * h * T, rel=0.01)
+        errors.append(theta - 0.5 * alpha * T * T)
+    orders = np.log2(np.abs(np.array(errors[:-1]) / errors[1:]))
+    assert np.all(np.abs(orders - 1.0) < 0.1), orders
+
+
+def test_bdf2_is_second_order_and_applies_the_torque():
+    tau, T = 100.0, 0.4
+    alpha = tau / I_AXIS
+    errors = []
+    for h in (0.02, 0.01, 0.005):
+        w = world_from(hinge_dict(), dt=h, integrator='bdf2', newton=TIGHT)
+        w.set_torque('hinge', tau)
+        w.step(int(round(T / h)))
+        errors.append(w.joint_angles()[0] - 0.5 * alpha * T * T)
+    orders = np.log2(np.abs(np.array(errors[:-1]) / errors[1:]))
+    assert np.all(orders > 1.8), orders
+    assert abs(errors[-1]) < 1e-3 * 0.5 * alpha * T * T
+
+
+def _free_pair_reference(theta_end_time, tau=1.0, m=8.0, Ic=0.2 ** 2 * 8 / 6, d=0.1):
+    """θ(t) = 2φ with t(φ) = ∫₀^φ sqrt((I_c + m d² sin² s)/(2τ s)) ds (PHYSICS.md §7)."""
+    def t_of(phi):
+        # substitute s = u²: the integrand's 1/sqrt(s) singularity becomes smooth
+        f = lambda u: 2 * np.sqrt((Ic + m * d * d * np.sin(u * u) ** 2) / (2 * tau))
+        return scipy.integrate.quad(f, 0.0, np.sqrt(phi), epsabs=1e-13, epsrel=1e-13)[0]
+    phi = scipy.optimize.brentq(lambda p: t_of(p) - theta_end_time, 1e-12, 50.0, xtol=1e-14)
+    return 2 * phi
+
+
+def test_free_pair_reference_value():
+    assert _free_pair_reference(1.0) == pytest.approx(11.786632172303, abs=1e-9)
+
+
+@pytest.mark.parametrize('integrator,h,rel', [('bdf1', 0.001, 0.03), ('bdf2', 0.001, 2e-3)])
+def test_free_pair_keeps_zero_momentum_and_follows_the_closed_form(integrator, h, rel):
+    w = world_from(scene_dict('free_pair'), dt=h, integrator=integrator)
+    worst_p = worst_l = 0.0
+    for _ in range(5):
+        w.step(100)
+        P, L = w.momentum()
+        worst_p, worst_l = max(worst_p, np.abs(P).max()), max(worst_l, np.abs(L).max())
+    # scale: the bodies' own angular momentum is I_c*omega ~ 0.05 * 4 = 0.2
+    assert worst_p < 1e-9 and worst_l < 1e-8
+    assert w.joint_angles()[0] == pytest.approx(_free_pair_reference(w.time), rel=rel)
+
+
+def test_free_fall_matches_bdf1_exactly_and_bodies_stay_rigid():
+    g = np.array([0.0, -9.8, 0.0])
+    w = World(Scene.from_dict(dict(dt=0.01, gravity=g.tolist(), bodies=[box('b', (0, 1, 0))])))
+    assert w.terms == ('ortho_potential', 'gravity')
+    w.step(20)
+    n, h = 20, 0.01
+    p, A = w.body_pose('b')
+    assert p == pytest.approx([0, 1, 0] + g * h * h * n * (n + 1) / 2, abs=1e-12)
+    assert A == pytest.approx(np.eye(3), abs=1e-12)
+
+
+def test_fixed_bodies_never_move():
+    w = world_from(scene_dict('default'))
+    w.set_torque('shoulder', 30.0)
+    w.set_torque('elbow', -15.0)
+    q0 = w.state.q[0].copy()
+    w.step(200)
+    assert np.array_equal(w.state.q[0], q0) and not w.state.v[0].any()
+    assert w.joint_angles()[0] > 0.05
+
+
+@pytest.mark.parametrize('integrator', ['bdf1', 'bdf2'])
+def test_unforced_pendulum_energy_never_grows(integrator):
+    # transrate_tol 0.05: at the reference default 0.1 one Newton step from q~ can be
+    # accepted with enough residual to gain ~1e-3 J in a swing (docs/decisions.md).
+    d = dict(dt=0.005, gravity=[0, 0, -9.81], integrator=integrator,
+             newton=dict(velocity_tol=0.05, transrate_tol=0.05),
+             bodies=[box('base', (0, 0, 0), fixed=True), box('arm', (0.6, 0, 0), (0.6, 0.1, 0.1))],
+             joints=[dict(name='j', parent='base', child='arm', p0=[0.2, -0.1, 0], p1=[0.2, 0.1, 0])])
+    w = World(Scene.from_dict(d))
+    energies, angles = [w.mechanical_energy()], []
+    for _ in range(300):
+        w.step()
+        energies.append(w.mechanical_energy())
+        angles.append(w.joint_angles()[0])
+    e = np.array(energies)
+    scale = 6.0                                  # m g d: the energy the swing exchanges
+    if integrator == 'bdf1':                     # implicit Euler is dissipative step by step
+        assert np.all(np.diff(e) <= 1e-9 * scale)
+    else:                                        # BDF2 is not monotone, but never gains
+        assert e.max() <= e[0] + 1e-9 * scale
+    # +y axis: a positive angle turns the +x arm towards -z, i.e. down; it swings through
+    assert max(angles) > 1.4
+
+
+def test_terms_follow_the_scene():
+    assert world_from(hinge_dict()).terms == ('ortho_potential', 'revolute_joint', 'external_torque')
+    w = world_from(scene_dict('default'))
+    assert w.terms == ('ortho_potential', 'revolute_joint', 'limit', 'gravity', 'external_torque')
+    d = hinge_dict()
+    del d['joints'][0]['external_torque']
+    d['joints'][0]['driving'] = dict(aim_angle=0.5, enabled=True)
+    w = world_from(d)
+    assert w.terms == ('ortho_potential', 'revolute_joint', 'driving')
+    assert w.actuated_joint_names == ()
+
+
+def test_driving_reaches_its_aim_and_passive_locks():
+    d = hinge_dict()
+    d['joints'][0]['driving'] = dict(aim_angle=0.5, enabled=True, strength_ratio=100.0)
+    w = world_from(d)
+    w.step(300)
+    assert w.joint_angles()[0] == pytest.approx(0.5, abs=0.02)
+    w.set_drive('hinge', passive=True)
+    w.set_torque('hinge', 200.0)
+    a = w.joint_angles()[0]
+    w.step(20)
+    assert abs(w.joint_angles()[0] - a) < 0.02
+
+
+def test_limit_stops_the_joint():
+    d = hinge_dict()
+    d['joints'][0]['limit'] = dict(lower=-0.3, upper=0.3, strength=1.0)
+    w = world_from(d)
+    w.set_torque('hinge', 500.0)
+    w.step(200)
+    free = world_from(hinge_dict())
+    free.set_torque('hinge', 500.0)
+    free.step(200)
+    assert free.joint_angles()[0] > 5.0
+    assert 0.3 < w.joint_angles()[0] < 0.6
+
+
+def test_independent_mechanisms_evolve_as_if_alone():
+    a = hinge_dict()
+    b = hinge_dict()
+    for body in b['bodies']:
+        body['name'] += '_b'
+        body['position'][1] += 5.0
+    j = b['joints'][0]
+    j.update(name='hinge_b', parent='base_b', child='arm_b', p0=[0, 5, -0.5], p1=[0, 5, 0.5])
+    both = dict(a, bodies=a['bodies'] + b['bodies'], joints=a['joints'] + b['joints'])
+    w2, w1 = world_from(both), world_from(a)
+    w2.set_torque('hinge', 300.0)
+    w2.set_torque('hinge_b', -100.0)
+    w1.set_torque('hinge', 300.0)
+    w2.step(30)
+    w1.step(30)
+    assert w2.joint_angles()[0] == pytest.approx(w1.joint_angles()[0], rel=1e-6)
+    assert w2.joint_angles()[1] < 0
+
+
+def test_chain_and_tree_move_and_hold_together():
+    # Equal torques on every joint cancel on interior links: only the last link is driven
+    # (+tau) and the base reacts, so the last joint opens positive.
+    w = world_from(chain_dict(12, torque=0.05))
+    w.step(50)
+    assert w.joint_angles()[-1] > 1e-3 and w.max_joint_separation() < 1e-4 and w.last_step.converged
+    tree = chain_dict(3, torque=0.0)
+    tree['bodies'].append(box('side', (0.2, 0.3, 0.0), (0.2, 0.1, 0.1)))
+    tree['joints'].append(dict(name='branch', parent='link1', child='side', p0=[0.2, 0.15, -0.1],
+                               p1=[0.2, 0.15, 0.1], external_torque=dict(torque=-0.05, enabled=True)))
+    w = world_from(tree)
+    w.step(50)
+    assert w.joint_angles()[-1] < -0.01 and w.max_joint_separation() < 1e-4
+
+
+def test_sparse_and_dense_solves_agree(monkeypatch):
+    d = chain_dict(10, torque=0.1)                      # 120 DOF: sparse by default
+    sparse = world_from(d)
+    sparse.step(20)
+    monkeypatch.setattr(linsolve, 'DENSE_MAX_DOF', 10 ** 6)
+    dense = world_from(d)
+    assert dense.solver.system.dense and not sparse.solver.system.dense
+    dense.step(20)
+    assert np.abs(dense.state.q - sparse.state.q).max() < 1e-10
+
+
+@pytest.mark.parametrize('case', ['kappa_1e12', 'strength_1e6', 'mass_ratio_1e6', 'mass_ratio_inv_1e6'])
+def test_stiff_and_extreme_cases_stay_stable(case):
+    d = hinge_dict(dt=0.01)
+    d['bodies'][1]['fixed'] = False
+    d['bodies'][0]['fixed'] = case == 'strength_1e6'
+    if case == 'kappa_1e12':
+        for b in d['bodies']:
+            b['kappa'] = 1e12
+    if case == 'strength_1e6':
+        d['joints'][0]['strength_ratio'] = 1e6
+    if case.startswith('mass_ratio'):
+        k = 0 if case == 'mass_ratio_1e6' else 1
+        d['bodies'][k]['density'] = 1000.0 * 1e6
+    w = world_from(d)
+    w.set_torque('hinge', 1000.0)
+    for _ in range(20):
+        report = w.step(5)
+        assert np.all(np.isfinite(w.state.q))
+        assert report.converged or report.warnings
+    assert w.max_joint_separation() < 1e-3 * 0.4
+    assert w.joint_angles()[0] > 0
+
+
+def test_core_does_not_import_rclpy():
+    code = ('import sys, abd_joint_sim, abd_joint_sim.world; '
+            'w = abd_joint_sim.World(abd_joint_sim.Scene.from_yaml(sys.argv[1])); w.step(); '
+            'assert "rclpy" not in sys.modules, "core imported rclpy"')
+    from physics_helpers import SCENES
+    subprocess.run([sys.executable, '-c', code, str(SCENES / 'default.yaml')], check=True)
