@@ -1,0 +1,178 @@
+"""Scene loading: the packaged scenes load; malformed scenes fail with one clear error that
+names the source and the field (issue 7 item 1); mass properties match closed forms."""
+import copy
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from abd_joint_sim import Scene, SceneError, World, compile_scene
+from abd_joint_sim.model import mass_properties, rpy_matrix
+
+from physics_helpers import SCENES, box, hinge_dict, scene_dict
+
+
+@pytest.mark.parametrize('name', sorted(p.stem for p in SCENES.glob('*.yaml')))
+def test_packaged_scenes_load_and_step(name):
+    w = World(Scene.from_yaml(SCENES / f'{name}.yaml'))
+    w.step(2)
+    assert np.all(np.isfinite(w.state.q)) and w.last_step.converged
+
+
+def _mutate(path, value):
+    d = hinge_dict()
+    node = d
+    *head, last = path
+    for key in head:
+        node = node[key]
+    if value is DELETE:
+        del node[last]
+    else:
+        node[last] = value
+    return d
+
+
+DELETE = object()
+NAN = float('nan')
+
+# (id, path into the hinge scene, new value, field named in the message, words in the message)
+BAD = [
+    ('missing_dt', ('dt',), DELETE, '', "missing required key 'dt'"),
+    ('zero_dt', ('dt',), 0.0, 'dt', 'must be > 0'),
+    ('negative_dt', ('dt',), -0.01, 'dt', 'must be > 0'),
+    ('string_dt', ('dt',), 'fast', 'dt', 'must be a number'),
+    ('nan_dt', ('dt',), NAN, 'dt', 'must be finite'),
+    ('gravity_len', ('gravity',), [0, -9.8], 'gravity', 'list of 3 numbers'),
+    ('bad_integrator', ('integrator',), 'rk4', 'integrator', 'bdf1, bdf2'),
+    ('unknown_top_key', ('solver',), {}, '', "unknown key(s) 'solver'"),
+    ('no_bodies', ('bodies',), [], 'bodies', 'non-empty list'),
+    ('negative_density', ('bodies', 1, 'density'), -5.0, 'bodies[1].density', 'must be > 0'),
+    ('zero_density', ('bodies', 1, 'density'), 0, 'bodies[1].density', 'must be > 0'),
+    ('zero_kappa', ('bodies', 1, 'kappa'), 0.0, 'bodies[1].kappa', 'must be > 0'),
+    ('negative_box', ('bodies', 1, 'box'), [0.4, -0.4, 0.4], 'bodies[1].box[1]', 'must be > 0'),
+    ('nan_position', ('bodies', 1, 'position'), [0.6, NAN, 0], 'bodies[1].position[1]', 'finite'),
+    ('fixed_not_bool', ('bodies', 0, 'fixed'), 'yes please', 'bodies[0].fixed', 'true or false'),
+    ('unknown_body_key', ('bodies', 1, 'colour'), 'red', 'bodies[1]', "unknown key(s) 'colour'"),
+    ('duplicate_body', ('bodies', 1, 'name'), 'base', 'bodies[1].name', "duplicate name 'base'"),
+    ('unknown_parent', ('joints', 0, 'parent'), 'ground', 'joints[0].parent', "unknown body 'ground'"),
+    ('self_joint', ('joints', 0, 'parent'), 'arm', 'joints[0].child', 'to itself'),
+    ('p0_equals_p1', ('joints', 0, 'p1'), [0.0, 0.0, -0.5], 'joints[0].p1', 'must differ from p0'),
+    ('missing_p1', ('joints', 0, 'p1'), DELETE, 'joints[0]', "missing required key 'p1'"),
+    ('zero_strength', ('joints', 0, 'strength_ratio'), 0.0, 'joints[0].strength_ratio', '> 0'),
+    ('torque_not_number', ('joints', 0, 'external_torque', 'torque'), 'a lot',
+     'joints[0].external_torque.torque', 'must be a number'),
+    ('torque_nan', ('joints', 0, 'external_torque', 'torque'), NAN, 'joints[0].external_torque.torque', 'finite'),
+    ('enabled_int', ('joints', 0, 'external_torque', 'enabled'), 1,
+     'joints[0].external_torque.enabled', 'true or false'),
+    ('torque_over_limit', ('joints', 0, 'external_torque'), {'torque': 10.0, 'effort_limit': 5.0},
+     'joints[0].external_torque.torque', 'exceeds effort_limit'),
+    ('prismatic_torque', ('joints', 0, 'type'), 'prismatic', 'joints[0].external_torque',
+     'requires a revolute joint (UID 18)'),
+    ('limit_inverted', ('joints', 0, 'limit'), {'lower': 1.0, 'upper': -1.0}, 'joints[0].limit', 'lower 1.0 > upper -1.0'),
+    ('duplicate_joint', ('joints', 1), None, 'joints[1].name', "duplicate name 'hinge'"),
+    ('two_shapes', ('bodies', 1, 'sphere'), 0.2, 'bodies[1]', 'exactly one of box'),
+    ('bad_inertia', ('bodies', 1), {'name': 'arm', 'inertial': {'mass': 1.0, 'inertia': {'ixx': 1.0, 'iyy': 1.0, 'izz': 5.0}}},
+     'bodies[1].inertial.inertia', 'not a physical inertia'),
+    ('negative_mass', ('bodies', 1), {'name': 'arm', 'inertial': {'mass': -1.0, 'inertia': {'ixx': 1, 'iyy': 1, 'izz': 1}}},
+     'bodies[1].inertial.mass', 'must be > 0'),
+    ('newton_iterations_zero', ('newton',), {'max_iterations': 0}, 'newton.max_iterations', '>= 1'),
+    ('rotation_limit_pi', ('newton',), {'max_step_rotation': 3.2}, 'newton.max_step_rotation', '< pi'),
+]
+
+
+@pytest.mark.parametrize('case', BAD, ids=[c[0] for c in BAD])
+def test_malformed_scene_gets_one_clear_error(case):
+    _, path, value, field, words = case
+    if case[0] == 'duplicate_joint':
+        d = hinge_dict()
+        d['joints'].append(copy.deepcopy(d['joints'][0]))
+    else:
+        d = _mutate(path, value)
+    with pytest.raises(SceneError) as err:
+        Scene.from_dict(d, source='bad.yaml')
+    msg = str(err.value)
+    assert msg.startswith(f'bad.yaml: {field}: ' if field else 'bad.yaml: '), msg
+    assert words in msg, msg
+    assert '\n' not in msg
+
+
+def test_yaml_syntax_error_names_file_and_line(tmp_path):
+    p = tmp_path / 'broken.yaml'
+    p.write_text('dt: 0.01\nbodies: [\n  {name: a\n')
+    with pytest.raises(SceneError, match=r'broken.yaml: not valid YAML \(line \d+'):
+        Scene.from_yaml(p)
+    with pytest.raises(SceneError, match='cannot read scene file'):
+        Scene.from_yaml(tmp_path / 'missing.yaml')
+
+
+def test_yaml_floats_with_exponents_and_nan_are_read_as_numbers(tmp_path):
+    text = (SCENES / 'hinge.yaml').read_text().replace('kappa: 1.0e8', 'kappa: 1e9', 1)
+    p = tmp_path / 's.yaml'
+    p.write_text(text)
+    assert Scene.from_yaml(p).bodies[0].kappa == 1e9
+    p.write_text(text.replace('dt: 0.01', 'dt: .nan'))
+    with pytest.raises(SceneError, match='dt: must be finite'):
+        Scene.from_yaml(p)
+
+
+def test_box_sphere_cylinder_mass_properties():
+    s = Scene.from_dict(dict(dt=0.01, bodies=[
+        box('b', (0, 0, 0), (0.4, 0.2, 0.1)),
+        dict(name='s', sphere=0.1, density=1000.0),
+        dict(name='c', cylinder=dict(radius=0.1, length=0.5), density=1000.0)]))
+    m, c, S, v, _ = mass_properties(s.bodies[0])
+    assert m == pytest.approx(8.0) and S == pytest.approx(8.0 * np.diag([0.16, 0.04, 0.01]) / 12)
+    m, c, S, v, _ = mass_properties(s.bodies[1])
+    assert m == pytest.approx(1000 * 4 / 3 * math.pi * 1e-3)
+    I_o = np.trace(S) * np.eye(3) - S
+    assert I_o == pytest.approx(0.4 * m * 0.01 * np.eye(3))            # 2/5 m R^2
+    m, c, S, v, _ = mass_properties(s.bodies[2])
+    I_o = np.trace(S) * np.eye(3) - S
+    assert np.diag(I_o) == pytest.approx([m * (3 * 0.01 + 0.25) / 12] * 2 + [m * 0.01 / 2])
+
+
+def test_inertial_body_round_trips_its_rigid_inertia():
+    I_cm = np.array([[0.3, 0.01, 0.0], [0.01, 0.2, 0.02], [0.0, 0.02, 0.4]])
+    com = [0.1, -0.2, 0.05]
+    s = Scene.from_dict(dict(dt=0.01, bodies=[dict(name='r', inertial=dict(mass=2.0, com=com, inertia=I_cm.tolist()))]))
+    m, c, S, v, _ = mass_properties(s.bodies[0])
+    I_o = np.trace(S) * np.eye(3) - S
+    c = np.array(com)
+    assert I_o - m * (c @ c * np.eye(3) - np.outer(c, c)) == pytest.approx(I_cm)
+    M = compile_scene(s).body_M[0]
+    assert M[0, 3:6] == pytest.approx(2.0 * c) and np.all(np.linalg.eigvalsh(M) > 0)
+
+
+def test_rpy_is_urdf_convention():
+    R = rpy_matrix((0.0, 0.0, math.pi / 2))          # yaw: x -> y
+    assert R @ [1, 0, 0] == pytest.approx([0, 1, 0])
+    R = rpy_matrix((math.pi / 2, 0.0, 0.0))          # roll: y -> z
+    assert R @ [0, 1, 0] == pytest.approx([0, 0, 1])
+    r, p, y = 0.3, -0.4, 1.2
+    Rx = rpy_matrix((r, 0, 0)); Ry = rpy_matrix((0, p, 0)); Rz = rpy_matrix((0, 0, y))
+    assert rpy_matrix((r, p, y)) == pytest.approx(Rz @ Ry @ Rx)
+
+
+def test_anchor_order_is_the_same_on_both_bodies():
+    """§9: both bodies store P0 then P1, so their raw axes agree."""
+    d = hinge_dict()
+    d['bodies'][1]['rpy'] = [0.3, 0.2, 0.1]
+    m = compile_scene(Scene.from_dict(d))
+    for side in (0, 1):
+        b = (m.joint_parent[0], m.joint_child[0])[side]
+        R = m.body_q0[b, 3:12].reshape(3, 3)
+        p = m.body_q0[b, :3]
+        assert R @ m.joint_anchor0[0, side] + p == pytest.approx([0, 0, -0.5])
+        assert R @ m.joint_anchor1[0, side] + p == pytest.approx([0, 0, 0.5])
+
+
+def test_scene_errors_are_clean_on_the_command_line(tmp_path):
+    """Loading a bad scene from a script ends with the message, not a traceback."""
+    p = tmp_path / 'bad.yaml'
+    p.write_text('dt: -1\nbodies: []\n')
+    code = ('import sys\nfrom abd_joint_sim import Scene, SceneError\n'
+            'try:\n    Scene.from_yaml(sys.argv[1])\nexcept SceneError as e:\n    sys.exit(f"error: {e}")\n')
+    r = subprocess.run([sys.executable, '-c', code, str(p)], capture_output=True, text=True)
+    assert r.returncode == 1 and r.stderr.strip() == f'error: {p}: dt: must be > 0, got -1.0'
