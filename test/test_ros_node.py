@@ -164,6 +164,15 @@ def test_start_line_and_initial_state(hinge):
     msg = hinge.states[0]
     assert list(msg.name) == ['hinge']
     assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 1
+    # Solver status on /diagnostics (1 Hz, wall time).
+    from diagnostic_msgs.msg import DiagnosticArray
+    diags = []
+    hinge.probe.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    hinge.probe.wait_for(lambda: diags, 10.0, 'a /diagnostics message', hinge.node)
+    values = {kv.key: kv.value for kv in diags[-1].status[0].values}
+    for key in ('newton_iterations', 'converged', 'max_joint_separation', 'sim_time', 'paused'):
+        assert key in values, values
+    assert values['paused'] == 'True'
 
 
 def test_pause_step_reset_and_clock(hinge):
@@ -359,3 +368,26 @@ def _check_bag(bag: Path, t_applied: int) -> None:
     # there produced the first state with the new effort one dt later.
     assert len(array_log_times) == 1
     assert array_log_times[0] == t_applied - 1_000_000, (array_log_times, t_applied)
+
+
+def test_recording_failure_keeps_simulating(tmp_path):
+    """A bag path that exists already: recording is refused with an error, the node runs."""
+    domain = next_domain_id()
+    existing = tmp_path / 'taken'
+    existing.mkdir()
+    node = NodeProcess.sim_node(tmp_path, domain, {
+        'scene': 'hinge', 'real_time_factor': 0.0, 'record': str(existing)})
+    probe = Probe(domain)
+    try:
+        from sensor_msgs.msg import JointState
+        states = []
+        probe.node.create_subscription(JointState, '/joint_states', states.append, 10)
+        probe.wait_for(lambda: len(states) >= 5, 30.0, 'joint states', node)
+        out = node.output()
+        assert 'recording to' in out and 'disabled' in out and 'recording off' in out
+        assert node.stop(signal.SIGINT) == 0
+    finally:
+        probe.close()
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    assert list(existing.iterdir()) == []
