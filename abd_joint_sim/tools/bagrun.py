@@ -1,0 +1,222 @@
+"""A recorded bag as what is needed to run it again: scene, parameters, commands, states.
+
+Messages are read in *file* order (the order sim_node wrote them, which is step order), not
+log-time order, so that a ``~/reset`` (time jumps back to 0) splits the run into segments
+instead of interleaving them. A segment starts at the first message and wherever
+``/clock`` or ``/joint_states`` does not advance (the node writes both, with increasing
+stamps, after every step, and again at t = 0 on reset).
+
+Topics are recognised by their last components, so a namespaced node's bag works:
+``.../joint_torque_commands`` (array, in the stored ``joints`` order),
+``.../joint_torque/<joint>``, ``.../joint_torque_enable/<joint>``,
+``.../joint_torque_enable`` (all joints), ``.../joint_states``, ``/clock``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import re
+from typing import Any, Optional
+
+import yaml
+
+from abd_joint_sim.ros import convert
+from abd_joint_sim.ros.params import NODE_NAME
+
+from .schedule import Command, Plan, Segment
+
+_ARRAY = re.compile(r'(?:^|/)joint_torque_commands$')
+_TORQUE = re.compile(r'(?:^|/)joint_torque/([^/]+)$')
+_ENABLE = re.compile(r'(?:^|/)joint_torque_enable/([^/]+)$')
+_ENABLE_ALL = re.compile(r'(?:^|/)joint_torque_enable$')
+_STATES = re.compile(r'(?:^|/)joint_states$')
+_CLOCK = re.compile(r'(?:^|/)clock$')
+
+
+class BagInputError(RuntimeError):
+    """The bag cannot be used (unreadable, no scene, ...); one line."""
+
+
+@dataclass
+class RecordedState:
+    t_ns: int
+    names: list[str]
+    position: list[float]
+    velocity: list[float]
+    effort: list[float]
+
+
+@dataclass
+class RecordedRun:
+    path: str
+    custom: dict[str, str]
+    scene_text: str
+    scene_path: str
+    parameters: dict[str, Any]
+    plan: Plan
+    states: list[dict[int, list[RecordedState]]] = field(default_factory=list)
+    """Per segment: stamp [ns] -> recorded joint states with that header stamp."""
+    counts: dict[str, int] = field(default_factory=dict)
+    """Messages per topic."""
+
+    @property
+    def state_count(self) -> int:
+        return sum(len(v) for seg in self.states for v in seg.values())
+
+    @property
+    def command_count(self) -> int:
+        return sum(len(seg.commands) for seg in self.plan.segments)
+
+
+def _iter_file_order(path: str | os.PathLike[str]):
+    """(topic, type, log_time, message) in the order the recorder wrote them."""
+    from mcap.reader import make_reader
+    from rclpy.serialization import deserialize_message
+    from abd_joint_sim.record.read import mcap_file
+    from abd_joint_sim.record.msgdef import message_class
+    from abd_joint_sim.record import BagError
+    try:
+        file = mcap_file(path)
+    except BagError as exc:
+        raise BagInputError(str(exc)) from None
+    try:
+        handle = open(file, 'rb')
+    except OSError as exc:
+        raise BagInputError(f'bag file {str(file)!r}: {exc.strerror or exc}') from None
+    with handle:
+        try:
+            reader = make_reader(handle)
+            summary = reader.get_summary()
+        except Exception as exc:  # noqa: BLE001 - mcap raises many kinds on garbage
+            raise BagInputError(f'bag file {str(file)!r} is not a readable MCAP file '
+                                f'({type(exc).__name__}: {exc}); if the recorder was killed, '
+                                'run abd_joint_sim.record.recover() on the bag') from None
+        if summary is None:
+            raise BagInputError(f'bag file {str(file)!r} has no summary (recorder killed?); '
+                                'run abd_joint_sim.record.recover() on the bag')
+        classes: dict[str, Any] = {}
+        try:
+            for schema, channel, message in reader.iter_messages(log_time_order=False):
+                if schema is None:
+                    continue
+                cls = classes.get(schema.name)
+                if cls is None:
+                    cls = classes[schema.name] = message_class(schema.name)
+                yield (channel.topic, schema.name, message.log_time,
+                       deserialize_message(message.data, cls))
+        except Exception as exc:  # noqa: BLE001
+            raise BagInputError(f'bag file {str(file)!r}: reading failed: '
+                                f'{type(exc).__name__}: {exc}') from None
+
+
+def _stored_text(custom: dict[str, str], attachments: dict[str, bytes], key: str,
+                 attachment: str) -> str:
+    text = custom.get(key) or ''
+    if not text and attachment in attachments:
+        text = attachments[attachment].decode('utf-8', errors='replace')
+    return text
+
+
+def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
+    """Read a bag recorded by sim_node or run_headless (:class:`BagInputError` if unusable)."""
+    from abd_joint_sim.record import BagError, read_attachments, read_custom_data
+    path = str(path)
+    if not Path(path).exists():
+        raise BagInputError(f'bag {path!r} does not exist')
+    try:
+        custom = read_custom_data(path)
+        attachments = read_attachments(path)
+    except BagError as exc:
+        raise BagInputError(str(exc)) from None
+    scene_text = _stored_text(custom, attachments, 'abd_joint_sim.scene_yaml', 'scene.yaml')
+    if not scene_text.strip():
+        raise BagInputError(f'bag {path!r} stores no scene (no custom_data '
+                            '`abd_joint_sim.scene_yaml`, no attachment scene.yaml); '
+                            'was it recorded by sim_node or run_headless?')
+    params_text = _stored_text(custom, attachments, 'abd_joint_sim.parameters_yaml',
+                               'parameters.yaml')
+    parameters: dict[str, Any] = {}
+    if params_text.strip():
+        try:
+            loaded = yaml.safe_load(params_text) or {}
+            parameters = dict(loaded[NODE_NAME]['ros__parameters'])
+        except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+            raise BagInputError(f'bag {path!r}: stored parameters are unreadable: '
+                                f'{type(exc).__name__}: {exc}') from None
+    joints_text = custom.get('abd_joint_sim.joints')
+    if joints_text and not parameters.get('joints'):
+        parameters['joints'] = [j for j in joints_text.split(',') if j]
+
+    segments: list[Segment] = [Segment()]
+    states: list[dict[int, list[RecordedState]]] = [{}]
+    counts: dict[str, int] = {}
+    last: dict[str, int] = {}
+    ends: list[int] = [0]
+
+    def new_segment() -> None:
+        segments.append(Segment())
+        states.append({})
+        ends.append(0)
+        last.clear()
+
+    def step_marker(kind: str, t_ns: int) -> None:
+        if kind in last and t_ns <= last[kind]:
+            new_segment()
+        last[kind] = t_ns
+        ends[-1] = max(ends[-1], t_ns)
+
+    for topic, _type, log_ns, msg in _iter_file_order(path):
+        counts[topic] = counts.get(topic, 0) + 1
+        where = f'{topic} at t={log_ns / convert.NS_PER_S:.9g} s'
+        if _CLOCK.search(topic) and hasattr(msg, 'clock'):
+            step_marker('clock', convert.time_msg_to_ns(msg.clock))
+        elif _STATES.search(topic) and hasattr(msg, 'position'):
+            t_ns = convert.time_msg_to_ns(msg.header.stamp)
+            step_marker('states', t_ns)
+            states[-1].setdefault(t_ns, []).append(RecordedState(
+                t_ns, list(msg.name), list(msg.position), list(msg.velocity),
+                list(msg.effort)))
+        elif _ARRAY.search(topic):
+            segments[-1].commands.append(Command(log_ns, 'array', None,
+                                                 convert.array_values(msg), where))
+        elif (m := _TORQUE.search(topic)) is not None:
+            segments[-1].commands.append(Command(log_ns, 'torque', m.group(1),
+                                                 float(msg.data), where))
+        elif (m := _ENABLE.search(topic)) is not None:
+            segments[-1].commands.append(Command(log_ns, 'enable', m.group(1),
+                                                 bool(msg.data), where))
+        elif _ENABLE_ALL.search(topic):
+            segments[-1].commands.append(Command(log_ns, 'enable_all', None,
+                                                 bool(msg.data), where))
+    for seg, end in zip(segments, ends):
+        seg.end_ns = end
+    plan = Plan(segments, {}, source=path, duration_given=True)
+    return RecordedRun(path, custom, scene_text,
+                       custom.get('abd_joint_sim.scene_path', '') or 'scene.yaml',
+                       parameters, plan, states, counts)
+
+
+def scene_from_text(text: str, source: str):
+    """Parse stored scene YAML like ``Scene.from_yaml`` (SceneError names `source`)."""
+    from abd_joint_sim import Scene
+    from abd_joint_sim.errors import SceneError
+    from abd_joint_sim.scene import load_yaml
+    try:
+        data = load_yaml(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{source}: not valid YAML: {getattr(exc, "problem", exc)}') from None
+    return Scene.from_dict(data, source=source, source_text=text)
+
+
+def config_for(run_parameters: dict[str, Any], overrides: Optional[dict[str, Any]] = None,
+               scene_path: str = ''):
+    """SimConfig from stored parameters (unknown or live-only ones ignored) + overrides."""
+    from abd_joint_sim.ros.params import config_from_values, PARAMS_BY_NAME
+    values = {k: v for k, v in run_parameters.items() if k in PARAMS_BY_NAME}
+    values.update(overrides or {})
+    values['scene'] = scene_path or values.get('scene') or ''
+    values['record'] = ''
+    values['real_time_factor'] = 0.0
+    values['start_paused'] = False
+    return config_from_values(values)

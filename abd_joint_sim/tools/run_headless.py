@@ -1,0 +1,195 @@
+"""run_headless: run a scene with a torque/enable schedule, no DDS, and record sim_node's bag.
+
+    run_headless --schedule sched.yaml [--scene default] --out bags/run1 [--duration 2]
+    run_headless --from-bag bags/recorded --out bags/again
+    ros2 run abd_joint_sim run_headless ...
+
+Steps as fast as possible; commands take effect at step boundaries with sim_node's
+semantics (validation, effort-limit clamping, command timeout); the bag has sim_node's
+topics, types, QoS, custom data and attachments, so ``replay_check`` and every bag tool
+treat it like a node bag. Input errors: one line on stderr, exit status 2. A failed step:
+exit 1 (the bag is closed and readable). See docs/replay.md.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from typing import Optional, Sequence
+
+PROG = 'run_headless'
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit 2 (argparse prints usage too)
+        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description=(
+        'Run an abd_joint_sim scene headless (no DDS, as fast as possible) with a torque/'
+        'enable schedule and record the same rosbag2 (MCAP) bag sim_node records. '
+        'Schedule format: docs/replay.md.'))
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument('--schedule', metavar='YAML', help='torque/enable schedule file')
+    src.add_argument('--from-bag', metavar='BAG',
+                     help='take the commands (and, unless --scene is given, the scene and '
+                          'parameters) from a recorded bag')
+    p.add_argument('--out', required=True, metavar='BAGDIR',
+                   help='bag directory to write (must not exist)')
+    p.add_argument('--scene', metavar='YAML|NAME',
+                   help="scene file or packaged scene name ('default', 'hinge', ...); "
+                        'default: the packaged default scene, or the bag\'s stored scene')
+    p.add_argument('--duration', type=float, metavar='S',
+                   help='simulated seconds (default: the schedule\'s `duration`, else last '
+                        'event + 1 s; with --from-bag the recorded run\'s end)')
+    p.add_argument('--dt', type=float, metavar='S',
+                   help='time step [s] (the time_step parameter; default: schedule/bag '
+                        'parameter, else the scene\'s dt)')
+    rate = p.add_mutually_exclusive_group()
+    rate.add_argument('--publish-every', type=int, metavar='N',
+                      help='record /joint_states every N steps (1 = every step)')
+    rate.add_argument('--publish-rate', type=float, metavar='HZ',
+                      help='record /joint_states at HZ of simulated time (0 = every step; '
+                           'default 100, as sim_node)')
+    p.add_argument('-q', '--quiet', action='store_true', help='no summary line')
+    return p
+
+
+def _strip_ros_args(argv: Sequence[str]) -> list[str]:
+    """`ros2 run`/launch may append `--ros-args ...`; nothing there is for us."""
+    argv = list(argv)
+    if '--ros-args' in argv:
+        argv = argv[:argv.index('--ros-args')]
+    return argv
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(_strip_ros_args(sys.argv[1:] if argv is None else argv))
+    try:
+        return _run(args)
+    except _InputError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+
+
+class _InputError(Exception):
+    pass
+
+
+def _run(args) -> int:
+    from abd_joint_sim import Scene
+    from abd_joint_sim.errors import SceneError, SimulationError
+    from abd_joint_sim.record import BagError
+    from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns
+    from abd_joint_sim.ros.params import resolve_scene
+
+    from .bagrun import BagInputError, config_for, load_bag, scene_from_text
+    from .schedule import check_plan, load_schedule, ScheduleError
+    from .sim import BagRecorder, HeadlessSim
+
+    # -- what to run ---------------------------------------------------------------------
+    stored_params: dict = {}
+    try:
+        if args.schedule:
+            plan = load_schedule(args.schedule)
+            stored_params = dict(plan.parameters)
+            provenance = f'schedule {args.schedule}'
+        else:
+            run = load_bag(args.from_bag)
+            plan = run.plan
+            stored_params = {k: v for k, v in run.parameters.items()
+                             if k in ('time_step', 'publish_rate', 'command_timeout',
+                                      'effort_limits', 'joints', 'frame_id')}
+            provenance = f'commands of bag {args.from_bag}'
+    except (ScheduleError, BagInputError) as exc:
+        raise _InputError(str(exc)) from None
+
+    overrides = dict(stored_params)
+    for name, value in (('--dt', args.dt), ('--duration', args.duration),
+                        ('--publish-rate', args.publish_rate)):
+        if value is not None and (not math.isfinite(value) or value < 0.0
+                                  or (value == 0.0 and name != '--publish-rate')):
+            raise _InputError(f'{name} {value}: must be a finite number > 0'
+                              + (' (or 0)' if name == '--publish-rate' else ''))
+    if args.publish_every is not None and args.publish_every < 1:
+        raise _InputError(f'--publish-every {args.publish_every}: must be >= 1')
+    if args.dt is not None:
+        overrides['time_step'] = args.dt
+    if args.publish_rate is not None:
+        overrides['publish_rate'] = args.publish_rate
+
+    # -- scene -----------------------------------------------------------------------------
+    try:
+        if args.scene is not None or args.schedule:
+            scene_path = resolve_scene(args.scene or '')
+            scene = Scene.from_yaml(scene_path)
+        else:
+            scene_path = run.scene_path
+            scene = scene_from_text(run.scene_text, f'{args.from_bag}: scene.yaml')
+    except SceneError as exc:
+        raise _InputError(str(exc)) from None
+    scene_text = getattr(scene, 'source_text', '') or ''
+
+    # -- parameters (same validation as sim_node's) ----------------------------------------
+    try:
+        config = config_for(overrides, scene_path=scene_path)
+        if args.publish_every is not None:
+            dt = config.time_step or float(scene.dt)
+            config.publish_rate = 0.0 if args.publish_every == 1 else \
+                1.0 / (args.publish_every * dt)
+        sim = HeadlessSim(scene, config, clamp=bool(args.schedule))
+    except (ValueError, SceneError) as exc:
+        raise _InputError(str(exc)) from None
+    config.record = args.out
+
+    if args.duration is not None:
+        plan.segments[-1].end_ns = seconds_to_ns(args.duration)
+    try:
+        check_plan(plan, sim.actuated, sim.commands.order)
+    except ScheduleError as exc:
+        raise _InputError(str(exc)) from None
+    for seg in plan.segments:
+        for cmd in seg.commands:
+            if cmd.t_ns >= seg.end_ns:
+                print(f'{PROG}: warning: {cmd.describe()}: at or after the end of the run '
+                      f'(t = {seg.end_ns / NS_PER_S:g} s), never takes effect',
+                      file=sys.stderr)
+
+    # -- run and record --------------------------------------------------------------------
+    try:
+        recorder = BagRecorder(args.out, sim, scene_path, scene_text, extra_custom={
+            'abd_joint_sim.recorded_by': f'run_headless ({provenance})'})
+    except BagError as exc:
+        raise _InputError(str(exc)) from None
+    wall0 = time.monotonic()
+    status = 0
+    try:
+        sim.run(plan, recorder)
+    except SimulationError as exc:
+        print(f'{PROG}: error: step at t={sim.world.time:.6f} s failed: {exc}; the bag '
+              f'ends there', file=sys.stderr)
+        status = 1
+    except KeyboardInterrupt:
+        print(f'{PROG}: interrupted at t={sim.world.time:.6f} s; the bag ends there',
+              file=sys.stderr)
+        status = 130
+    finally:
+        recorder.close()
+    wall = time.monotonic() - wall0
+    for cmd, clamp in sim.clamps:
+        print(f'{PROG}: warning: {cmd.describe()}: {clamp}', file=sys.stderr)
+    if not args.quiet:
+        c = recorder.counts
+        print(f'{PROG}: {scene.name or scene_path}, dt {sim.world.dt:g} s, {sim.steps} steps to '
+              f't = {sim.world.time:.6g} s in {wall:.2f} s wall; recorded '
+              f'{c.get("/joint_states", 0)} joint states, '
+              f'{sum(v for k, v in c.items() if "joint_torque" in k)} commands -> {args.out}'
+              + (f'; {sim.not_converged} steps not converged' if sim.not_converged else ''))
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())

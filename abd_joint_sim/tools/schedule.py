@@ -1,0 +1,243 @@
+"""Commands over simulated time: the schedule YAML of ``run_headless`` (docs/replay.md).
+
+A schedule is a list of events, each at a time ``t`` [s] with torque and/or enable commands:
+
+.. code-block:: yaml
+
+    duration: 1.0                    # s, optional (default: last event + 1 s)
+    parameters:                      # optional, sim_node's parameters (same meaning)
+      time_step: 0.004               #   0 = the scene's dt
+      publish_rate: 100.0            #   Hz of simulated time; 0 = every step
+      command_timeout: 0.0
+      effort_limits: []              #   one per joint of `joints`
+      joints: []                     #   order of the array form below
+      frame_id: ''
+    events:
+      - t: 0.0
+        enable: {shoulder: true}     # per joint, or `enable: false` for all actuated joints
+        torque: {shoulder: 2.0}      # per joint [N m] (= joint_torque/<joint>)
+      - t: 0.5
+        torque: [1.0, -0.5]          # array form, in `joints` order (= joint_torque_commands)
+
+A bare list is accepted as ``events``. Times must be finite, >= 0 and strictly increasing.
+An event takes effect at the first step boundary at or after ``t`` (as a command sent to
+sim_node does); within one event enables act before torques, the array before per-joint
+torques (the order sim_node records and a replay applies them).
+
+Everything here is plain Python; errors are :class:`ScheduleError` with one line naming the
+file and the field.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import yaml
+
+from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns
+from abd_joint_sim.ros.params import coerce
+
+SCHEDULE_PARAMETERS = ('time_step', 'publish_rate', 'command_timeout', 'effort_limits',
+                       'joints', 'frame_id')
+"""sim_node parameters a schedule may set (the rest do not apply to a headless run)."""
+
+DEFAULT_TAIL = 1.0
+"""Seconds simulated after the last event when no duration is given."""
+
+
+class ScheduleError(ValueError):
+    """A schedule (or a command taken from a bag) that cannot be run; one line."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """One command as sim_node receives it on a topic.
+
+    kind: ``'enable'`` (joint, bool), ``'enable_all'`` (bool), ``'array'`` (list of
+    floats in `joints` order) or ``'torque'`` (joint, float).
+    """
+
+    t_ns: int
+    kind: str
+    joint: Optional[str]
+    value: Any
+    where: str = ''
+
+    def describe(self) -> str:
+        return self.where or f'{self.kind} {self.joint or ""} at t={self.t_ns / NS_PER_S:g} s'
+
+
+@dataclass
+class Segment:
+    """Commands (in application order) from a start (or ~/reset) to ``end_ns``."""
+
+    commands: list[Command] = field(default_factory=list)
+    end_ns: int = 0
+
+
+@dataclass
+class Plan:
+    """What a headless run does: segments separated by resets, and parameter values."""
+
+    segments: list[Segment]
+    parameters: dict[str, Any] = field(default_factory=dict)
+    source: str = ''
+    duration_given: bool = False
+
+
+def _fail(where: str, what: str) -> ScheduleError:
+    return ScheduleError(f'{where}: {what}')
+
+
+def _number(where: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _fail(where, f'expected a number, got {value!r}')
+    value = float(value)
+    if not math.isfinite(value):
+        raise _fail(where, f'{value} is not finite')
+    return value
+
+
+def _flag(where: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise _fail(where, f'expected true or false, got {value!r}')
+    return value
+
+
+def _joint_name(where: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise _fail(where, f'joint names are strings, got {value!r}')
+    return value
+
+
+def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
+    """Validate schedule data (already parsed YAML) into a one-segment :class:`Plan`.
+
+    Joint names are checked later, against the scene (:func:`check_plan`).
+    """
+    if isinstance(data, list):
+        data = {'events': data}
+    if data is None:
+        raise _fail(source, 'empty schedule; expected a mapping with `events` (docs/replay.md)')
+    if not isinstance(data, dict):
+        raise _fail(source, f'expected a mapping with `events` (or a list of events), got '
+                            f'{type(data).__name__}')
+    unknown = sorted(set(map(str, data)) - {'duration', 'parameters', 'events'})
+    if unknown:
+        raise _fail(f'{source}: {unknown[0]}',
+                    'unknown key (allowed: duration, parameters, events)')
+    params: dict[str, Any] = {}
+    raw_params = data.get('parameters') or {}
+    if not isinstance(raw_params, dict):
+        raise _fail(f'{source}: parameters', f'expected a mapping, got {raw_params!r}')
+    for name, value in raw_params.items():
+        if name not in SCHEDULE_PARAMETERS:
+            raise _fail(f'{source}: parameters.{name}',
+                        f'not a parameter of a headless run (allowed: '
+                        f'{", ".join(SCHEDULE_PARAMETERS)})')
+        try:
+            params[name] = coerce(name, value)
+        except ValueError as exc:
+            raise _fail(f'{source}: parameters.{name}', str(exc)) from None
+    events = data.get('events')
+    if events is None:
+        events = []
+    if not isinstance(events, list):
+        raise _fail(f'{source}: events', f'expected a list of events, got {events!r}')
+    commands: list[Command] = []
+    last_t: Optional[float] = None
+    for i, event in enumerate(events):
+        where = f'{source}: events[{i}]'
+        if not isinstance(event, dict):
+            raise _fail(where, f'expected a mapping with t and torque/enable, got {event!r}')
+        unknown = sorted(set(map(str, event)) - {'t', 'torque', 'enable'})
+        if unknown:
+            raise _fail(f'{where}.{unknown[0]}', 'unknown key (allowed: t, torque, enable)')
+        if 't' not in event:
+            raise _fail(f'{where}.t', 'missing (the time in seconds)')
+        t = _number(f'{where}.t', event['t'])
+        if t < 0.0:
+            raise _fail(f'{where}.t', f'{t:g} is negative; times start at 0')
+        if last_t is not None and t <= last_t:
+            raise _fail(f'{where}.t', f'{t:g} is not after the previous event\'s t = '
+                                      f'{last_t:g}; list events in increasing time, one per time')
+        last_t = t
+        if 'torque' not in event and 'enable' not in event:
+            raise _fail(where, 'has neither torque nor enable')
+        t_ns = seconds_to_ns(t)
+        enable = event.get('enable')
+        if 'enable' in event:
+            if isinstance(enable, dict):
+                if not enable:
+                    raise _fail(f'{where}.enable', 'empty mapping')
+                for joint, flag in enable.items():
+                    joint = _joint_name(f'{where}.enable', joint)
+                    commands.append(Command(t_ns, 'enable', joint,
+                                            _flag(f'{where}.enable.{joint}', flag),
+                                            f'{where}.enable.{joint}'))
+            else:
+                commands.append(Command(t_ns, 'enable_all', None,
+                                        _flag(f'{where}.enable', enable), f'{where}.enable'))
+        torque = event.get('torque')
+        if 'torque' in event:
+            if isinstance(torque, list):
+                values = [_number(f'{where}.torque[{k}]', v) for k, v in enumerate(torque)]
+                commands.append(Command(t_ns, 'array', None, values, f'{where}.torque'))
+            elif isinstance(torque, dict):
+                if not torque:
+                    raise _fail(f'{where}.torque', 'empty mapping')
+                for joint, value in torque.items():
+                    joint = _joint_name(f'{where}.torque', joint)
+                    commands.append(Command(t_ns, 'torque', joint,
+                                            _number(f'{where}.torque.{joint}', value),
+                                            f'{where}.torque.{joint}'))
+            else:
+                raise _fail(f'{where}.torque', f'expected {{joint: N m}} or a list in `joints` '
+                                               f'order, got {torque!r}')
+    # Enables before the array before per-joint torques, within one time (stable sort).
+    rank = {'enable_all': 0, 'enable': 1, 'array': 2, 'torque': 3}
+    commands.sort(key=lambda c: (c.t_ns, rank[c.kind]))
+    duration = data.get('duration')
+    if duration is not None:
+        duration = _number(f'{source}: duration', duration)
+        if duration <= 0.0:
+            raise _fail(f'{source}: duration', f'{duration:g} must be > 0')
+        end_ns = seconds_to_ns(duration)
+    else:
+        end_ns = seconds_to_ns((last_t or 0.0) + DEFAULT_TAIL)
+    return Plan([Segment(commands, end_ns)], params, source, duration is not None)
+
+
+def load_schedule(path: str | Path) -> Plan:
+    """Read and validate a schedule YAML file (:class:`ScheduleError` on any problem)."""
+    from abd_joint_sim.scene import load_yaml   # YAML 1.2 floats (1e3), as scene files
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScheduleError(f'{path}: cannot read schedule: {exc.strerror or exc}') from None
+    try:
+        data = load_yaml(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+        problem = getattr(exc, 'problem', None) or str(exc)
+        raise ScheduleError(f'{path}: not valid YAML{where}: {problem}') from None
+    return parse_schedule(data, str(path))
+
+
+def check_plan(plan: Plan, actuated: Sequence[str], order: Sequence[str]) -> None:
+    """Every command names an actuated joint and every array has one value per joint of
+    `order` (what sim_node would reject)."""
+    actuated_set = set(actuated)
+    for seg in plan.segments:
+        for cmd in seg.commands:
+            if cmd.joint is not None and cmd.joint not in actuated_set:
+                raise ScheduleError(f'{cmd.describe()}: {cmd.joint!r} is not an actuated joint '
+                                    f'of the scene (actuated: {", ".join(actuated) or "none"})')
+            if cmd.kind == 'array' and len(cmd.value) != len(order):
+                raise ScheduleError(f'{cmd.describe()}: {len(cmd.value)} values, expected '
+                                    f'{len(order)} (one per joint of `joints`: '
+                                    f'{", ".join(order)})')

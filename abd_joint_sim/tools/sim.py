@@ -1,0 +1,233 @@
+"""The headless stepping loop and the recorder, mirroring sim_node without DDS.
+
+:class:`HeadlessSim` owns a ``World`` and the node's :class:`~abd_joint_sim.ros.commands.
+CommandBuffer`. For every step it hands the commands due at that step boundary to the buffer
+(as the node's subscription callbacks do), applies them (``CommandBuffer.apply``: same
+validation, clamping, command timeout), steps, and tells an observer. Between segments of a
+plan it resets like the node's ``~/reset`` service.
+
+:class:`BagRecorder` is the observer ``run_headless`` uses: it writes sim_node's bag layout
+(topics, types, QoS, custom data, attachments; messages built by ``ros.convert``) with the
+node's publishing rules: ``/clock`` after every step, ``/joint_states`` at ``publish_rate``
+(and the initial/reset state always), commands as applied at their step boundary.
+
+The publishing and command-recording rules are re-stated from ``ros/node.py``
+(``SimNode._publish_state``, ``_record_commands``, ``_open_recorder``); keep them in step.
+"""
+from __future__ import annotations
+
+from collections import deque
+import time
+from typing import Any, Optional, Protocol
+
+import yaml
+
+from abd_joint_sim.ros import convert
+from abd_joint_sim.ros.commands import Applied, CommandBuffer
+from abd_joint_sim.ros.params import NODE_NAME, SimConfig
+
+from .schedule import Command, Plan
+
+TOPIC_JOINT_STATES = '/joint_states'
+TOPIC_CLOCK = '/clock'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+TOPIC_TORQUE_ARRAY = '/joint_torque_commands'
+TOPIC_TORQUE_JOINT = '/joint_torque/{joint}'
+TOPIC_ENABLE_ALL = '/joint_torque_enable'
+TOPIC_ENABLE_JOINT = '/joint_torque_enable/{joint}'
+DIAGNOSTICS_PERIOD_NS = convert.NS_PER_S   # headless: one /diagnostics per simulated second
+
+
+class Observer(Protocol):
+    def on_state(self, sim: 'HeadlessSim', segment: int, force: bool) -> None: ...
+
+    def on_applied(self, sim: 'HeadlessSim', applied: Applied) -> None: ...
+
+
+class HeadlessSim:
+    """A World driven by a :class:`Plan`, with sim_node's command semantics.
+
+    :param clamp: apply the ``effort_limits`` parameter (True for a schedule; False when the
+        commands come from a bag, where they are stored already clamped, so that a live
+        change of the limits during the recorded run cannot clamp them a second time).
+    """
+
+    def __init__(self, scene: Any, config: SimConfig, clamp: bool = True):
+        from abd_joint_sim import World
+        self.scene = scene
+        self.config = config
+        self.world = World(scene, dt=config.time_step or None)
+        self.actuated = list(self.world.actuated_joint_names)
+        limits = getattr(self.world.model, 'torque_effort_limit', None)
+        scene_limits = ({} if limits is None else
+                        {j: float(v) for j, v in zip(self.actuated, limits)})
+        self.commands = CommandBuffer(self.actuated, config.joints,
+                                      config.effort_limits if clamp else [],
+                                      config.command_timeout, scene_limits=scene_limits)
+        config.joints = list(self.commands.order)
+        self.steps = 0
+        self.not_converged = 0
+        self.clamps: list[tuple[Command, Any]] = []
+        self.unapplied: list[Command] = []
+
+    @property
+    def time_ns(self) -> int:
+        return convert.seconds_to_ns(self.world.time)
+
+    def reset(self) -> None:
+        """As sim_node's ``~/reset``: initial state, t = 0, torque commands cleared to 0."""
+        self.world.reset()
+        self.commands.clear()
+        for joint in self.actuated:
+            self.world.set_torque(joint, 0.0)
+
+    def _queue(self, cmd: Command) -> None:
+        """Hand one command to the buffer, as the node's subscription callback would."""
+        if cmd.kind == 'enable':
+            rejections, clamps = self.commands.command_enable(cmd.joint, cmd.value), []
+        elif cmd.kind == 'enable_all':
+            self.commands.command_enable_all(cmd.value)
+            rejections, clamps = [], []
+        elif cmd.kind == 'array':
+            rejections, clamps = self.commands.command_array(cmd.value)
+        elif cmd.kind == 'torque':
+            rejections, clamps = self.commands.command_torque(cmd.joint, cmd.value)
+        else:
+            raise ValueError(f'{cmd.describe()}: unknown command kind {cmd.kind!r}')
+        if rejections:
+            # check_plan() refuses these before the run; here only as a safety net.
+            raise ValueError(f'{cmd.describe()}: {rejections[0]}')
+        self.clamps.extend((cmd, c) for c in clamps)
+
+    def run(self, plan: Plan, observer: Observer) -> None:
+        """Simulate every segment of `plan`; raises SimulationError if a step fails."""
+        for k, seg in enumerate(plan.segments):
+            if k > 0:
+                self.reset()
+            observer.on_state(self, k, True)
+            pending = deque(seg.commands)
+            while self.time_ns < seg.end_ns:
+                now = self.time_ns
+                while pending and pending[0].t_ns <= now:
+                    self._queue(pending.popleft())
+                applied = self.commands.apply(self.world)
+                if applied:
+                    observer.on_applied(self, applied)
+                report = self.world.step()
+                self.steps += 1
+                if not getattr(report, 'converged', True):
+                    self.not_converged += 1
+                observer.on_state(self, k, False)
+            self.unapplied.extend(pending)
+
+
+def parameters_yaml(config: SimConfig) -> str:
+    """The effective parameters as sim_node stores them (a ros2 params file)."""
+    return yaml.safe_dump({NODE_NAME: {'ros__parameters': config.as_dict()}}, sort_keys=False)
+
+
+class BagRecorder:
+    """Observer writing sim_node's bag layout through ``abd_joint_sim.record.BagWriter``."""
+
+    def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
+                 extra_custom: Optional[dict[str, str]] = None):
+        from abd_joint_sim.record import BagWriter
+        self.sim = sim
+        config = sim.config
+        params_text = parameters_yaml(config)
+        custom = {
+            'abd_joint_sim.scene_path': scene_path,
+            'abd_joint_sim.scene_yaml': scene_text,
+            'abd_joint_sim.parameters_yaml': params_text,
+            'abd_joint_sim.time_step': repr(float(sim.world.dt)),
+            'abd_joint_sim.joints': ','.join(sim.commands.order),
+        }
+        custom.update(extra_custom or {})
+        attachments = {'scene.yaml': scene_text.encode(), 'parameters.yaml': params_text.encode()}
+        self.writer = BagWriter(path, custom_data=custom, attachments=attachments)
+        self.writer.open()
+        try:
+            w = self.writer
+            w.add_topic(TOPIC_JOINT_STATES, 'sensor_msgs/msg/JointState', qos='reliable')
+            w.add_topic(TOPIC_CLOCK, 'rosgraph_msgs/msg/Clock', qos='best_effort')
+            w.add_topic(TOPIC_DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray',
+                        qos='reliable')
+            w.add_topic(TOPIC_TORQUE_ARRAY, 'std_msgs/msg/Float64MultiArray', qos='reliable')
+            w.add_topic(TOPIC_ENABLE_ALL, 'std_msgs/msg/Bool', qos='reliable')
+            for joint in sim.actuated:
+                w.add_topic(TOPIC_TORQUE_JOINT.format(joint=joint), 'std_msgs/msg/Float64',
+                            qos='reliable')
+                w.add_topic(TOPIC_ENABLE_JOINT.format(joint=joint), 'std_msgs/msg/Bool',
+                            qos='reliable')
+        except BaseException:
+            self.writer.close()
+            raise
+        self.joint_names = list(sim.world.joint_names)
+        self._next_publish_ns = 0
+        self._next_diag_ns = DIAGNOSTICS_PERIOD_NS
+        self._wall0 = time.monotonic()
+        self.counts: dict[str, int] = {}
+
+    def _write(self, topic: str, t_ns: int, msg: Any) -> None:
+        self.writer.write(topic, t_ns, msg)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    # -- Observer -------------------------------------------------------------------------
+    def on_state(self, sim: HeadlessSim, segment: int, force: bool) -> None:
+        """sim_node's ``_publish_state``: /clock always, /joint_states at publish_rate."""
+        world = sim.world
+        t_ns = sim.time_ns
+        self._write(TOPIC_CLOCK, t_ns, convert.clock_msg(t_ns))
+        if force:           # start or reset: the node's publish schedule restarts
+            self._next_publish_ns = 0
+            self._next_diag_ns = t_ns + DIAGNOSTICS_PERIOD_NS
+        rate = sim.config.publish_rate
+        publish = force or rate <= 0.0 or t_ns >= self._next_publish_ns
+        if publish:
+            if rate > 0.0:
+                period_ns = max(1, int(round(1e9 / rate)))
+                self._next_publish_ns = (t_ns // period_ns + 1) * period_ns
+            self._write(TOPIC_JOINT_STATES, t_ns, convert.joint_state_msg(
+                t_ns, self.joint_names, world.joint_angles(), world.joint_velocities(),
+                world.applied_torques(), sim.config.frame_id))
+        if not force and t_ns >= self._next_diag_ns:
+            self._next_diag_ns = t_ns + DIAGNOSTICS_PERIOD_NS
+            self._write(TOPIC_DIAGNOSTICS, t_ns, self._diagnostics(sim, t_ns))
+
+    def on_applied(self, sim: HeadlessSim, applied: Applied) -> None:
+        """sim_node's ``_record_commands``: enables, the array, then per-joint torques."""
+        t_ns = convert.seconds_to_ns(applied.time)
+        for joint, flag in applied.enables.items():
+            self._write(TOPIC_ENABLE_JOINT.format(joint=joint), t_ns, convert.bool_msg(flag))
+        if applied.array is not None:
+            self._write(TOPIC_TORQUE_ARRAY, t_ns, convert.float64_array_msg(applied.array))
+        for joint, value in applied.torques.items():
+            if applied.sources.get(joint) == 'joint':
+                self._write(TOPIC_TORQUE_JOINT.format(joint=joint), t_ns,
+                            convert.float64_msg(value))
+
+    def _diagnostics(self, sim: HeadlessSim, t_ns: int):
+        last = getattr(sim.world, 'last_step', None)
+        converged = bool(getattr(last, 'converged', True))
+        wall = max(time.monotonic() - self._wall0, 1e-9)
+        values = {
+            'sim_time': float(sim.world.time),
+            'steps': sim.steps,
+            'paused': False,
+            'time_step': float(sim.world.dt),
+            'real_time_factor_requested': 0.0,
+            'real_time_factor_achieved': float(sim.world.time) / wall,
+            'newton_iterations': getattr(last, 'newton_iterations', 0),
+            'line_search_iterations': getattr(last, 'line_search_iterations', 0),
+            'converged': converged,
+            'not_converged_steps_total': sim.not_converged,
+            'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
+            'substeps': getattr(last, 'substeps', 1),
+            'recording': True,
+        }
+        ok = converged and not (getattr(last, 'warnings', None) or [])
+        return convert.diagnostics_msg(t_ns, f'{NODE_NAME}: solver', NODE_NAME, ok,
+                                       'running' if ok else 'solver warnings', values)
+
+    def close(self) -> None:
+        self.writer.close()
