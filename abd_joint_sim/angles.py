@@ -22,8 +22,10 @@ def _frames(model, q, joints):
     Ai, Aj = A[model.joint_parent[joints]], A[model.joint_child[joints]]
     nbi, nbj = model.joint_nbar[joints, 0], model.joint_nbar[joints, 1]
     bbi, bbj = model.joint_bbar[joints, 0], model.joint_bbar[joints, 1]
-    ni, nj = np.einsum('jrc,jc->jr', Ai, nbi), np.einsum('jrc,jc->jr', Aj, nbj)
-    bi, bj = np.einsum('jrc,jc->jr', Ai, bbi), np.einsum('jrc,jc->jr', Aj, bbj)
+    # columns 0, 1 of A @ [n̄ b̄]: both frame vectors in one batched product per body
+    fi = np.matmul(Ai, np.stack([nbi, bbi], axis=2))
+    fj = np.matmul(Aj, np.stack([nbj, bbj], axis=2))
+    ni, bi, nj, bj = fi[:, :, 0], fi[:, :, 1], fj[:, :, 0], fj[:, :, 1]
     return (ni, nj, bi, bj), (nbi, nbj, bbi, bbj)
 
 

@@ -43,10 +43,11 @@ class NewtonSolver:
         self.terms = terms
         self.system = system
         self.free = ~model.body_fixed
+        self.M_free = np.ascontiguousarray(model.body_M[self.free])
 
     def potential(self, q, q_tilde, scale, ctx) -> float:
         d = (q - q_tilde)[self.free]
-        E = 0.5 * scale * float(np.einsum('bi,bij,bj->', d, self.model.body_M[self.free], d))
+        E = 0.5 * scale * float(np.sum(np.matmul(self.M_free, d[:, :, None])[:, :, 0] * d))
         for term in self.terms:
             E += term.energy(q, ctx)
         return E
@@ -66,15 +67,15 @@ class NewtonSolver:
             grad = np.zeros((B, 12))
             diag = np.zeros((B, 12, 12))
             pair = np.zeros((J, 12, 12))
-            grad[free] = scale * np.einsum('bij,bj->bi', m.body_M[free], (q - q_tilde)[free])
-            diag[free] = scale * m.body_M[free]
+            grad[free] = scale * np.matmul(self.M_free, (q - q_tilde)[free][:, :, None])[:, :, 0]
+            diag[free] = scale * self.M_free
             for term in self.terms:
                 term.accumulate(q, ctx, grad, diag, pair)
             dq = self.system.solve(diag, pair, grad)
             if not np.all(np.isfinite(dq)):
                 return NewtonResult(q, Status.NONFINITE, it, ls_total, np.inf)
             dqf = dq[free]
-            move = dqf[:, None, :3] + np.einsum('bkc,brc->bkr', corners, dqf[:, 3:12].reshape(-1, 3, 3))
+            move = dqf[:, None, :3] + np.matmul(corners, dqf[:, 3:12].reshape(-1, 3, 3).transpose(0, 2, 1))
             disp = float(np.max(np.linalg.norm(move, axis=2))) if len(dqf) else 0.0
             rate = float(np.max(np.abs(dqf[:, 3:12]))) if len(dqf) else 0.0
             converged = disp <= spec.velocity_tol * h and rate <= spec.transrate_tol * h

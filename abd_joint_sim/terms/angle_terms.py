@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..angles import joint_theta, joint_theta_derivatives, unwrap
-from .base import EnergyTerm, add_pair_gradient, add_pair_hessian, project_psd
+from .base import EnergyTerm, PairScatter, project_psd
 
 AFFINE = tuple(range(3, 12))
 
@@ -19,6 +19,14 @@ class _AngleTerm(EnergyTerm):
     def __init__(self, model, joints):
         self.model = model
         self.joints = joints
+        self._scatter = {}
+
+    def _scatter_for(self, active):
+        """Scatter for the active subset (cached: the active set rarely changes)."""
+        key = active.tobytes()
+        if key not in self._scatter:
+            self._scatter[key] = PairScatter(self.model, self.joints[active], AFFINE)
+        return self._scatter[key]
 
     def _active(self, ctx):
         return np.ones(len(self.joints), bool)
@@ -45,11 +53,12 @@ class _AngleTerm(EnergyTerm):
         joints = self.joints[active]
         theta, dth, ddth = joint_theta_derivatives(self.model, q, joints)
         _, d1, d2 = self._phi(self._x(theta, ctx, active), ctx, active)
-        add_pair_gradient(self.model, joints, d1[:, None] * dth, grad, AFFINE)
+        scatter = self._scatter_for(active)
+        scatter.gradient(d1[:, None] * dth, grad)
         H = d2[:, None, None] * np.einsum('ja,jb->jab', dth, dth) + d1[:, None, None] * ddth
         if project:
             H = project_psd(H)
-        add_pair_hessian(self.model, joints, H, diag, pair, AFFINE)
+        scatter.hessian(H, diag, pair)
 
 
 class Driving(_AngleTerm):

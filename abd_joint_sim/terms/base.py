@@ -33,26 +33,44 @@ def project_psd(H: np.ndarray) -> np.ndarray:
     return np.einsum('...ik,...k,...jk->...ij', V, np.maximum(w, 0.0), V)
 
 
-def add_pair_hessian(model, joints, H, diag, pair, cols):
-    """Scatter per-joint Hessians over body pairs. `cols` are the 12-DOF columns covered:
-    H is (n, 2*len(cols), 2*len(cols)) on [q_i[cols], q_j[cols]]."""
-    m = len(cols)
-    c = np.asarray(cols)
-    pi, cj = model.joint_parent[joints], model.joint_child[joints]
-    ix = np.ix_(c, c)
-    blk = np.zeros((len(joints), 12, 12))
-    blk[(slice(None),) + ix] = H[:, :m, :m]
-    np.add.at(diag, pi, blk)
-    blk[(slice(None),) + ix] = H[:, m:, m:]
-    np.add.at(diag, cj, blk)
-    blk[(slice(None),) + ix] = H[:, :m, m:]
-    np.add.at(pair, joints, blk)
+class PairScatter:
+    """Adds per-joint quantities on [q_i[cols], q_j[cols]] into per-body arrays.
 
+    Built once per term: the parent/child incidence of its joints as sparse matrices, so
+    one sparse-dense product replaces a scatter loop (np.add.at is ~10x slower here).
+    """
 
-def add_pair_gradient(model, joints, g, grad, cols):
-    m = len(cols)
-    np.add.at(grad, (model.joint_parent[joints][:, None], np.asarray(cols)[None, :]), g[:, :m])
-    np.add.at(grad, (model.joint_child[joints][:, None], np.asarray(cols)[None, :]), g[:, m:])
+    def __init__(self, model, joints, cols):
+        import scipy.sparse
+        self.joints = np.asarray(joints)
+        self.cols = np.asarray(cols)
+        self.m = len(cols)
+        self.full = self.m == 12
+        n, B = len(self.joints), model.body_count
+        ones = np.ones(n)
+        idx = np.arange(n)
+        self.parent = scipy.sparse.csr_matrix((ones, (model.joint_parent[self.joints], idx)), shape=(B, n))
+        self.child = scipy.sparse.csr_matrix((ones, (model.joint_child[self.joints], idx)), shape=(B, n))
+        self.sl = slice(int(self.cols[0]), int(self.cols[-1]) + 1)
+        assert np.array_equal(self.cols, np.arange(self.cols[0], self.cols[-1] + 1)), 'cols must be a range'
+
+    def gradient(self, g, grad):
+        """g (n, 2m) -> grad (B,12)."""
+        m = self.m
+        grad[:, self.sl] += self.parent @ g[:, :m] + self.child @ g[:, m:]
+
+    def hessian(self, H, diag, pair):
+        """H (n, 2m, 2m) -> diag (B,12,12) and pair (J,12,12) blocks."""
+        m, n, sl = self.m, len(self.joints), self.sl
+        Hpp = np.ascontiguousarray(H[:, :m, :m]).reshape(n, m * m)
+        Hcc = np.ascontiguousarray(H[:, m:, m:]).reshape(n, m * m)
+        add = (self.parent @ Hpp + self.child @ Hcc).reshape(-1, m, m)
+        if self.full:
+            diag += add
+            pair[self.joints] += H[:, :m, m:]
+        else:
+            diag[:, sl, sl] += add
+            pair[self.joints, sl, sl] += H[:, :m, m:]
 
 
 class EnergyTerm:

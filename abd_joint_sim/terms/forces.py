@@ -58,7 +58,7 @@ class ExternalTorque:
         e = []
         for side, body in enumerate((m.joint_parent[self.joints], m.joint_child[self.joints])):
             d = m.joint_anchor1[self.joints, side] - m.joint_anchor0[self.joints, side]
-            v = np.einsum('trc,tc->tr', A[body], d)
+            v = np.matmul(A[body], d[:, :, None])[:, :, 0]
             e.append(v / np.linalg.norm(v, axis=1, keepdims=True))
         e_j = 0.5 * (e[0] + e[1])
         return -e_j, e_j
@@ -92,4 +92,4 @@ class ExternalTorque:
         for b in skipped:
             warnings.append(f'body {self.model.body_names[b]!r}: affine matrix near-singular '
                             f'(|det A|/(|a1||a2||a3|) < {SINGULAR_RATIO}); joint torque not applied')
-        out += np.einsum('bij,bj->bi', self.model.body_Minv, F)
+        out += np.matmul(self.model.body_Minv, F[:, :, None])[:, :, 0]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import point_jacobian
-from .base import EnergyTerm, add_pair_gradient, add_pair_hessian
+from .base import EnergyTerm, PairScatter
 
 ALL = tuple(range(12))
 
@@ -23,31 +23,38 @@ class RevoluteJoint(EnergyTerm):
     def __init__(self, model):
         self.model = model
         self.joints = np.arange(model.joint_count)
-        # point Jacobians (J, anchor a, side k, 3, 12)
-        self.jac = np.stack([point_jacobian(model.joint_anchor0), point_jacobian(model.joint_anchor1)], axis=1)
+        # rest anchors per side k: (J, anchor a, 3)
+        self.xbar = [np.stack([model.joint_anchor0[:, k], model.joint_anchor1[:, k]], axis=1) for k in (0, 1)]
+        self.scatter = PairScatter(model, self.joints, ALL)
 
     @classmethod
     def build(cls, model):
         return cls(model) if model.joint_count else None
 
     def _separations(self, q):
-        """J(x̄a_i) q_i − J(x̄a_j) q_j for a = 0, 1: (J,2,3). Computed as differences of
+        """x_i − x_j of both anchor pairs, x = A x̄ + p: (J,2,3). Computed as differences of
         positions, not as zᵀHz, whose terms (K|x|²) cancel catastrophically."""
         m = self.model
-        xi = np.einsum('jarc,jc->jar', self.jac[:, :, 0], q[m.joint_parent])
-        xj = np.einsum('jarc,jc->jar', self.jac[:, :, 1], q[m.joint_child])
-        return xi - xj
+        out = []
+        for k, body in enumerate((m.joint_parent, m.joint_child)):
+            A = q[body, 3:12].reshape(-1, 3, 3)
+            out.append(np.matmul(self.xbar[k], A.transpose(0, 2, 1)) + q[body, None, :3])
+        return out[0] - out[1]
 
     def energy(self, q, ctx):
         d = self._separations(q)
-        return 0.5 * float(np.sum(self.model.joint_K * np.einsum('jar,jar->j', d, d)))
+        return 0.5 * float(np.dot(self.model.joint_K, (d * d).sum(axis=(1, 2))))
 
     def accumulate(self, q, ctx, grad, diag, pair, project=True):
-        d = self.model.joint_K[:, None, None] * self._separations(q)
-        g = np.concatenate([np.einsum('jarc,jar->jc', self.jac[:, :, 0], d),
-                            -np.einsum('jarc,jar->jc', self.jac[:, :, 1], d)], axis=1)
-        add_pair_gradient(self.model, self.joints, g, grad, ALL)
-        add_pair_hessian(self.model, self.joints, self.model.joint_hessian, diag, pair, ALL)
+        d = self.model.joint_K[:, None, None] * self._separations(q)      # K (x_i − x_j)
+        n = len(self.joints)
+        g = np.empty((n, 24))
+        for k, sign in ((0, 1.0), (1, -1.0)):
+            # ∂/∂p = Σ_a K d_a,  ∂/∂A = Σ_a K d_a x̄_aᵀ
+            g[:, 12 * k:12 * k + 3] = sign * d.sum(axis=1)
+            g[:, 12 * k + 3:12 * k + 12] = sign * np.matmul(d.transpose(0, 2, 1), self.xbar[k]).reshape(n, 9)
+        self.scatter.gradient(g, grad)
+        self.scatter.hessian(self.model.joint_hessian, diag, pair)
 
 
 def joint_separation(model, q) -> np.ndarray:
