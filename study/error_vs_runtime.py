@@ -35,7 +35,7 @@ try:
 except ImportError:
     import scenes as S  # type: ignore
 
-FULL = dict(dts=(1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4), tols=(0.05, 0.005, 0.0005), horizon=0.5,
+FULL = dict(dts=(1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4), tols=(0.05, 0.005), horizon=0.3,
             fit_min_dt=5e-4)
 QUICK = dict(dts=(1e-2, 5e-3, 2e-3, 1e-3), tols=(0.05, 0.005), horizon=0.25, fit_min_dt=1e-3)
 INTEGRATORS = ('bdf1', 'bdf2')
