@@ -31,6 +31,10 @@ class _AngleTerm(EnergyTerm):
     def _active(self, ctx):
         return np.ones(len(self.joints), bool)
 
+    def _active_at(self, q, ctx):
+        """Joints whose energy may be non-zero at q (default: those active in ctx)."""
+        return self._active(ctx)
+
     def _phi(self, x, ctx, active):
         """(E, E', E'') per active joint as functions of the unwrapped relative angle x."""
         raise NotImplementedError
@@ -39,7 +43,7 @@ class _AngleTerm(EnergyTerm):
         return unwrap(theta, ctx.joint_rel_start[self.joints[active]])
 
     def energy(self, q, ctx):
-        active = self._active(ctx)
+        active = self._active_at(q, ctx)
         if not active.any():
             return 0.0
         theta = joint_theta(self.model, q, self.joints[active])
@@ -47,7 +51,7 @@ class _AngleTerm(EnergyTerm):
         return float(E.sum())
 
     def accumulate(self, q, ctx, grad, diag, pair, project=True):
-        active = self._active(ctx)
+        active = self._active_at(q, ctx)
         if not active.any():
             return
         joints = self.joints[active]
@@ -92,12 +96,22 @@ class Limit(_AngleTerm):
     def build(cls, model):
         return cls(model, model.limit_joints) if len(model.limit_joints) else None
 
-    def _phi(self, x, ctx, active):
+    def _bounds(self, active):
         m = self.model
-        init = m.joint_init_angle[self.joints]
-        lo, up, s = m.limit_lower - init, m.limit_upper - init, m.limit_strength
+        init = m.joint_init_angle[self.joints[active]]
+        return m.limit_lower[active] - init, m.limit_upper[active] - init, m.limit_strength[active]
+
+    def _active_at(self, q, ctx):
+        # Inside its range a limit has exactly zero energy, gradient and Hessian: only the
+        # joints outside (or on a zero-width limit) need derivatives.
+        everything = np.ones(len(self.joints), bool)
+        x = self._x(joint_theta(self.model, q, self.joints), ctx, everything)
+        lo, up, _ = self._bounds(everything)
+        return (x > up) | (x < lo) | ((lo == up) & (x != lo))
+
+    def _phi(self, x, ctx, active):
+        lo, up, s = self._bounds(active)
         w = up - lo
-        E, d1, d2 = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
         zero = w == 0.0
         ws = np.where(zero, 1.0, w)
         above, below = (x > up) & ~zero, (x < lo) & ~zero
