@@ -28,6 +28,8 @@ setup(
     entry_points={
         'console_scripts': [
             'sim_node = abd_joint_sim.ros.node:main',
+            'run_headless = abd_joint_sim.tools.run_headless:main',
+            'replay_check = abd_joint_sim.tools.replay_check:main',
         ],
     },
 )
