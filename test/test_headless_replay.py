@@ -418,3 +418,15 @@ def test_live_node_bag_replays(tmp_path):
     assert all(result.worst[f].deviation == 0.0 for f in ('position', 'velocity', 'effort')), \
         result.report()
     assert time.monotonic() - t0 < 20.0
+
+    # run_headless --from-bag writes what the node wrote (reset included), but for the
+    # wall-clock /diagnostics.
+    again = tmp_path / 'again'
+    assert _run_headless('--from-bag', bag, '--out', again, '-q') == 0
+    assert _states(again) == _states(bag)
+    info = yaml.safe_load((again / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    again_counts = {e['topic_metadata']['name']: e['message_count']
+                    for e in info['topics_with_message_count'] if e['message_count']}
+    again_counts.pop('/diagnostics', None)
+    meta_counts.pop('/diagnostics', None)
+    assert again_counts == meta_counts
