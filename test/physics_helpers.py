@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from abd_joint_sim import Scene, World
+from abd_joint_sim.builders import chain_scene
 from abd_joint_sim.scene import load_yaml
 
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
@@ -49,12 +50,4 @@ def rotation_about(axis, phi):
 
 def chain_dict(n_links, *, dt=0.001, torque=1.0, gravity=(0.0, 0.0, 0.0), link=0.2):
     """A fixed base plus n free links along +x joined by vertical hinges, all actuated."""
-    bodies = [box('base', (0.0, 0.0, 0.0), (link, link, link), fixed=True)]
-    joints = []
-    for k in range(1, n_links + 1):
-        bodies.append(box(f'link{k}', (k * link, 0.0, 0.0), (link, 0.5 * link, 0.5 * link)))
-        x = (k - 0.5) * link
-        joints.append(dict(name=f'j{k}', parent=bodies[k - 1]['name'], child=f'link{k}',
-                           p0=[x, 0.0, -0.1], p1=[x, 0.0, 0.1],
-                           external_torque=dict(torque=torque, enabled=True)))
-    return dict(dt=dt, gravity=list(gravity), bodies=bodies, joints=joints)
+    return chain_scene(n_links, dt=dt, torque=torque, gravity=gravity, link=link)

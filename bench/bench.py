@@ -1,0 +1,194 @@
+"""Speed benchmark (issue 6): per-step wall time, steps/s, real-time factor, Newton
+iterations and peak memory for the default scene, the reference hinge, chains of
+1/10/100/1000 links and a branching tree; with MuJoCo and PyBullet installed
+(requirements-bench.txt) the same chains run in them in the same invocation and the table
+gives the ratio (noise on a shared machine mostly cancels). The engines' joint angles are
+compared on a 3-link chain before anything is timed; a mismatch exits 1.
+
+    python bench/bench.py [--quick] [--no-peers] [--no-node] [--backend numpy|numba|auto]
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import platform
+import statistics
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from abd_joint_sim import Scene, World                      # noqa: E402
+from abd_joint_sim.builders import chain_scene, tree_scene  # noqa: E402
+from peers import make_mujoco, make_pybullet                # noqa: E402
+
+SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
+
+
+def _world(d, backend):
+    kw = {} if backend == 'default' else {'backend': backend}
+    try:
+        return World(Scene.from_dict(d), **kw)
+    except TypeError:                       # a World without backends: numpy only
+        return World(Scene.from_dict(d))
+
+
+def time_steps(step, steps, repeats):
+    """Per-step seconds of `repeats` runs of `steps` steps each."""
+    out = []
+    for _ in range(repeats):
+        gc.disable()
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            step()
+        out.append((time.perf_counter() - t0) / steps)
+        gc.enable()
+    return out
+
+
+def bench_ours(d, steps, repeats, backend):
+    w = _world(d, backend)
+    for name in w.actuated_joint_names:
+        w.set_torque(name, w.model.torque_value0[w.actuated_joint_names.index(name)] or 1.0)
+    w.step(3)                                # warm-up (and JIT, if any)
+    its = []
+
+    def step():
+        its.append(w.step().newton_iterations)
+    times = time_steps(step, steps, repeats)
+    tracemalloc.start()
+    w2 = _world(d, backend)
+    w2.step(3)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return dict(times=times, its=float(np.mean(its)), dt=w.dt, mem=peak,
+                kind=w.solver.system.kind, converged=w.last_step.converged)
+
+
+def check_agreement():
+    """3-link chain, 200 steps: the three engines must agree before we time them."""
+    ref = _world(chain_scene(3, torque=0.01), 'default')
+    ref.step(200)
+    ok = True
+    for name, make in (('MuJoCo', make_mujoco), ('PyBullet', make_pybullet)):
+        engine = make(3, tau=0.01)
+        if engine is None:
+            continue
+        step, angles = engine
+        for _ in range(200):
+            step()
+        err = float(np.max(np.abs(angles() - ref.joint_angles())))
+        scale = float(np.max(np.abs(ref.joint_angles())))
+        print(f'agreement with {name} on a 3-link chain after 0.2 s: max |dθ| = {err:.2e} rad '
+              f'(angles up to {scale:.3g} rad)')
+        ok &= err < 0.02 * scale
+    return ok
+
+
+def node_overhead(steps):
+    """Per-step cost of sim_node's step (commands, step, /clock, /joint_states publish)
+    against World.step alone, in one process, no subscribers, no recording."""
+    try:
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        os.environ.setdefault('ROS_DOMAIN_ID', str(90 + os.getpid() % 9))
+        import rclpy
+        from rclpy.parameter import Parameter
+        from abd_joint_sim.ros.node import SimNode
+    except Exception as exc:  # noqa: BLE001 - optional section
+        print(f'node overhead: skipped ({exc})')
+        return None
+    rclpy.init()
+    try:
+        node = SimNode(parameter_overrides=[Parameter('real_time_factor', value=0.0),
+                                            Parameter('start_paused', value=True),
+                                            Parameter('record', value='')])
+        node._step_once()
+        t_node = statistics.median(time_steps(node._step_once, steps, 3))
+        world = node.world
+        t_world = statistics.median(time_steps(world.step, steps, 3))
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    return t_node, t_world
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
+    ap.add_argument('--no-peers', action='store_true', help='skip MuJoCo and PyBullet')
+    ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
+    ap.add_argument('--backend', default='default', help='World backend (if supported)')
+    args = ap.parse_args(argv)
+
+    print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
+          f'Python {platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f}')
+    if not args.no_peers and not check_agreement():
+        print('ERROR: engines disagree on the 3-link chain; not timing.')
+        return 1
+
+    from abd_joint_sim.scene import load_yaml
+    cases = [('default scene', load_yaml((SCENES / 'default.yaml').read_text()), None),
+             ('2-body hinge', load_yaml((SCENES / 'hinge.yaml').read_text()), None)]
+    links = (1, 10, 100) if args.quick else (1, 10, 100, 1000)
+    cases += [(f'chain {n}', chain_scene(n, torque=0.1), n) for n in links]
+    cases.append(('tree 4x2 (31 links)', tree_scene(4, 2), None))
+
+    rows = []
+    per_step = {}
+    for label, d, n in cases:
+        big = n is not None and n >= 1000
+        steps = 3 if big else (20 if (n or 0) >= 100 else (50 if args.quick else 200))
+        repeats = 3 if big else 5
+        r = bench_ours(d, steps, repeats, args.backend)
+        med, best = statistics.median(r['times']), min(r['times'])
+        per_step[label] = med
+        row = dict(label=label, med=med, best=best, sps=1.0 / med, rtf=r['dt'] / med, its=r['its'],
+                   mem=r['mem'], kind=r['kind'], mujoco=None, pybullet=None)
+        if n is not None and not args.no_peers:
+            for name, make in (('mujoco', make_mujoco), ('pybullet', make_pybullet)):
+                engine = make(n, tau=0.1)
+                if engine is None:
+                    continue
+                step, _ = engine
+                for _ in range(3):
+                    step()
+                psteps = max(steps, 2000 if n <= 10 else (200 if n <= 100 else 5))
+                row[name] = statistics.median(time_steps(step, psteps, repeats))
+        rows.append(row)
+        print(f'  {label}: {med * 1e6:.0f} µs/step', flush=True)
+
+    print()
+    print('| scene | solver | µs/step median (min) | steps/s | RTF at dt | Newton it/step | peak MiB '
+          '| MuJoCo µs/step | ours/MuJoCo | PyBullet µs/step | ours/PyBullet |')
+    print('|' + '---|' * 11)
+    for r in rows:
+        def peer(key):
+            if r[key] is None:
+                return '–', '–'
+            return f'{r[key] * 1e6:.1f}', f'{r["med"] / r[key]:.2f}'
+        mj, mjr = peer('mujoco')
+        pb, pbr = peer('pybullet')
+        print(f'| {r["label"]} | {r["kind"]} | {r["med"] * 1e6:.0f} ({r["best"] * 1e6:.0f}) | '
+              f'{r["sps"]:.0f} | {r["rtf"]:.2f} | {r["its"]:.2f} | {r["mem"] / 2 ** 20:.1f} | '
+              f'{mj} | {mjr} | {pb} | {pbr} |')
+    if 'chain 100' in per_step and 'chain 1000' in per_step:
+        a, b = per_step['chain 100'], per_step['chain 1000']
+        print(f'\ncost growth 100 -> 1000 links: x{b / a:.1f} (exponent {np.log10(b / a):.2f}; 1 = linear)')
+    if not args.no_node:
+        res = node_overhead(50 if args.quick else 300)
+        if res:
+            t_node, t_world = res
+            print(f'\nsim_node step on the default scene: {t_node * 1e6:.0f} µs vs World.step '
+                  f'{t_world * 1e6:.0f} µs: node overhead {(t_node - t_world) * 1e6:.0f} µs/step; '
+                  f'RTF with the node at dt 1 ms: {1e-3 / t_node:.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
