@@ -39,6 +39,23 @@ def load_yaml(text: str):
     return yaml.load(text, Loader=_Loader)
 
 
+def read_yaml_file(path, error: type[Exception], what: str):
+    """(text, data) of a YAML file; unreadable or invalid YAML raises `error` with a
+    one-line message naming the file (and the line and column of a syntax error)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise error(f'{path}: cannot read {what}: {exc.strerror or exc}') from None
+    try:
+        return text, load_yaml(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+        problem = getattr(exc, 'problem', None) or str(exc)
+        raise error(f'{path}: not valid YAML{where}: {problem}') from None
+
+
 @dataclass(frozen=True)
 class NewtonSpec:
     velocity_tol: float = 0.05      # m/s: points of every body move < velocity_tol*h per iteration
@@ -124,18 +141,7 @@ class Scene:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> 'Scene':
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise SceneError(f'{path}: cannot read scene file: {exc.strerror or exc}') from None
-        try:
-            data = load_yaml(text)
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, 'problem_mark', None)
-            where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
-            problem = getattr(exc, 'problem', None) or str(exc)
-            raise SceneError(f'{path}: not valid YAML{where}: {problem}') from None
+        text, data = read_yaml_file(path, SceneError, 'scene file')
         return cls.from_dict(data, source=str(path), source_text=text)
 
     @classmethod

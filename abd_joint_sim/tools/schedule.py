@@ -34,7 +34,6 @@ import math
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-import yaml
 
 from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns
 from abd_joint_sim.ros.params import coerce
@@ -212,19 +211,8 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
 
 def load_schedule(path: str | Path) -> Plan:
     """Read and validate a schedule YAML file (:class:`ScheduleError` on any problem)."""
-    from abd_joint_sim.scene import load_yaml   # YAML 1.2 floats (1e3), as scene files
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ScheduleError(f'{path}: cannot read schedule: {exc.strerror or exc}') from None
-    try:
-        data = load_yaml(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
-        problem = getattr(exc, 'problem', None) or str(exc)
-        raise ScheduleError(f'{path}: not valid YAML{where}: {problem}') from None
+    from abd_joint_sim.scene import read_yaml_file   # YAML 1.2 floats (1e3), as scene files
+    _, data = read_yaml_file(path, ScheduleError, 'schedule')
     return parse_schedule(data, str(path))
 
 
