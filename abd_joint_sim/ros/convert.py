@@ -12,6 +12,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 
 NS_PER_S = 1_000_000_000
+OK = DiagnosticStatus.OK
+WARN = DiagnosticStatus.WARN
+ERROR = DiagnosticStatus.ERROR
 
 
 def seconds_to_ns(t: float) -> int:
@@ -85,12 +88,15 @@ def _kv(key: str, value: object) -> KeyValue:
 
 def diagnostics_msg(stamp_ns: int, name: str, hardware_id: str, level_ok: bool,
                     message: str, values: Mapping[str, object],
-                    warn: Optional[bool] = None) -> DiagnosticArray:
-    """One DiagnosticStatus (OK or WARN) in a DiagnosticArray stamped with sim time."""
+                    level: Optional[int] = None) -> DiagnosticArray:
+    """One DiagnosticStatus in a DiagnosticArray stamped with sim time: OK or WARN after
+    `level_ok`, unless `level` (OK, WARN, ERROR) is given."""
     msg = DiagnosticArray()
     msg.header.stamp = ns_to_time_msg(stamp_ns)
     status = DiagnosticStatus()
-    status.level = DiagnosticStatus.OK if level_ok else DiagnosticStatus.WARN
+    if level is None:
+        level = OK if level_ok else WARN
+    status.level = level
     status.name = name
     status.hardware_id = hardware_id
     status.message = message

@@ -9,12 +9,13 @@ overlap with a step and the buffer needs no lock.
 from __future__ import annotations
 
 import math
-import os
 import signal
 import sys
 import time
 from typing import Any, Optional
 
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -24,13 +25,16 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray
 from std_srvs.srv import Trigger
-from diagnostic_msgs.msg import DiagnosticArray
-import yaml
 
 from . import convert
 from .commands import Applied, CommandBuffer
 from .params import (check_live_value, coerce, config_from_values, default_scene_path,
                      NODE_NAME, PARAMS, PARAMS_BY_NAME)
+from .recording import (add_node_topics, bag_custom_data, parameter_event_msg,
+                        PublishSchedule, RECORDED_PARAMETERS, record_applied,
+                        TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
+                        TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY,
+                        TOPIC_TORQUE_JOINT)
 
 JOINT_STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                              reliability=ReliabilityPolicy.RELIABLE,
@@ -41,14 +45,6 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
-
-TOPIC_JOINT_STATES = 'joint_states'
-TOPIC_CLOCK = '/clock'
-TOPIC_DIAGNOSTICS = '/diagnostics'
-TOPIC_TORQUE_ARRAY = 'joint_torque_commands'
-TOPIC_TORQUE_JOINT = 'joint_torque/{joint}'
-TOPIC_ENABLE_ALL = 'joint_torque_enable'
-TOPIC_ENABLE_JOINT = 'joint_torque_enable/{joint}'
 
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
@@ -77,7 +73,10 @@ class SimNode(Node):
 
         self.paused = bool(self.config.start_paused)
         self.steps = 0
-        self._next_publish_ns = 0
+        self.publish_schedule = PublishSchedule()
+        self.fault: Optional[str] = None
+        """Why stepping stopped (a failed step, a non-finite state); None while healthy."""
+        self.recording_error: Optional[str] = None
         self._anchor_wall = time.monotonic()
         self._anchor_sim = self.world.time
         self._stats_wall = time.monotonic()
@@ -126,7 +125,8 @@ class SimNode(Node):
         # Timers: stepping (period from dt and the real-time factor) and diagnostics (wall).
         self.step_timer = None
         self._make_step_timer()
-        self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
+        self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD,
+                                                   self._on_diagnostics_timer)
 
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
@@ -170,12 +170,19 @@ class SimNode(Node):
             if p.name == 'real_time_factor':
                 self._make_step_timer()
             elif p.name == 'publish_rate':
-                self._next_publish_ns = 0
+                self.publish_schedule.restart()
             elif p.name == 'command_timeout':
                 self.commands.command_timeout = value
             elif p.name == 'effort_limits':
                 self.commands.set_effort_limits(value)
             self.get_logger().info(f'parameter {p.name} = {value!r}')
+        changes = {p.name: coerce(p.name, p.value) for p in params
+                   if p.name in RECORDED_PARAMETERS}
+        if changes and self.recorder is not None:
+            # Applies from the next step boundary on: log time = the current sim time.
+            t_ns = convert.seconds_to_ns(self.world.time)
+            self._record(self._abs(TOPIC_PARAMETER_EVENTS), t_ns, parameter_event_msg(
+                t_ns, self.get_fully_qualified_name(), changes))
 
     # ------------------------------------------------------------------- timing ----
     def _make_step_timer(self) -> None:
@@ -196,7 +203,7 @@ class SimNode(Node):
         rtf = self.config.real_time_factor
         if rtf == 0.0:
             deadline = time.monotonic() + AFAP_BATCH_WALL
-            while not self.paused and time.monotonic() < deadline:
+            while not self.paused and time.monotonic() < deadline and self.context.ok():
                 if not self._step_once():
                     break
             return
@@ -215,7 +222,7 @@ class SimNode(Node):
         # executor back after AFAP_BATCH_WALL so commands and services are never starved.
         deadline = now + AFAP_BATCH_WALL
         while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
-               and time.monotonic() < deadline):
+               and time.monotonic() < deadline and self.context.ok()):
             if not self._step_once():
                 break
 
@@ -228,11 +235,10 @@ class SimNode(Node):
         try:
             report = self.world.step()
         except Exception as exc:  # noqa: BLE001 - keep the node alive, say why, pause
-            self.get_logger().error(
-                f'step at t={self.world.time:.6f} s failed: {exc}; simulation paused '
-                '(call ~/reset, or ~/unpause to retry)')
-            self.paused = True
+            self._stop_on_fault(
+                f'step at t={self.world.time:.6f} s failed: {type(exc).__name__}: {exc}')
             return False
+        self.fault = None
         self.steps += 1
         self._stats_steps += 1
         if not getattr(report, 'converged', True):
@@ -263,24 +269,42 @@ class SimNode(Node):
             if flag:
                 self._warned_disabled.discard(joint)
         if self.recorder is not None:
-            self._record_commands(applied)
+            record_applied(self._record, self._abs, applied)
+
+    def _stop_on_fault(self, why: str) -> None:
+        """Pause, say why on the log and (at once) on /diagnostics, flush the bag."""
+        self.fault = why
+        self.paused = True
+        self.get_logger().error(
+            f'{why}; simulation paused, nothing non-finite was published or recorded '
+            '(call ~/reset, or ~/unpause to retry)')
+        self._publish_diagnostics()
+        self._flush_recorder()
 
     def _publish_state(self, force: bool = False) -> None:
-        t_ns = convert.seconds_to_ns(self.world.time)
+        """/clock after every step, /joint_states when due; never a non-finite value."""
+        t = self.world.time
+        position = np.asarray(self.world.joint_angles(), dtype=float)
+        velocity = np.asarray(self.world.joint_velocities(), dtype=float)
+        effort = np.asarray(self.world.applied_torques(), dtype=float)
+        if not (math.isfinite(t) and np.isfinite(position).all()
+                and np.isfinite(velocity).all() and np.isfinite(effort).all()):
+            bad = [f'{name} {list(arr)}' for name, arr in
+                   (('position', position), ('velocity', velocity), ('effort', effort))
+                   if not np.isfinite(arr).all()]
+            self._stop_on_fault(f'non-finite state at t={t!r} s ({"; ".join(bad) or "time"}) '
+                                'not published')
+            return
+        t_ns = convert.seconds_to_ns(t)
         clock = convert.clock_msg(t_ns)
         self.clock_pub.publish(clock)
-        self._record('/clock', t_ns, clock)
-        rate = self.config.publish_rate
-        if not force and rate > 0.0 and t_ns < self._next_publish_ns:
+        self._record(TOPIC_CLOCK, t_ns, clock)
+        if not self.publish_schedule.due(t_ns, self.config.publish_rate, force):
             return
-        if rate > 0.0:
-            period_ns = max(1, int(round(1e9 / rate)))
-            self._next_publish_ns = (t_ns // period_ns + 1) * period_ns
-        msg = convert.joint_state_msg(
-            t_ns, self.joint_names, self.world.joint_angles(), self.world.joint_velocities(),
-            self.world.applied_torques(), self.config.frame_id)
+        msg = convert.joint_state_msg(t_ns, self.joint_names, position, velocity, effort,
+                                      self.config.frame_id)
         self.joint_state_pub.publish(msg)
-        self._record('/joint_states', t_ns, msg)
+        self._record(self._abs(TOPIC_JOINT_STATES), t_ns, msg)
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
@@ -303,14 +327,25 @@ class SimNode(Node):
             'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
             'substeps': getattr(last, 'substeps', 1),
             'recording': self.recorder is not None,
+            'fault': self.fault or '',
+            'recording_error': self.recording_error or '',
         }
         ok = converged and not (getattr(last, 'warnings', None) or [])
-        message = 'paused' if self.paused else ('running' if ok else 'solver warnings')
+        if self.fault:
+            level, message = convert.ERROR, f'stopped: {self.fault}'
+        else:
+            level = convert.OK if ok else convert.WARN
+            message = 'paused' if self.paused else ('running' if ok else 'solver warnings')
         t_ns = convert.seconds_to_ns(self.world.time)
         msg = convert.diagnostics_msg(t_ns, f'{self.get_name()}: solver', NODE_NAME, ok,
-                                      message, values)
+                                      message, values, level=level)
         self.diagnostics_pub.publish(msg)
-        self._record('/diagnostics', t_ns, msg)
+        self._record(TOPIC_DIAGNOSTICS, t_ns, msg)
+
+    def _on_diagnostics_timer(self) -> None:
+        self._publish_diagnostics()
+        # A SIGKILL loses at most the chunk in progress: close it every DIAGNOSTICS_PERIOD.
+        self._flush_recorder()
 
     # ------------------------------------------------------------ subscriptions ----
     def _warn_throttled(self, key, text: str) -> None:
@@ -349,6 +384,7 @@ class SimNode(Node):
     def _srv_pause(self, request, response):
         was = self.paused
         self.paused = True
+        self._flush_recorder()
         response.success = True
         response.message = f'paused at t={self.world.time:.6f} s' + (' (already)' if was else '')
         return response
@@ -378,7 +414,8 @@ class SimNode(Node):
         for joint in self.actuated:
             self.world.set_torque(joint, 0.0)
         self._warned_disabled.clear()
-        self._next_publish_ns = 0
+        self.publish_schedule.restart()
+        self.fault = None
         self._reanchor()
         self._publish_state(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
@@ -388,38 +425,25 @@ class SimNode(Node):
 
     # ---------------------------------------------------------------- recording ----
     def _open_recorder(self, path: str) -> None:
+        writer = None
         try:
             from abd_joint_sim.record.bag import BagWriter
-            params_text = yaml.safe_dump({NODE_NAME: {'ros__parameters': self.config.as_dict()}},
-                                         sort_keys=False)
-            scene_text = getattr(self.scene, 'source_text', '') or ''
-            custom = {
-                'abd_joint_sim.scene_path': self.config.scene,
-                'abd_joint_sim.scene_yaml': scene_text,
-                'abd_joint_sim.parameters_yaml': params_text,
-                'abd_joint_sim.time_step': repr(float(self.world.dt)),
-                'abd_joint_sim.joints': ','.join(self.commands.order),
-            }
-            attachments = {'scene.yaml': scene_text.encode(),
-                           'parameters.yaml': params_text.encode()}
+            custom, attachments = bag_custom_data(
+                self.config, self.config.scene, getattr(self.scene, 'source_text', '') or '',
+                self.world.dt, self.commands.order)
             writer = BagWriter(path, custom_data=custom, attachments=attachments)
             writer.open()
-            writer.add_topic('/joint_states', 'sensor_msgs/msg/JointState', qos='reliable')
-            writer.add_topic('/clock', 'rosgraph_msgs/msg/Clock', qos='best_effort')
-            writer.add_topic('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
-                             qos='reliable')
-            writer.add_topic(self._abs(TOPIC_TORQUE_ARRAY), 'std_msgs/msg/Float64MultiArray',
-                             qos='reliable')
-            writer.add_topic(self._abs(TOPIC_ENABLE_ALL), 'std_msgs/msg/Bool', qos='reliable')
-            for joint in self.actuated:
-                writer.add_topic(self._abs(TOPIC_TORQUE_JOINT.format(joint=joint)),
-                                 'std_msgs/msg/Float64', qos='reliable')
-                writer.add_topic(self._abs(TOPIC_ENABLE_JOINT.format(joint=joint)),
-                                 'std_msgs/msg/Bool', qos='reliable')
+            add_node_topics(writer, self._abs, self.actuated)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
+            self.recording_error = str(exc)
             self.recorder = None
             self.config.record = ''
+            if writer is not None:
+                try:
+                    writer.close()
+                except Exception:  # noqa: BLE001 - already reported above
+                    pass
             return
         self.recorder = writer
 
@@ -433,26 +457,23 @@ class SimNode(Node):
         try:
             self.recorder.write(topic, stamp_ns, msg)
         except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
-            self.get_logger().error(f'recording stopped: writing {topic} failed: {exc}')
-            self._close_recorder()
+            self._recording_failed(f'writing {topic} failed: {exc}')
 
-    def _record_commands(self, applied: Applied) -> None:
-        """Commands as they took effect (log time = simulated time of the step boundary).
+    def _recording_failed(self, why: str) -> None:
+        self.recording_error = why
+        self.get_logger().error(
+            f'recording stopped: {why}; the simulation goes on. The bag keeps what was '
+            f'written before (python -m abd_joint_sim.ros.bag_recover {self.config.record})')
+        self._close_recorder()
+        self._publish_diagnostics()
 
-        Same-time messages are written in the order a replay must apply them: per-joint
-        enables, then the array command, then per-joint torques that superseded it.
-        """
-        t_ns = convert.seconds_to_ns(applied.time)
-        for joint, flag in applied.enables.items():
-            self._record(self._abs(TOPIC_ENABLE_JOINT.format(joint=joint)), t_ns,
-                         convert.bool_msg(flag))
-        if applied.array is not None:
-            self._record(self._abs(TOPIC_TORQUE_ARRAY), t_ns,
-                         convert.float64_array_msg(applied.array))
-        for joint, value in applied.torques.items():
-            if applied.sources.get(joint) == 'joint':
-                self._record(self._abs(TOPIC_TORQUE_JOINT.format(joint=joint)), t_ns,
-                             convert.float64_msg(value))
+    def _flush_recorder(self) -> None:
+        if self.recorder is None:
+            return
+        try:
+            self.recorder.flush()
+        except Exception as exc:  # noqa: BLE001
+            self._recording_failed(f'flushing failed: {exc}')
 
     def _close_recorder(self) -> None:
         recorder, self.recorder = self.recorder, None
@@ -519,7 +540,9 @@ def main(args: Optional[list[str]] = None) -> int:
         pass
     except Exception as exc:  # noqa: BLE001 - a bad scene/parameter: one clear line, exit 1
         from abd_joint_sim.errors import SceneError
-        if isinstance(exc, (SceneError, ValueError, FileNotFoundError, KeyError)):
+        if not rclpy.ok():
+            pass    # SIGINT shut the context down mid-step (or mid-start): a clean stop
+        elif isinstance(exc, (SceneError, ValueError, FileNotFoundError, KeyError)):
             rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {exc}')
             status = 1
         else:

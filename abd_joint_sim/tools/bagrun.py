@@ -9,7 +9,8 @@ stamps, after every step, and again at t = 0 on reset).
 Topics are recognised by their last components, so a namespaced node's bag works:
 ``.../joint_torque_commands`` (array, in the stored ``joints`` order),
 ``.../joint_torque/<joint>``, ``.../joint_torque_enable/<joint>``,
-``.../joint_torque_enable`` (all joints), ``.../joint_states``, ``/clock``.
+``.../joint_torque_enable`` (all joints), ``.../joint_states``, ``/clock``, and
+``/parameter_events`` (live parameter changes, applied from their log time on).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ _ENABLE = re.compile(r'(?:^|/)joint_torque_enable/([^/]+)$')
 _ENABLE_ALL = re.compile(r'(?:^|/)joint_torque_enable$')
 _STATES = re.compile(r'(?:^|/)joint_states$')
 _CLOCK = re.compile(r'(?:^|/)clock$')
+_PARAMETERS = re.compile(r'(?:^|/)parameter_events$')
 
 
 class BagInputError(RuntimeError):
@@ -186,6 +188,12 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
         elif (m := _ENABLE.search(topic)) is not None:
             segments[-1].commands.append(Command(log_ns, 'enable', m.group(1),
                                                  bool(msg.data), where))
+        elif _PARAMETERS.search(topic) and hasattr(msg, 'changed_parameters'):
+            from abd_joint_sim.ros.recording import parameter_changes
+            changes = parameter_changes(msg)
+            if changes:
+                segments[-1].commands.append(Command(log_ns, 'parameter', None, changes,
+                                                     where))
         elif _ENABLE_ALL.search(topic):
             segments[-1].commands.append(Command(log_ns, 'enable_all', None,
                                                  bool(msg.data), where))

@@ -9,10 +9,9 @@ plan it resets like the node's ``~/reset`` service.
 :class:`BagRecorder` is the observer ``run_headless`` uses: it writes sim_node's bag layout
 (topics, types, QoS, custom data, attachments; messages built by ``ros.convert``) with the
 node's publishing rules: ``/clock`` after every step, ``/joint_states`` at ``publish_rate``
-(and the initial/reset state always), commands as applied at their step boundary.
-
-The publishing and command-recording rules are re-stated from ``ros/node.py``
-(``SimNode._publish_state``, ``_record_commands``, ``_open_recorder``); keep them in step.
+(and the initial/reset state always), commands as applied at their step boundary, live
+parameter changes on ``/parameter_events``. Those rules live in :mod:`abd_joint_sim.ros.
+recording`, shared with the node; only the stepping loop is re-stated here.
 """
 from __future__ import annotations
 
@@ -20,21 +19,18 @@ from collections import deque
 import time
 from typing import Any, Optional, Protocol
 
-import yaml
-
 from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.commands import Applied, CommandBuffer
-from abd_joint_sim.ros.params import NODE_NAME, SimConfig
+from abd_joint_sim.ros.params import coerce, NODE_NAME, SimConfig
+from abd_joint_sim.ros.recording import (add_node_topics, bag_custom_data,
+                                         parameter_event_msg,
+                                         PublishSchedule, record_applied, resolve_root,
+                                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_JOINT_STATES,
+                                         TOPIC_PARAMETER_EVENTS)
 
 from .schedule import Command, Plan
 
-TOPIC_JOINT_STATES = '/joint_states'
-TOPIC_CLOCK = '/clock'
-TOPIC_DIAGNOSTICS = '/diagnostics'
-TOPIC_TORQUE_ARRAY = '/joint_torque_commands'
-TOPIC_TORQUE_JOINT = '/joint_torque/{joint}'
-TOPIC_ENABLE_ALL = '/joint_torque_enable'
-TOPIC_ENABLE_JOINT = '/joint_torque_enable/{joint}'
+NODE_FQN = '/' + NODE_NAME
 DIAGNOSTICS_PERIOD_NS = convert.NS_PER_S   # headless: one /diagnostics per simulated second
 
 
@@ -42,6 +38,9 @@ class Observer(Protocol):
     def on_state(self, sim: 'HeadlessSim', segment: int, force: bool) -> None: ...
 
     def on_applied(self, sim: 'HeadlessSim', applied: Applied) -> None: ...
+
+    # Optional: def on_parameters(self, sim, t_ns: int, changes: dict) -> None
+
 
 
 class HeadlessSim:
@@ -67,8 +66,11 @@ class HeadlessSim:
         config.joints = list(self.commands.order)
         self.steps = 0
         self.not_converged = 0
+        self.clamp = clamp
+        self.publish_schedule = PublishSchedule()
         self.clamps: list[tuple[Command, Any]] = []
         self.unapplied: list[Command] = []
+        self.observer: Optional[Observer] = None
 
     @property
     def time_ns(self) -> int:
@@ -83,6 +85,9 @@ class HeadlessSim:
 
     def _queue(self, cmd: Command) -> None:
         """Hand one command to the buffer, as the node's subscription callback would."""
+        if cmd.kind == 'parameter':
+            self._set_parameters(cmd)
+            return
         if cmd.kind == 'enable':
             rejections, clamps = self.commands.command_enable(cmd.joint, cmd.value), []
         elif cmd.kind == 'enable_all':
@@ -99,8 +104,31 @@ class HeadlessSim:
             raise ValueError(f'{cmd.describe()}: {rejections[0]}')
         self.clamps.extend((cmd, c) for c in clamps)
 
+    def _set_parameters(self, cmd: Command) -> None:
+        """A live parameter change, as sim_node's post-set callback applies it."""
+        changes = {}
+        for name, value in cmd.value.items():
+            try:
+                value = coerce(name, value)
+            except (KeyError, ValueError) as exc:
+                raise ValueError(f'{cmd.describe()}: parameter {name}: {exc}') from None
+            changes[name] = value
+            if name == 'command_timeout':
+                self.commands.command_timeout = value
+            elif name == 'publish_rate':
+                self.config.publish_rate = value
+                self.publish_schedule.restart()
+            elif name == 'effort_limits' and self.clamp:
+                self.commands.set_effort_limits(value)
+            if hasattr(self.config, name):
+                setattr(self.config, name, value)
+        on_parameters = getattr(self.observer, 'on_parameters', None)
+        if on_parameters is not None and changes:
+            on_parameters(self, self.time_ns, changes)
+
     def run(self, plan: Plan, observer: Observer) -> None:
         """Simulate every segment of `plan`; raises SimulationError if a step fails."""
+        self.observer = observer
         for k, seg in enumerate(plan.segments):
             if k > 0:
                 self.reset()
@@ -121,11 +149,6 @@ class HeadlessSim:
             self.unapplied.extend(pending)
 
 
-def parameters_yaml(config: SimConfig) -> str:
-    """The effective parameters as sim_node stores them (a ros2 params file)."""
-    return yaml.safe_dump({NODE_NAME: {'ros__parameters': config.as_dict()}}, sort_keys=False)
-
-
 class BagRecorder:
     """Observer writing sim_node's bag layout through ``abd_joint_sim.record.BagWriter``."""
 
@@ -133,37 +156,16 @@ class BagRecorder:
                  extra_custom: Optional[dict[str, str]] = None):
         from abd_joint_sim.record import BagWriter
         self.sim = sim
-        config = sim.config
-        params_text = parameters_yaml(config)
-        custom = {
-            'abd_joint_sim.scene_path': scene_path,
-            'abd_joint_sim.scene_yaml': scene_text,
-            'abd_joint_sim.parameters_yaml': params_text,
-            'abd_joint_sim.time_step': repr(float(sim.world.dt)),
-            'abd_joint_sim.joints': ','.join(sim.commands.order),
-        }
-        custom.update(extra_custom or {})
-        attachments = {'scene.yaml': scene_text.encode(), 'parameters.yaml': params_text.encode()}
+        custom, attachments = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
+                                              sim.commands.order, extra_custom)
         self.writer = BagWriter(path, custom_data=custom, attachments=attachments)
         self.writer.open()
         try:
-            w = self.writer
-            w.add_topic(TOPIC_JOINT_STATES, 'sensor_msgs/msg/JointState', qos='reliable')
-            w.add_topic(TOPIC_CLOCK, 'rosgraph_msgs/msg/Clock', qos='best_effort')
-            w.add_topic(TOPIC_DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray',
-                        qos='reliable')
-            w.add_topic(TOPIC_TORQUE_ARRAY, 'std_msgs/msg/Float64MultiArray', qos='reliable')
-            w.add_topic(TOPIC_ENABLE_ALL, 'std_msgs/msg/Bool', qos='reliable')
-            for joint in sim.actuated:
-                w.add_topic(TOPIC_TORQUE_JOINT.format(joint=joint), 'std_msgs/msg/Float64',
-                            qos='reliable')
-                w.add_topic(TOPIC_ENABLE_JOINT.format(joint=joint), 'std_msgs/msg/Bool',
-                            qos='reliable')
+            add_node_topics(self.writer, resolve_root, sim.actuated)
         except BaseException:
             self.writer.close()
             raise
         self.joint_names = list(sim.world.joint_names)
-        self._next_publish_ns = 0
         self._next_diag_ns = DIAGNOSTICS_PERIOD_NS
         self._wall0 = time.monotonic()
         self.counts: dict[str, int] = {}
@@ -174,20 +176,14 @@ class BagRecorder:
 
     # -- Observer -------------------------------------------------------------------------
     def on_state(self, sim: HeadlessSim, segment: int, force: bool) -> None:
-        """sim_node's ``_publish_state``: /clock always, /joint_states at publish_rate."""
+        """sim_node's ``_publish_state``: /clock always, /joint_states when due."""
         world = sim.world
         t_ns = sim.time_ns
         self._write(TOPIC_CLOCK, t_ns, convert.clock_msg(t_ns))
-        if force:           # start or reset: the node's publish schedule restarts
-            self._next_publish_ns = 0
+        if force:           # start or reset: the node's diagnostics restart too
             self._next_diag_ns = t_ns + DIAGNOSTICS_PERIOD_NS
-        rate = sim.config.publish_rate
-        publish = force or rate <= 0.0 or t_ns >= self._next_publish_ns
-        if publish:
-            if rate > 0.0:
-                period_ns = max(1, int(round(1e9 / rate)))
-                self._next_publish_ns = (t_ns // period_ns + 1) * period_ns
-            self._write(TOPIC_JOINT_STATES, t_ns, convert.joint_state_msg(
+        if sim.publish_schedule.due(t_ns, sim.config.publish_rate, force):
+            self._write(resolve_root(TOPIC_JOINT_STATES), t_ns, convert.joint_state_msg(
                 t_ns, self.joint_names, world.joint_angles(), world.joint_velocities(),
                 world.applied_torques(), sim.config.frame_id))
         if not force and t_ns >= self._next_diag_ns:
@@ -195,16 +191,12 @@ class BagRecorder:
             self._write(TOPIC_DIAGNOSTICS, t_ns, self._diagnostics(sim, t_ns))
 
     def on_applied(self, sim: HeadlessSim, applied: Applied) -> None:
-        """sim_node's ``_record_commands``: enables, the array, then per-joint torques."""
-        t_ns = convert.seconds_to_ns(applied.time)
-        for joint, flag in applied.enables.items():
-            self._write(TOPIC_ENABLE_JOINT.format(joint=joint), t_ns, convert.bool_msg(flag))
-        if applied.array is not None:
-            self._write(TOPIC_TORQUE_ARRAY, t_ns, convert.float64_array_msg(applied.array))
-        for joint, value in applied.torques.items():
-            if applied.sources.get(joint) == 'joint':
-                self._write(TOPIC_TORQUE_JOINT.format(joint=joint), t_ns,
-                            convert.float64_msg(value))
+        """sim_node's commands as applied (``recording.record_applied``)."""
+        record_applied(self._write, resolve_root, applied)
+
+    def on_parameters(self, sim: HeadlessSim, t_ns: int, changes: dict) -> None:
+        """sim_node's record of a live parameter change."""
+        self._write(TOPIC_PARAMETER_EVENTS, t_ns, parameter_event_msg(t_ns, NODE_FQN, changes))
 
     def _diagnostics(self, sim: HeadlessSim, t_ns: int):
         last = getattr(sim.world, 'last_step', None)

@@ -1,0 +1,171 @@
+"""What sim_node publishes when, and what it records: one set of rules for the node
+(``ros/node.py``) and the headless tools (``tools/sim.py``: ``run_headless``,
+``replay_check``), so a node bag and a headless bag have the same layout and a replay
+re-creates exactly what the node published.
+
+* Topic names are given as the node declares them (``joint_states`` is relative and follows
+  the node's namespace; ``/clock`` is absolute). ``resolve`` turns them into the fully
+  qualified names that appear on the graph and in the bag: the node passes
+  ``Node.resolve_topic_name``, the headless tools :func:`resolve_root` (namespace ``/``).
+* :class:`PublishSchedule`: ``/joint_states`` at ``publish_rate`` Hz of simulated time, on
+  the grid ``k / publish_rate`` (so a state is published at the first step at or after each
+  grid point), after every step for rate 0, and always when forced (start, reset, single
+  step).
+* :func:`record_applied`: commands as they took effect at a step boundary, in the order a
+  replay must apply them (per-joint enables, the array command, then per-joint torques that
+  superseded it).
+* :func:`parameter_event_msg`: a live parameter change, as an ``rcl_interfaces/msg/
+  ParameterEvent`` on ``/parameter_events`` (the topic and type every ROS 2 node publishes
+  its changes on), stamped and logged at the simulated time from which it applies, so a
+  replay can honour e.g. a live change of ``command_timeout``.
+* :func:`bag_custom_data` and :func:`add_node_topics`: the bag's custom data, attachments and
+  topic list.
+
+Plain functions over a ``write(topic, stamp_ns, msg)`` callable: the node's writes stop the
+recording on failure, the headless recorder's count messages.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Iterable, Mapping, Optional
+
+import yaml
+
+from . import convert
+from .commands import Applied
+from .params import NODE_NAME, SimConfig
+
+TOPIC_JOINT_STATES = 'joint_states'
+TOPIC_CLOCK = '/clock'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+TOPIC_PARAMETER_EVENTS = '/parameter_events'
+TOPIC_TORQUE_ARRAY = 'joint_torque_commands'
+TOPIC_TORQUE_JOINT = 'joint_torque/{joint}'
+TOPIC_ENABLE_ALL = 'joint_torque_enable'
+TOPIC_ENABLE_JOINT = 'joint_torque_enable/{joint}'
+
+RECORDED_PARAMETERS = ('real_time_factor', 'publish_rate', 'command_timeout',
+                       'effort_limits')
+"""Live parameters whose changes are recorded on ``/parameter_events`` (all live ones)."""
+
+Write = Callable[[str, int, Any], None]
+Resolve = Callable[[str], str]
+
+
+def resolve_root(topic: str) -> str:
+    """Fully qualified name of `topic` for a node in the root namespace (headless runs)."""
+    return topic if topic.startswith('/') else '/' + topic
+
+
+def parameters_yaml(config: SimConfig) -> str:
+    """The effective parameters as the node stores them (a ros2 params file)."""
+    return yaml.safe_dump({NODE_NAME: {'ros__parameters': config.as_dict()}}, sort_keys=False)
+
+
+def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: float,
+                    joints: Iterable[str], extra: Optional[Mapping[str, str]] = None
+                    ) -> tuple[dict[str, str], dict[str, bytes]]:
+    """(custom_data, attachments) of a bag: scene, effective parameters, dt, array order."""
+    params_text = parameters_yaml(config)
+    custom = {
+        'abd_joint_sim.scene_path': scene_path,
+        'abd_joint_sim.scene_yaml': scene_text,
+        'abd_joint_sim.parameters_yaml': params_text,
+        'abd_joint_sim.time_step': repr(float(dt)),
+        'abd_joint_sim.joints': ','.join(joints),
+    }
+    custom.update(extra or {})
+    attachments = {'scene.yaml': scene_text.encode(), 'parameters.yaml': params_text.encode()}
+    return custom, attachments
+
+
+def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str]) -> None:
+    """Register every topic the node records on `writer` (a ``BagWriter``)."""
+    writer.add_topic(resolve(TOPIC_JOINT_STATES), 'sensor_msgs/msg/JointState', qos='reliable')
+    writer.add_topic(resolve(TOPIC_CLOCK), 'rosgraph_msgs/msg/Clock', qos='best_effort')
+    writer.add_topic(resolve(TOPIC_DIAGNOSTICS), 'diagnostic_msgs/msg/DiagnosticArray',
+                     qos='reliable')
+    writer.add_topic(resolve(TOPIC_PARAMETER_EVENTS), 'rcl_interfaces/msg/ParameterEvent',
+                     qos='reliable', depth=1000)
+    writer.add_topic(resolve(TOPIC_TORQUE_ARRAY), 'std_msgs/msg/Float64MultiArray',
+                     qos='reliable')
+    writer.add_topic(resolve(TOPIC_ENABLE_ALL), 'std_msgs/msg/Bool', qos='reliable')
+    for joint in actuated:
+        writer.add_topic(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)),
+                         'std_msgs/msg/Float64', qos='reliable')
+        writer.add_topic(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), 'std_msgs/msg/Bool',
+                         qos='reliable')
+
+
+def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
+    """Commands as they took effect (log time = simulated time of the step boundary).
+
+    Same-time messages are written in the order a replay must apply them: per-joint
+    enables, then the array command, then per-joint torques that superseded it. Timeouts
+    are not written: they follow from ``command_timeout`` (and its recorded changes).
+    """
+    t_ns = convert.seconds_to_ns(applied.time)
+    for joint, flag in applied.enables.items():
+        write(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), t_ns, convert.bool_msg(flag))
+    if applied.array is not None:
+        write(resolve(TOPIC_TORQUE_ARRAY), t_ns, convert.float64_array_msg(applied.array))
+    for joint, value in applied.torques.items():
+        if applied.sources.get(joint) == 'joint':
+            write(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)), t_ns,
+                  convert.float64_msg(value))
+
+
+class PublishSchedule:
+    """When ``/joint_states`` is due: ``publish_rate`` Hz of simulated time (0 = every step).
+
+    The grid is ``k * period``: after a publish at ``t``, the next one is due at the first
+    grid point after ``t``. :meth:`restart` (reset, a change of ``publish_rate``) makes the
+    next call due at once.
+    """
+
+    def __init__(self) -> None:
+        self.next_ns = 0
+
+    def restart(self) -> None:
+        self.next_ns = 0
+
+    def due(self, t_ns: int, rate: float, force: bool = False) -> bool:
+        """True if a state at `t_ns` is to be published; advances the schedule if so."""
+        if not force and rate > 0.0 and t_ns < self.next_ns:
+            return False
+        if rate > 0.0:
+            period_ns = max(1, int(round(1e9 / rate)))
+            self.next_ns = (t_ns // period_ns + 1) * period_ns
+        return True
+
+
+def parameter_event_msg(stamp_ns: int, node: str, changes: Mapping[str, Any]):
+    """An ``rcl_interfaces/msg/ParameterEvent`` listing `changes` (name -> value) of `node`
+    (fully qualified name) as ``changed_parameters``, stamped with simulated time."""
+    from rcl_interfaces.msg import ParameterEvent
+    from rclpy.parameter import Parameter
+    msg = ParameterEvent()
+    msg.stamp = convert.ns_to_time_msg(stamp_ns)
+    msg.node = node
+    msg.changed_parameters = [Parameter(name, value=_ros_value(value)).to_parameter_msg()
+                              for name, value in changes.items()]
+    return msg
+
+
+def _ros_value(value: Any) -> Any:
+    # rclpy infers the parameter type from the Python type; [] would be a byte array.
+    if isinstance(value, list):
+        return [float(v) for v in value] if value else []
+    return value
+
+
+def parameter_changes(msg: Any) -> dict[str, Any]:
+    """name -> Python value of the new and changed parameters of a ParameterEvent."""
+    from rclpy.parameter import parameter_value_to_python
+    out: dict[str, Any] = {}
+    for p in list(msg.new_parameters) + list(msg.changed_parameters):
+        value = parameter_value_to_python(p.value)
+        if isinstance(value, (bytes, bytearray)) or (hasattr(value, 'tolist')
+                                                     and not isinstance(value, str)):
+            value = list(value.tolist() if hasattr(value, 'tolist') else value)
+        out[p.name] = value
+    return out
