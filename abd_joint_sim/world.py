@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import fast
 from .angles import joint_theta_derivatives, unwrap
 from .errors import SimulationError
 from .model import Model, compile_scene
@@ -54,10 +55,13 @@ class StepReport:
 class World:
     """A running simulation of one scene. See README "Python API" for an example."""
 
-    def __init__(self, scene: Scene | Model, dt: float | None = None):
+    def __init__(self, scene: Scene | Model, dt: float | None = None, backend: str = 'auto'):
         self.scene = scene if isinstance(scene, Scene) else None
         self.model = scene if isinstance(scene, Model) else compile_scene(scene, dt)
         m = self.model
+        # 'numpy' (this file: the reference) or 'numba' (fast/, same step compiled); 'auto'
+        # = ABD_BACKEND if set, else numba when importable (docs/fast-backend.md)
+        self.backend = fast.resolve(backend, m)
         self.energy_terms = [t for t in (c.build(m) for c in ENERGY_TERMS) if t is not None]
         self.forces = [f for f in (c.build(m) for c in FORCES) if f is not None]
         self.solver = NewtonSolver(m, self.energy_terms, LinearSystem(m))
@@ -246,6 +250,9 @@ class World:
 
     def _single(self, h, report):
         """One (sub-)step; returns None or a failure description (state then invalid)."""
+        if self.backend == 'numba':
+            from .fast.step import single      # same contract, compiled (fast/step.py)
+            return single(self, h, report)
         m, s = self.model, self.state
         free = ~m.body_fixed
         # BDF2 needs one step of history at this h. Without it (first step, after a reset,
