@@ -1,0 +1,190 @@
+"""The numba backend's per-step driver: `single(world, h, report)` is `World._single`.
+
+Same contract and side effects as the numpy `World._single` (world.py): it takes one
+(sub-)step of size h from `world.state` with `world.control`, adds to `report` the Newton and
+line-search iterations, the singular-guard warnings, `max_step_rotation`, `status` and
+`converged`, replaces `world.state` (q_prev/v_prev = the old q/v, history_dt = h, unwrapped
+joint angles, joint_velocity = ∇θ·v), and returns None or the same failure string the numpy
+step returns (the caller sub-steps on it). Everything from the forces to the joint
+velocities runs in one compiled call (`kernels.step_kernel`); this module only packs the
+model once per World and turns the kernel's output into State/StepReport.
+
+Linear solve: a block Cholesky along the free-body graph when it is a forest (chains, trees:
+linear cost, any size), else a dense Cholesky up to `linsolve.DENSE_MAX_DOF` unknowns. Any
+other structure (a loop of more than 8 free bodies) is not supported: `supports(model)` is
+False and the World keeps the numpy backend.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..solver.linsolve import DENSE_MAX_DOF
+from ..solver.newton import Status
+from ..state import State
+from ..terms.forces import SINGULAR_RATIO
+from . import kernels
+
+_STATUS = {kernels.CONVERGED: Status.CONVERGED, kernels.MAX_ITERATIONS: Status.MAX_ITERATIONS,
+           kernels.LINE_SEARCH_FAILED: Status.LINE_SEARCH_FAILED, kernels.NONFINITE: Status.NONFINITE}
+
+
+class Packed:
+    """The model as the kernels read it (see `kernels.unpack`)."""
+
+    def __init__(self, mi, mf):
+        self.mi, self.mf = mi, mf
+
+
+def _forest(nf, sp, sc):
+    """(order, eparent) of an elimination order children-first over the free-body graph
+    with edges (sp, sc) in slot numbers, or None if the graph has a cycle (several joints
+    between the same two bodies are one edge)."""
+    adj = [set() for _ in range(nf)]
+    root = list(range(nf))
+
+    def find(a):
+        while root[a] != a:
+            root[a] = root[root[a]]
+            a = root[a]
+        return a
+
+    for a, b in zip(sp.tolist(), sc.tolist()):
+        if b in adj[a]:
+            continue
+        if a == b:
+            return None
+        ra, rb = find(a), find(b)
+        if ra == rb:
+            return None
+        root[ra] = rb
+        adj[a].add(b)
+        adj[b].add(a)
+    eparent = np.full(nf, -1, dtype=np.int64)
+    order = []
+    seen = np.zeros(nf, bool)
+    for r in range(nf):
+        if seen[r]:
+            continue
+        seen[r] = True
+        stack, pre = [r], []
+        while stack:                       # iterative DFS; reversed preorder = children first
+            a = stack.pop()
+            pre.append(a)
+            for b in sorted(adj[a]):
+                if not seen[b]:
+                    seen[b] = True
+                    eparent[b] = a
+                    stack.append(b)
+        order += pre[::-1]
+    return np.array(order, dtype=np.int64), eparent
+
+
+def structure(model):
+    """(kind, order, eparent, edge_ptr, edge_joint) of the linear solve, or None if the
+    model's free-body graph is neither a forest nor small enough for the dense solve."""
+    fixed = model.body_fixed
+    free_idx = np.flatnonzero(~fixed)
+    nf = len(free_idx)
+    slot = np.full(model.body_count, -1, dtype=np.int64)
+    slot[free_idx] = np.arange(nf)
+    p, c = model.joint_parent, model.joint_child
+    both = ~fixed[p] & ~fixed[c]
+    joints = np.flatnonzero(both)
+    sp, sc = slot[p[joints]], slot[c[joints]]
+    forest = _forest(nf, sp, sc)
+    if forest is None:
+        if 12 * nf > DENSE_MAX_DOF:
+            return None
+        z = np.zeros(nf, dtype=np.int64)
+        return kernels.KIND_DENSE, z, z - 1, np.zeros(nf + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    order, eparent = forest
+    edge_ptr = np.zeros(nf + 1, dtype=np.int64)
+    edge_joint = []
+    for s in range(nf):
+        if eparent[s] >= 0:
+            ends = {s, int(eparent[s])}
+            edge_joint += [int(j) for j, a, b in zip(joints, sp, sc) if {int(a), int(b)} == ends]
+        edge_ptr[s + 1] = len(edge_joint)
+    return kernels.KIND_TREE, order, eparent, edge_ptr, np.array(edge_joint, dtype=np.int64)
+
+
+def supports(model) -> bool:
+    return structure(model) is not None
+
+
+def pack_model(model) -> Packed:
+    st = structure(model)
+    if st is None:
+        raise ValueError('the numba backend needs a forest of free bodies or at most '
+                         f'{DENSE_MAX_DOF // 12} free bodies')
+    kind, order, eparent, edge_ptr, edge_joint = st
+    m = model
+    B, J = m.body_count, m.joint_count
+    T, D, L = len(m.torque_joints), len(m.drive_joints), len(m.limit_joints)
+    fixed = m.body_fixed
+    free_idx = np.flatnonzero(~fixed)
+    slot = np.full(B, -1, dtype=np.int64)
+    slot[free_idx] = np.arange(len(free_idx))
+    head = np.zeros(kernels.HEADER_INTS, dtype=np.int64)
+    head[:11] = [B, J, T, D, L, len(free_idx), kind, m.newton.max_iterations,
+                 m.newton.line_search_max, int(m.has_gravity), len(edge_joint)]
+    pair = (~fixed[m.joint_parent] & ~fixed[m.joint_child]) if J else np.zeros(0, bool)
+    mi = np.concatenate([head, fixed.astype(np.int64), m.joint_parent, m.joint_child,
+                         m.torque_joints, m.drive_joints, m.limit_joints, free_idx, slot,
+                         order, eparent, edge_ptr, edge_joint, pair.astype(np.int64)]).astype(np.int64)
+    fh = np.zeros(kernels.HEADER_FLOATS)
+    fh[:5] = [m.newton.velocity_tol, m.newton.transrate_tol, *m.gravity]
+    xbar = np.stack([m.joint_anchor0, m.joint_anchor1], axis=2)      # (J, side, anchor, 3)
+    init = m.joint_init_angle
+    lj = m.limit_joints
+    mf = np.concatenate([fh, m.body_M.ravel(), m.body_Minv.ravel(),
+                         (m.body_kappa * m.body_volume).ravel(), m.body_corners.ravel(),
+                         xbar.ravel(), m.joint_K.ravel(), m.joint_hessian.ravel(),
+                         m.joint_nbar.ravel(), m.joint_bbar.ravel(), init.ravel(),
+                         m.drive_K.ravel(), (m.limit_lower - init[lj]).ravel(),
+                         (m.limit_upper - init[lj]).ravel(), m.limit_strength.ravel()]).astype(np.float64)
+    return Packed(np.ascontiguousarray(mi), np.ascontiguousarray(mf))
+
+
+def packed_for(world) -> Packed:
+    pk = world.__dict__.get('_fast_packed')
+    if pk is None or pk.model is not world.model:
+        pk = pack_model(world.model)
+        pk.model = world.model
+        world._fast_packed = pk
+    return pk
+
+
+def single(world, h, report):
+    """One (sub-)step; returns None or a failure description (state then invalid).
+    The numba twin of `World._single` (same report fields, warnings, failure strings)."""
+    m, s, c = world.model, world.state, world.control
+    pk = packed_for(world)
+    bdf2 = m.integrator == 'bdf2' and s.history_dt == h
+    q, v, angle, omega, skipped, info = kernels.step_kernel(
+        pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev, s.joint_angle, c.torque_value,
+        c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, float(h), bdf2)
+    for b in skipped:
+        report.warnings.append(f'body {m.body_names[b]!r}: affine matrix near-singular '
+                               f'(|det A|/(|a1||a2||a3|) < {SINGULAR_RATIO}); joint torque not applied')
+    status, iterations = _STATUS[int(info[0])], int(info[1])
+    report.newton_iterations += iterations
+    report.line_search_iterations += int(info[2])
+    post = info[4]
+    if post == 1.0:
+        return 'Newton produced a non-finite state'
+    if post == 2.0:
+        return 'step produced a non-finite state'
+    rotation = float(info[3])
+    report.max_step_rotation = max(report.max_step_rotation, rotation)
+    world.state = State(time=s.time + h, q=q, v=v, q_prev=s.q, v_prev=s.v,
+                        joint_angle=angle,
+                        joint_velocity=omega if m.joint_count else s.joint_velocity,
+                        step_count=s.step_count + 1, history_dt=h)
+    if rotation > m.newton.max_step_rotation:
+        return (f'a joint turned {rotation:.3g} rad in one step (limit '
+                f'{m.newton.max_step_rotation:.3g})')
+    if status is not Status.CONVERGED:
+        report.status, report.converged = status.value, False
+        return f'Newton stopped: {status.value} after {iterations} iterations'
+    return None
