@@ -11,12 +11,20 @@ The command timeout counts simulated time: a joint whose last torque command too
 ``t_cmd`` has its torque set to 0 at the first step boundary with ``t - t_cmd >= timeout``.
 Simulated time makes it deterministic (a recorded run replays identically) and consistent
 with controllers that run on ``/clock``.
+
+Magnitudes: a joint with an effort limit (scene or parameter) clamps any finite value to it.
+A joint without one rejects values beyond :data:`MAX_ABS_TORQUE`: such a value is a bug in
+the sender, not a command (from ~1e50 N m the solver tears joints apart, from ~1e200 it
+overflows; docs/robustness.md).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
 from typing import Iterable, Mapping, Optional, Protocol, Sequence
+
+MAX_ABS_TORQUE = 1e9
+"""[N m] Largest torque magnitude accepted on a joint without an effort limit."""
 
 
 class CommandTarget(Protocol):
@@ -147,11 +155,24 @@ class CommandBuffer:
             return f'not an actuated joint (actuated: {self.actuated})'
         return None
 
+    def _check_value(self, joint: str, value: float) -> Optional[str]:
+        if not math.isfinite(value):
+            return 'torque must be finite'
+        if joint not in self.limits and abs(value) > MAX_ABS_TORQUE:
+            return (f'|torque| beyond {MAX_ABS_TORQUE:g} N m on a joint without an effort '
+                    'limit (set effort_limits to clamp instead)')
+        return None
+
     def command_torque(self, joint: str, value: float) -> tuple[list[Rejection], list[Clamp]]:
         """Queue one joint's torque [N m]. Returns (rejections, clamps)."""
         reason = self._check_joint(joint)
-        if reason is None and not math.isfinite(value):
-            reason = 'torque must be finite'
+        if reason is None:
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                reason = 'torque must be a number'
+            else:
+                reason = self._check_value(joint, value)
         if reason is not None:
             return [Rejection(joint, value, reason)], []
         applied, clamp = self._clamp(joint, float(value))
@@ -166,8 +187,9 @@ class CommandBuffer:
             return [Rejection(None, values,
                               f'expected {len(self.order)} values (joints {self.order}), '
                               f'got {len(values)}')], []
-        bad = [Rejection(j, v, 'torque must be finite; whole array ignored')
-               for j, v in zip(self.order, values) if not math.isfinite(v)]
+        bad = [Rejection(j, v, f'{reason}; whole array ignored')
+               for j, v in zip(self.order, values)
+               if (reason := self._check_value(j, v)) is not None]
         if bad:
             return bad, []
         clamps = []

@@ -462,8 +462,8 @@ class SimNode(Node):
     def _recording_failed(self, why: str) -> None:
         self.recording_error = why
         self.get_logger().error(
-            f'recording stopped: {why}; the simulation goes on. The bag keeps what was '
-            f'written before (python -m abd_joint_sim.ros.bag_recover {self.config.record})')
+            f'recording stopped: {why}. The simulation goes on; complete the bag with '
+            f'`python -m abd_joint_sim.ros.bag_recover {self.config.record}`')
         self._close_recorder()
         self._publish_diagnostics()
 
