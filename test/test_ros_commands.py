@@ -169,3 +169,37 @@ def test_scene_limits_combine_with_parameter_limits():
     assert clamps and clamps[0].applied == 5.0
     buf.set_effort_limits([])
     assert buf.limits == {'shoulder': 50.0, 'elbow': 5.0}
+
+
+def test_absurd_torque_rejected_without_limit_clamped_with_one():
+    from abd_joint_sim.ros.commands import MAX_ABS_TORQUE
+    buf = make()
+    rej, _ = buf.command_torque('shoulder', 2 * MAX_ABS_TORQUE)
+    assert rej and 'beyond' in rej[0].reason and 'effort_limits' in rej[0].reason
+    rej, _ = buf.command_array([1.0, -1e300])
+    assert len(rej) == 1 and rej[0].joint == 'elbow' and 'whole array' in rej[0].reason
+    assert not buf.has_pending
+    assert buf.command_torque('shoulder', MAX_ABS_TORQUE) == ([], [])
+    limited = make(limits=[10.0, 5.0])
+    rej, clamps = limited.command_torque('elbow', -1e300)
+    assert rej == [] and clamps[0].applied == -5.0
+
+
+def test_publish_schedule_and_parameter_events():
+    from abd_joint_sim.ros.recording import (parameter_changes, parameter_event_msg,
+                                             PublishSchedule)
+    sched = PublishSchedule()
+    due = [t for t in range(0, 100_000_000, 3_000_000) if sched.due(t, 100.0)]
+    # 100 Hz on a 3 ms grid: the first step at or after each 10 ms grid point.
+    assert due[:4] == [0, 12_000_000, 21_000_000, 30_000_000]
+    assert sched.due(31_000_000, 100.0, force=True)
+    assert all(sched.due(t, 0.0) for t in range(5))
+    sched.restart()
+    assert sched.due(1, 100.0)
+    msg = parameter_event_msg(1_500_000_000, '/abd_joint_sim', {
+        'command_timeout': 0.25, 'effort_limits': [1.0, 2.0], 'publish_rate': 50.0})
+    assert msg.stamp.sec == 1 and msg.stamp.nanosec == 500_000_000
+    assert parameter_changes(msg) == {'command_timeout': 0.25, 'effort_limits': [1.0, 2.0],
+                                      'publish_rate': 50.0}
+    empty = parameter_changes(parameter_event_msg(0, '/n', {'effort_limits': []}))
+    assert coerce('effort_limits', empty['effort_limits']) == []
