@@ -29,7 +29,7 @@ KIND_DENSE, KIND_TREE = 0, 1
 
 
 # --------------------------------------------------------------------------- layout
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def unpack(mi, mf):
     """Views of the packed model (layout written by `step.pack_model`)."""
     B, J, T, D, L, nf, kind, max_it = mi[0], mi[1], mi[2], mi[3], mi[4], mi[5], mi[6], mi[7]
@@ -69,13 +69,13 @@ def unpack(mi, mf):
 
 
 # --------------------------------------------------------------------------- joint angle
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def unwrap(theta, ref):
     """angles.unwrap: ref + remainder(θ − ref + π, 2π) − π (numpy's remainder: sign of 2π)."""
     return ref + (theta - ref + np.pi) % TWO_PI - np.pi     # float % is numpy's remainder
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _frames(q, pb, cb, nbar, bbar, j, fr):
     """fr[0..3] = n_i, n_j, b_i, b_j (angles._frames)."""
     for r in range(3):
@@ -93,7 +93,7 @@ def _frames(q, pb, cb, nbar, bbar, j, fr):
         fr[3, r] = bj
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _cos_sin(fr):
     c = 0.5 * ((fr[0, 0] * fr[1, 0] + fr[0, 1] * fr[1, 1] + fr[0, 2] * fr[1, 2])
                + (fr[2, 0] * fr[3, 0] + fr[2, 1] * fr[3, 1] + fr[2, 2] * fr[3, 2]))
@@ -102,7 +102,7 @@ def _cos_sin(fr):
     return c, s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def joint_theta(q, jp, jc, nbar, bbar, j):
     """angles.joint_theta for one joint: wrapped θ."""
     fr = np.empty((4, 3))
@@ -111,7 +111,7 @@ def joint_theta(q, jp, jc, nbar, bbar, j):
     return math.atan2(s, c)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def joint_theta_derivatives(q, jp, jc, nbar, bbar, j, grad, hess, want_hess):
     """angles.joint_theta_derivatives for one joint: returns θ; fills grad (18,) and, if
     want_hess, hess (18,18), w.r.t. [vec A_i, vec A_j] (row-major)."""
@@ -160,7 +160,7 @@ def joint_theta_derivatives(q, jp, jc, nbar, bbar, j, grad, hess, want_hess):
 
 
 # --------------------------------------------------------------------------- ortho (UID 1)
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def svd3(A, U, S, V):
     """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
     AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
@@ -253,7 +253,7 @@ def svd3(A, U, S, V):
     S[0], S[1], S[2] = s0, s1, s2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def ortho_energy(q, free_idx, weight, h):
     """OrthoPotential.energy: h² Σ κv̄ ‖AAᵀ − I‖²_F over free bodies."""
     E = 0.0
@@ -271,7 +271,7 @@ def ortho_energy(q, free_idx, weight, h):
     return h * h * E
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def ortho_accumulate(q, free_idx, weight, h, grad, diag):
     """OrthoPotential.accumulate with `projected_hessian`: gradient 4h²κv̄ C A and the PSD
     projection of the Hessian from the analytic eigensystem of A = U Σ Vᵀ."""
@@ -327,7 +327,7 @@ def ortho_accumulate(q, free_idx, weight, h, grad, diag):
 
 
 # --------------------------------------------------------------------------- revolute (UID 18)
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _separation(q, pb, cb, xbar, j, a, d):
     """x_i − x_j of anchor a (RevoluteJoint._separations)."""
     for r in range(3):
@@ -339,7 +339,7 @@ def _separation(q, pb, cb, xbar, j, a, d):
         d[r] = xi - xj
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def revolute_energy(q, jp, jc, xbar, K):
     """RevoluteJoint.energy: K/2 Σ |x_i − x_j|² from anchor separations (no cancellation)."""
     d = np.empty(3)
@@ -353,7 +353,7 @@ def revolute_energy(q, jp, jc, xbar, K):
     return 0.5 * E
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def revolute_accumulate(q, jp, jc, xbar, K, Hj, grad, diag, pair):
     """RevoluteJoint.accumulate: gradient from the separations, the constant Hessian."""
     d = np.empty((2, 3))
@@ -380,7 +380,7 @@ def revolute_accumulate(q, jp, jc, xbar, K, Hj, grad, diag, pair):
 
 
 # --------------------------------------------------------------------------- driving / limit
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _limit_phi(x, lo, up, s):
     """Limit._phi for one joint: (E, E', E'')."""
     w = up - lo
@@ -398,13 +398,13 @@ def _limit_phi(x, lo, up, s):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _limit_active(x, lo, up):
     """Limit._active_at: outside the range, or off a zero-width limit."""
     return x > up or x < lo or (lo == up and x != lo)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def angle_energy(q, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr, rel_start):
     """Driving.energy + Limit.energy (each 0 when no joint is active)."""
     E_drive = 0.0
@@ -423,7 +423,7 @@ def angle_energy(q, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr
     return E_drive + E_limit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def jacobi_eigh(S, w, V):
     """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi
     (S is destroyed). Accurate to round-off like LAPACK's syevd, and cheap to compile."""
@@ -469,7 +469,7 @@ def jacobi_eigh(S, w, V):
         w[p] = S[p, p]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _angle_term_accumulate(q, jp, jc, nbar, bbar, joints, d1s, d2s, n, grad, diag, pair):
     """_AngleTerm.accumulate for the n active joints `joints[:n]` with E', E'' in d1s, d2s:
     H = E''∇θ∇θᵀ + E'∇²θ, PSD-projected as a batch like base.project_psd (kept as is when
@@ -543,40 +543,41 @@ def _angle_term_accumulate(q, jp, jc, nbar, bbar, joints, d1s, d2s, n, grad, dia
                 pair[j, 3 + a, 3 + b] += H[k, a, 9 + b]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def angle_accumulate(q, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr,
                      rel_start, grad, diag, pair):
     """Driving.accumulate, then Limit.accumulate (the limit does nothing while every limited
-    joint is inside its range)."""
+    joint is inside its range). Each term's joints are PSD-projected as one batch."""
     nd = dj.size
     joints = np.empty(max(nd, lj.size), dtype=np.int64)
     d1s = np.empty(max(nd, lj.size))
     d2s = np.empty(max(nd, lj.size))
-    n = 0
-    for k in range(nd):
-        if d_on[k]:
-            j = dj[k]
-            x = unwrap(joint_theta(q, jp, jc, nbar, bbar, j), rel_start[j])
-            joints[n] = j
-            d1s[n] = dK[k] * (x - d_target[k])
-            d2s[n] = dK[k]
-            n += 1
-    _angle_term_accumulate(q, jp, jc, nbar, bbar, joints, d1s, d2s, n, grad, diag, pair)
-    n = 0
-    for k in range(lj.size):
-        j = lj[k]
-        x = unwrap(joint_theta(q, jp, jc, nbar, bbar, j), rel_start[j])
-        if _limit_active(x, lo[k], up[k]):
-            _, d1, d2 = _limit_phi(x, lo[k], up[k], lstr[k])
-            joints[n] = j
-            d1s[n] = d1
-            d2s[n] = d2
-            n += 1
-    _angle_term_accumulate(q, jp, jc, nbar, bbar, joints, d1s, d2s, n, grad, diag, pair)
+    for term in range(2):
+        n = 0
+        if term == 0:
+            for k in range(nd):
+                if d_on[k]:
+                    j = dj[k]
+                    x = unwrap(joint_theta(q, jp, jc, nbar, bbar, j), rel_start[j])
+                    joints[n] = j
+                    d1s[n] = dK[k] * (x - d_target[k])
+                    d2s[n] = dK[k]
+                    n += 1
+        else:
+            for k in range(lj.size):
+                j = lj[k]
+                x = unwrap(joint_theta(q, jp, jc, nbar, bbar, j), rel_start[j])
+                if _limit_active(x, lo[k], up[k]):
+                    _, d1, d2 = _limit_phi(x, lo[k], up[k], lstr[k])
+                    joints[n] = j
+                    d1s[n] = d1
+                    d2s[n] = d2
+                    n += 1
+        _angle_term_accumulate(q, jp, jc, nbar, bbar, joints, d1s, d2s, n, grad, diag, pair)
 
 
 # --------------------------------------------------------------------------- UID 668 + gravity
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _det_inv3(A, inv):
     det = (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
            - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
@@ -593,7 +594,7 @@ def _det_inv3(A, inv):
     return det
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def accelerations(q, fixed, Minv, gravity, has_grav, jp, jc, xbar, tj, tval, ton, skipped):
     """Gravity.acceleration then ExternalTorque.acceleration: a = g_q + M⁻¹F (B,12).
     Bodies skipped by the singular guard are written to `skipped` (parent side of every
@@ -665,7 +666,7 @@ def accelerations(q, fixed, Minv, gravity, has_grav, jp, jc, xbar, tj, tval, ton
 
 
 # --------------------------------------------------------------------------- linear solve
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def cholesky_inplace(A, n):
     """Lower Cholesky factor of A[:n,:n] in place (upper part untouched); False if not PD."""
     for j in range(n):
@@ -684,7 +685,7 @@ def cholesky_inplace(A, n):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _lower_solve(L, x, n):
     for i in range(n):
         s = x[i]
@@ -693,7 +694,7 @@ def _lower_solve(L, x, n):
         x[i] = s / L[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _upper_solve(L, x, n):
     """Solve Lᵀ y = x in place."""
     for i in range(n - 1, -1, -1):
@@ -703,7 +704,7 @@ def _upper_solve(L, x, n):
         x[i] = s / L[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def solve_dense(free_idx, jp, jc, pair_joints, slot, diag, pair, grad, dq):
     """LinearSystem.solve, dense path: H over the free bodies, Cholesky; NaN if not PD."""
     nf = free_idx.size
@@ -735,7 +736,7 @@ def solve_dense(free_idx, jp, jc, pair_joints, slot, diag, pair, grad, dq):
             dq[free_idx[s], r] = x[12 * s + r]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def solve_tree(free_idx, jp, order, eparent, edge_ptr, edge_joint, diag, pair, grad, dq):
     """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
@@ -812,7 +813,16 @@ def solve_tree(free_idx, jp, order, eparent, edge_ptr, edge_joint, diag, pair, g
 
 
 # --------------------------------------------------------------------------- Newton
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
+def _all_finite(x):
+    for b in range(x.shape[0]):
+        for r in range(x.shape[1]):
+            if not math.isfinite(x[b, r]):
+                return False
+    return True
+
+
+@njit(cache=True, error_model='numpy')
 def kinetic_energy(q, qt, free_idx, M, scale):
     E = 0.0
     for k in range(free_idx.size):
@@ -825,7 +835,7 @@ def kinetic_energy(q, qt, free_idx, M, scale):
     return 0.5 * scale * E
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def convergence(dq, free_idx, corners, h, vtol, ttol):
     """(disp, rate, converged): largest corner displacement under Δq and max |Δq[3:12]|."""
     disp = 0.0
@@ -849,88 +859,8 @@ def convergence(dq, free_idx, corners, h, vtol, ttol):
     return disp, rate, disp <= vtol * h and rate <= ttol * h
 
 
-@njit(cache=True)
-def newton(mi, mf, q_start, qt, scale, h, rel_start, d_on, d_target, vtol, ttol):
-    """NewtonSolver.minimize: returns (q, status, iterations, line-search iterations)."""
-    (B, J, T, D, L, nf, kind, max_it, ls_max, has_grav, fixed, jp, jc, tj, dj, lj,
-     free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints,
-     M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr) = unpack(mi, mf)
-    q = q_start.copy()
-    trial = np.empty_like(q)
-    ls_total = 0
-
-    def potential(x):
-        E = kinetic_energy(x, qt, free_idx, M, scale)
-        E += ortho_energy(x, free_idx, weight, h)
-        E += revolute_energy(x, jp, jc, xbar, K)
-        E += angle_energy(x, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr, rel_start)
-        return E
-
-    E = potential(q)
-    grad = np.empty((B, 12))
-    diag = np.empty((B, 12, 12))
-    pair = np.empty((J, 12, 12))
-    dq = np.zeros((B, 12))
-    for it in range(1, max_it + 1):
-        grad[:] = 0.0
-        diag[:] = 0.0
-        pair[:] = 0.0
-        for k in range(nf):
-            b = free_idx[k]
-            for r in range(12):
-                s = 0.0
-                for c in range(12):
-                    s += M[b, r, c] * (q[b, c] - qt[b, c])
-                    diag[b, r, c] = scale * M[b, r, c]
-                grad[b, r] = scale * s
-        ortho_accumulate(q, free_idx, weight, h, grad, diag)
-        revolute_accumulate(q, jp, jc, xbar, K, Hj, grad, diag, pair)
-        angle_accumulate(q, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr,
-                         rel_start, grad, diag, pair)
-        if kind == KIND_TREE:
-            solve_tree(free_idx, jp, order, eparent, edge_ptr, edge_joint, diag, pair, grad, dq)
-        else:
-            solve_dense(free_idx, jp, jc, pair_joints, slot, diag, pair, grad, dq)
-        if not np.all(np.isfinite(dq)):
-            return q, NONFINITE, it, ls_total
-        disp, rate, converged = convergence(dq, free_idx, corners, h, vtol, ttol)
-        dec = 0.0
-        for k in range(nf):
-            b = free_idx[k]
-            for r in range(12):
-                dec += grad[b, r] * dq[b, r]
-        if -0.5 * dec <= ROUNDOFF * abs(E):
-            return q, CONVERGED, it, ls_total
-        alpha = 1.0
-        found = False
-        E_new = E
-        for _ in range(ls_max):
-            for b in range(B):
-                for r in range(12):
-                    trial[b, r] = q[b, r] + alpha * dq[b, r]
-            E_new = potential(trial)
-            if E_new <= E + ROUNDOFF * abs(E):
-                found = True
-                break
-            alpha *= 0.5
-            ls_total += 1
-        if not found:
-            if converged:
-                return q, CONVERGED, it, ls_total
-            return q, LINE_SEARCH_FAILED, it, ls_total
-        if not math.isfinite(E_new):
-            return q, NONFINITE, it, ls_total
-        for b in range(B):
-            for r in range(12):
-                q[b, r] = q[b, r] + alpha * dq[b, r]
-        E = E_new
-        if converged and alpha == 1.0:
-            return q, CONVERGED, it, ls_total
-    return q, MAX_ITERATIONS, max_it, ls_total
-
-
 # --------------------------------------------------------------------------- whole step
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h, bdf2):
     """World._single from the forces to the joint velocities. Returns
     (q, v, joint_angle, joint_velocity, skipped bodies, info) with
@@ -978,12 +908,89 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     for k in range(D):
         j = dj[k]
         d_target[k] = rel_start[j] if dpas[k] else daim[k] - init[j]
-    q, status, its, ls = newton(mi, mf, qt, qt, scale, h, rel_start, don, d_target, vtol, ttol)
+    # ---- Newton (NewtonSolver.minimize), from q̃; inlined here: one compiled unit less
+    d_on = don
+    q = qt.copy()
+    trial = np.empty_like(q)
+    ls = 0
+
+    def potential(x):
+        E = kinetic_energy(x, qt, free_idx, M, scale)
+        E += ortho_energy(x, free_idx, weight, h)
+        E += revolute_energy(x, jp, jc, xbar, K)
+        E += angle_energy(x, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr, rel_start)
+        return E
+
+    E = potential(q)
+    grad = np.empty((B, 12))
+    diag = np.empty((B, 12, 12))
+    pair = np.empty((J, 12, 12))
+    dq = np.zeros((B, 12))
+    status = MAX_ITERATIONS
+    its = max_it
+    for it in range(1, max_it + 1):
+        grad[:] = 0.0
+        diag[:] = 0.0
+        pair[:] = 0.0
+        for k in range(nf):
+            b = free_idx[k]
+            for r in range(12):
+                s = 0.0
+                for c in range(12):
+                    s += M[b, r, c] * (q[b, c] - qt[b, c])
+                    diag[b, r, c] = scale * M[b, r, c]
+                grad[b, r] = scale * s
+        ortho_accumulate(q, free_idx, weight, h, grad, diag)
+        revolute_accumulate(q, jp, jc, xbar, K, Hj, grad, diag, pair)
+        angle_accumulate(q, jp, jc, nbar, bbar, dj, dK, d_on, d_target, lj, lo, up, lstr,
+                         rel_start, grad, diag, pair)
+        if kind == KIND_TREE:
+            solve_tree(free_idx, jp, order, eparent, edge_ptr, edge_joint, diag, pair, grad, dq)
+        else:
+            solve_dense(free_idx, jp, jc, pair_joints, slot, diag, pair, grad, dq)
+        if not _all_finite(dq):
+            status, its = NONFINITE, it
+            break
+        disp, rate, converged = convergence(dq, free_idx, corners, h, vtol, ttol)
+        dec = 0.0
+        for k in range(nf):
+            b = free_idx[k]
+            for r in range(12):
+                dec += grad[b, r] * dq[b, r]
+        if -0.5 * dec <= ROUNDOFF * abs(E):
+            status, its = CONVERGED, it
+            break
+        alpha = 1.0
+        found = False
+        E_new = E
+        for _ in range(ls_max):
+            for b in range(B):
+                for r in range(12):
+                    trial[b, r] = q[b, r] + alpha * dq[b, r]
+            E_new = potential(trial)
+            if E_new <= E + ROUNDOFF * abs(E):
+                found = True
+                break
+            alpha *= 0.5
+            ls += 1
+        if not found:
+            status, its = (CONVERGED if converged else LINE_SEARCH_FAILED), it
+            break
+        if not math.isfinite(E_new):
+            status, its = NONFINITE, it
+            break
+        for b in range(B):
+            for r in range(12):
+                q[b, r] = q[b, r] + alpha * dq[b, r]
+        E = E_new
+        if converged and alpha == 1.0:
+            status, its = CONVERGED, it
+            break
     info[0], info[1], info[2] = status, its, ls
     v = np.empty((B, 12))
     angle = np.empty(J)
     omega = np.empty(J)
-    if status == NONFINITE or not np.all(np.isfinite(q)):
+    if status == NONFINITE or not _all_finite(q):
         info[4] = 1
         return q, v, angle, omega, skipped[:ns], info
     for b in range(B):
@@ -1013,7 +1020,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
             rotation = np.nan
         elif rotation == rotation:
             rotation = max(rotation, da, dw)
-    if not finite or not np.all(np.isfinite(v)):
+    if not finite or not _all_finite(v):
         info[4] = 2
         return q, v, angle, omega, skipped[:ns], info
     info[3] = rotation

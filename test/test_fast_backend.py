@@ -1,0 +1,299 @@
+"""The optional numba backend (abd_joint_sim/fast/) takes the same steps as the numpy reference.
+
+Agreement criterion: after N steps, max |Δq| ≤ 1e-9 × body size, equal joint angles and
+velocities to the same relative level, and identical StepReports (Newton and line-search
+iterations, status, sub-steps, warnings). The two backends evaluate the same formulas with
+different summation orders and a different 3x3 SVD / eigen-solver, so they differ by
+round-off (≈1e-15 relative per step). Where the discrete dynamics amplify perturbations
+(a stiff limit against a drive with the default, loose Newton tolerance: the reference itself
+turns a 1e-15 perturbation into 1e-8 within 200 steps, see
+`test_loose_tolerance_amplifies_roundoff_in_the_reference_too`) the scene runs with a tight
+Newton tolerance, and the default tolerance only for a short run.
+"""
+import copy
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip('numba')
+
+from abd_joint_sim import Scene, World  # noqa: E402
+from abd_joint_sim import fast  # noqa: E402
+from abd_joint_sim.fast import kernels, step as fast_step  # noqa: E402
+from abd_joint_sim.solver import newton  # noqa: E402
+from abd_joint_sim.terms import forces  # noqa: E402
+from abd_joint_sim.terms.ortho import projected_hessian  # noqa: E402
+
+from physics_helpers import box, chain_dict, hinge_dict, random_rotation, scene_dict  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+TIGHT = dict(velocity_tol=1e-6, transrate_tol=1e-6)
+
+
+def _report_key(r):
+    return (r.newton_iterations, r.line_search_iterations, r.status, r.converged, r.substeps,
+            tuple(r.warnings))
+
+
+def _pair(d):
+    scene = Scene.from_dict(copy.deepcopy(d))
+    a, b = World(scene, backend='numpy'), World(scene, backend='numba')
+    assert (a.backend, b.backend) == ('numpy', 'numba')
+    return a, b
+
+
+def _run_both(d, steps, setup=None, schedule=None):
+    """Step both backends; compare every report and the final state. Returns the worlds."""
+    a, b = _pair(d)
+    for w in (a, b):
+        if setup:
+            setup(w)
+    for k in range(steps):
+        for w in (a, b):
+            if schedule:
+                schedule(w, k)
+        ra, rb = a.step(), b.step()
+        assert _report_key(ra) == _report_key(rb), (k, ra, rb)
+        assert ra.max_step_rotation == pytest.approx(rb.max_step_rotation, rel=1e-6, abs=1e-12)
+    _assert_same_state(a, b)
+    return a, b
+
+
+def _assert_same_state(a, b, tol=1e-9):
+    size = a.model.body_size[:, None]
+    sa, sb = a.state, b.state
+    assert np.all(np.abs(sa.q - sb.q) <= tol * size), np.abs(sa.q - sb.q).max()
+    assert np.all(np.abs(sa.q_prev - sb.q_prev) <= tol * size)
+    scale_v = max(1.0, np.abs(sa.v).max())
+    assert np.abs(sa.v - sb.v).max() <= 1e-6 * scale_v       # v = Δq/h: 1/h times Δq's error
+    assert np.abs(sa.joint_angle - sb.joint_angle).max(initial=0.0) <= tol * 10
+    scale_w = max(1.0, np.abs(sa.joint_velocity).max(initial=0.0))
+    assert np.abs(sa.joint_velocity - sb.joint_velocity).max(initial=0.0) <= 1e-6 * scale_w
+    assert (sa.time, sa.step_count, sa.history_dt) == (sb.time, sb.step_count, sb.history_dt)
+
+
+def _torques(value):
+    def setup(w):
+        for j in w.actuated_joint_names:
+            w.set_torque(j, value)
+    return setup
+
+
+def _drive_limit_hinge(**kw):
+    d = hinge_dict(dt=0.005, **kw)
+    d['joints'][0]['driving'] = dict(aim_angle=0.6, enabled=True)
+    d['joints'][0]['limit'] = dict(lower=-0.2, upper=0.3, strength=1e4)
+    return d
+
+
+def _ring(n_free):
+    """A fixed base and n free boxes joined in a closed loop (not a forest)."""
+    bodies = [box('base', (0.0, 0.0, -1.0), fixed=True)]
+    joints = []
+    for k in range(n_free):
+        ang = 2 * np.pi * k / n_free
+        bodies.append(box(f'b{k}', (np.cos(ang), np.sin(ang), 0.0), (0.2, 0.2, 0.2)))
+    for k in range(n_free):
+        a, b = 2 * np.pi * k / n_free, 2 * np.pi * (k + 1) / n_free
+        mid = 0.5 * (np.array([np.cos(a), np.sin(a), 0]) + np.array([np.cos(b), np.sin(b), 0]))
+        joints.append(dict(name=f'j{k}', parent=f'b{k}', child=f'b{(k + 1) % n_free}',
+                           p0=list(mid - [0, 0, 0.1]), p1=list(mid + [0, 0, 0.1]),
+                           external_torque=dict(torque=0.5 * (-1) ** k, enabled=True)))
+    joints.append(dict(name='anchor', parent='base', child='b0', p0=[1.0, 0, -0.6], p1=[1.0, 0, -0.4]))
+    return dict(dt=0.002, gravity=[0.0, 0.0, -9.81], bodies=bodies, joints=joints)
+
+
+def _tree():
+    """A fixed base with two branches of 3 links each (a tree, not a chain)."""
+    bodies = [box('base', (0.0, 0.0, 0.0), (0.2, 0.2, 0.2), fixed=True)]
+    joints = []
+    for side, sgn in (('l', -1), ('r', 1)):
+        prev = 'base'
+        for k in range(1, 4):
+            name = f'{side}{k}'
+            bodies.append(box(name, (sgn * 0.2 * k, 0.0, 0.0), (0.2, 0.1, 0.1)))
+            x = sgn * 0.2 * (k - 0.5)
+            joints.append(dict(name=f'j{name}', parent=prev, child=name, p0=[x, 0, -0.1], p1=[x, 0, 0.1],
+                               external_torque=dict(torque=0.3 * k * sgn, enabled=True)))
+            prev = name
+    return dict(dt=0.001, gravity=[0.0, 0.0, -9.81], bodies=bodies, joints=joints)
+
+
+# -- selection ------------------------------------------------------------------------------
+def test_backend_selection(monkeypatch):
+    scene = Scene.from_dict(hinge_dict())
+    assert World(scene, backend='numpy').backend == 'numpy'
+    assert World(scene, backend='numba').backend == 'numba'
+    with pytest.raises(ValueError, match='backend'):
+        World(scene, backend='cuda')
+    monkeypatch.setenv('ABD_BACKEND', 'numpy')
+    assert World(scene).backend == 'numpy'
+    monkeypatch.setenv('ABD_BACKEND', 'numba')
+    assert World(scene).backend == 'numba'
+    monkeypatch.delenv('ABD_BACKEND')
+    assert World(scene).backend == 'numba'           # auto: numba when it is importable
+    assert fast.AVAILABLE
+
+
+def test_a_large_loop_keeps_numpy_and_a_small_one_runs_dense():
+    big = Scene.from_dict(_ring(9))
+    assert World(big, backend='auto').backend == 'numpy'
+    with pytest.warns(RuntimeWarning, match='loop'):
+        assert World(big, backend='numba').backend == 'numpy'
+    small = World(Scene.from_dict(_ring(4)), backend='numba')
+    assert fast_step.packed_for(small).mi[6] == kernels.KIND_DENSE
+    tree = World(Scene.from_dict(_tree()), backend='numba')
+    assert fast_step.packed_for(tree).mi[6] == kernels.KIND_TREE
+
+
+def test_constants_match_the_reference():
+    assert kernels.ROUNDOFF == newton.ROUNDOFF
+    assert kernels.SINGULAR_RATIO == forces.SINGULAR_RATIO
+
+
+# -- kernels against the numpy terms ----------------------------------------------------------
+def test_svd3_and_projected_ortho_hessian_match_numpy():
+    rng = np.random.default_rng(3)
+    mats = [rng.normal(size=(3, 3)) for _ in range(20)]
+    mats += [random_rotation(rng) @ (np.eye(3) + 1e-6 * rng.normal(size=(3, 3))) for _ in range(20)]
+    mats += [np.array([[1, 0, 0], [0, 1, 0], [1, 1e-8, 1e-8]]), np.eye(3), np.diag([1.0, 1.0, -1.0]),
+             np.zeros((3, 3))]
+    U, S, V = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+    for A in mats:
+        kernels.svd3(A, U, S, V)
+        scale = max(1.0, np.abs(A).max())
+        assert np.abs(U * S @ V.T - A).max() <= 1e-14 * scale
+        assert np.abs(U.T @ U - np.eye(3)).max() <= 1e-14 and np.abs(V.T @ V - np.eye(3)).max() <= 1e-14
+        assert np.abs(S - np.linalg.svd(A)[1]).max() <= 1e-14 * scale
+        q = np.zeros((1, 12))
+        q[0, 3:] = A.ravel()
+        g, d = np.zeros((1, 12)), np.zeros((1, 12, 12))
+        kernels.ortho_accumulate(q, np.zeros(1, np.int64), np.ones(1), 0.5, g, d)
+        ref = projected_hessian(A[None])[0]
+        assert np.abs(d[0, 3:, 3:] - ref).max() <= 1e-13 * max(1.0, np.abs(ref).max())
+
+
+def test_jacobi_eigh_matches_lapack():
+    rng = np.random.default_rng(5)
+    for n in (3, 12):
+        X = rng.normal(size=(n, n))
+        S = X + X.T
+        w, V = np.empty(n), np.empty((n, n))
+        kernels.jacobi_eigh(S.copy(), w, V)
+        assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * np.abs(S).max()
+        assert np.abs(V * w @ V.T - S).max() <= 1e-13 * np.abs(S).max()
+
+
+# -- whole steps ------------------------------------------------------------------------------
+CASES = {
+    'hinge_bdf1_torque': (lambda: hinge_dict(), 100, _torques(1000.0)),
+    'hinge_bdf2_torque': (lambda: hinge_dict(integrator='bdf2'), 100, _torques(1000.0)),
+    'hinge_torque_off': (lambda: hinge_dict(gravity=[0.0, -9.81, 0.0]), 50, None),
+    'free_pair_bdf1': (lambda: scene_dict('free_pair'), 300, None),
+    'free_pair_bdf2': (lambda: dict(scene_dict('free_pair'), integrator='bdf2'), 300, None),
+    'default_torques': (lambda: scene_dict('default'), 300, _torques(5.0)),
+    'default_idle': (lambda: scene_dict('default'), 100, None),
+    'default_bdf2': (lambda: dict(scene_dict('default'), integrator='bdf2'), 200, _torques(-8.0)),
+    'drive_limit_tight': (lambda: _drive_limit_hinge(newton=TIGHT), 200, None),
+    'drive_limit_default_tol': (lambda: _drive_limit_hinge(), 30, None),
+    'drive_limit_bdf2_tight': (lambda: _drive_limit_hinge(newton=TIGHT, integrator='bdf2'), 100, None),
+    'chain12': (lambda: chain_dict(12), 100, None),
+    'chain12_bdf2_gravity': (lambda: chain_dict(12, gravity=(0.0, 0.0, -9.81)) | {'integrator': 'bdf2'}, 60, None),
+    'tree': (lambda: _tree(), 100, None),
+    'ring4_dense': (lambda: _ring(4), 60, None),
+}
+
+
+@pytest.mark.parametrize('name', sorted(CASES))
+def test_backends_agree(name):
+    make, steps, setup = CASES[name]
+    _run_both(make(), steps, setup)
+
+
+def test_control_changes_between_steps_agree():
+    """Torque enable/disable and values changing during the run; passive drive."""
+    d = scene_dict('default')
+    d['joints'][0]['driving'] = dict(aim_angle=0.4, enabled=False, strength_ratio=5.0)
+
+    def schedule(w, k):
+        if k == 20:
+            w.set_torque('shoulder', 12.0)
+            w.set_torque('elbow', -6.0)
+        if k == 60:
+            w.set_torque_enabled('elbow', False)
+        if k == 90:
+            w.set_drive('shoulder', enabled=True)
+        if k == 130:
+            w.set_drive('shoulder', passive=True)
+            w.set_torque_enabled('elbow', True)
+    _run_both(d, 160, schedule=schedule)
+
+
+def test_near_singular_affine_matrix_is_guarded_alike():
+    def setup(w):
+        w.set_torque('hinge', 10.0)
+        w.state.q[1, 3:12] = np.array([[1, 0, 0], [0, 1, 0], [1, 1e-8, 1e-8]]).ravel()
+    a, b = _pair(hinge_dict())
+    for w in (a, b):
+        setup(w)
+    ra, rb = a.step(), b.step()
+    assert _report_key(ra) == _report_key(rb)
+    assert any('near-singular' in m and "'arm'" in m for m in rb.warnings)
+    _assert_same_state(a, b)
+
+
+def test_substeps_and_failures_agree():
+    """A joint turning more than max_step_rotation: sub-stepping, same retry warnings; and a
+    Newton that hits max_iterations (reported, result kept)."""
+    d = hinge_dict(dt=0.05, newton=dict(max_step_rotation=0.3))
+    a, _ = _run_both(d, 6, _torques(1000.0))
+    assert a.last_step.substeps > 1 and 'retrying as 2 sub-steps' in a.last_step.warnings[0]
+    d = hinge_dict(newton=dict(velocity_tol=1e-9, transrate_tol=1e-9, max_iterations=1,
+                               max_substep_depth=1))
+    a, b = _run_both(d, 3, _torques(1000.0))
+    assert a.last_step.status == 'max_iterations' and not b.last_step.converged
+
+
+def test_reset_and_dt_change_restart_bdf2_alike():
+    d = hinge_dict(integrator='bdf2')
+    a, b = _pair(d)
+    for w in (a, b):
+        w.set_torque('hinge', 500.0)
+        w.step(10)
+        w.reset()
+        w.set_torque('hinge', -300.0)
+        w.step(10)
+    _assert_same_state(a, b)
+    assert a.last_step.newton_iterations == b.last_step.newton_iterations
+
+
+def test_loose_tolerance_amplifies_roundoff_in_the_reference_too():
+    """Why the drive+limit scene runs tight: numpy against itself with a 1e-15 nudge."""
+    scene = Scene.from_dict(_drive_limit_hinge())
+    a, b = World(scene, backend='numpy'), World(scene, backend='numpy')
+    b.state.q[1, 0] += 1e-15
+    a.step(200)
+    b.step(200)
+    assert np.abs(a.state.q - b.state.q).max() > 1e-10
+
+
+def test_warm_up_loads_every_kernel():
+    out = fast.warm_up()
+    assert out['seconds'] >= 0.0
+
+
+def test_physics_tests_pass_on_the_numba_backend():
+    """A subset of the physics tests, run with ABD_BACKEND=numba (the full files are run the
+    same way by hand: see docs/fast-backend.md)."""
+    env = dict(os.environ, ABD_BACKEND='numba')
+    cmd = [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', '-x',
+           'test/test_dynamics.py::test_reference_scene_angular_acceleration_is_40_4',
+           'test/test_dynamics.py::test_bdf2_is_second_order_and_applies_the_torque',
+           'test/test_torque_and_angle.py::test_angle_is_multi_turn_and_continuous',
+           'test/test_torque_and_angle.py::test_singular_affine_matrix_gets_no_torque_and_is_reported']
+    proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
