@@ -297,3 +297,13 @@ def test_physics_tests_pass_on_the_numba_backend():
            'test/test_torque_and_angle.py::test_singular_affine_matrix_gets_no_torque_and_is_reported']
     proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+
+
+def test_compiled_joint_separation_matches_world():
+    for d in (scene_dict('default'), chain_dict(12), _ring(4)):
+        w = World(Scene.from_dict(d), backend='numba')
+        for j in w.actuated_joint_names:
+            w.set_torque(j, 3.0)
+        w.step(20)
+        assert fast_step.max_joint_separation(w) == pytest.approx(w.max_joint_separation(),
+                                                                  rel=1e-6, abs=1e-14)

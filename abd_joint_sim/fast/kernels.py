@@ -1025,3 +1025,21 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         return q, v, angle, omega, skipped[:ns], info
     info[3] = rotation
     return q, v, angle, omega, skipped[:ns], info
+
+
+@njit(cache=True, error_model='numpy')
+def max_joint_separation(mi, mf, q):
+    """World.max_joint_separation (revolute.joint_separation, max over joints): the largest
+    distance between the two bodies' copies of P0 or P1. [m]"""
+    (B, J, T, D, L, nf, kind, max_it, ls_max, has_grav, fixed, jp, jc, tj, dj, lj,
+     free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints,
+     M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr) = unpack(mi, mf)
+    d = np.empty(3)
+    out = 0.0
+    for j in range(J):
+        for a in range(2):
+            _separation(q, jp[j], jc[j], xbar, j, a, d)
+            n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            if n > out or n != n:
+                out = n
+    return out

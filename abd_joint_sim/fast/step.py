@@ -155,6 +155,15 @@ def packed_for(world) -> Packed:
     return pk
 
 
+def max_joint_separation(world) -> float:
+    """`World.max_joint_separation` compiled (~1 µs instead of ~50-250 µs of numpy calls):
+    for World.step to call when `world.backend == 'numba'` (see docs/fast-backend.md)."""
+    if not world.model.joint_count:
+        return 0.0
+    pk = packed_for(world)
+    return float(kernels.max_joint_separation(pk.mi, pk.mf, world.state.q))
+
+
 def single(world, h, report):
     """One (sub-)step; returns None or a failure description (state then invalid).
     The numba twin of `World._single` (same report fields, warnings, failure strings)."""
