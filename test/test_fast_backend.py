@@ -307,3 +307,29 @@ def test_compiled_joint_separation_matches_world():
         w.step(20)
         assert fast_step.max_joint_separation(w) == pytest.approx(w.max_joint_separation(),
                                                                   rel=1e-6, abs=1e-14)
+
+
+def test_without_numba_auto_falls_back_to_numpy_with_one_warning():
+    code = '''
+import sys, warnings
+sys.modules['numba'] = None                 # numba not importable
+from abd_joint_sim import Scene, World
+from physics_helpers import hinge_dict
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter('always')
+    worlds = [World(Scene.from_dict(hinge_dict())) for _ in range(2)]
+    worlds[0].step(3)
+assert [w.backend for w in worlds] == ['numpy', 'numpy']
+assert len([c for c in caught if 'numba' in str(c.message)]) == 1, caught
+try:
+    World(Scene.from_dict(hinge_dict()), backend='numba')
+except RuntimeError as exc:
+    assert 'not importable' in str(exc)
+else:
+    raise AssertionError('explicit numba must fail without numba')
+'''
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), str(REPO / 'test')]))
+    env.pop('ABD_BACKEND', None)
+    proc = subprocess.run([sys.executable, '-c', code], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
