@@ -30,9 +30,9 @@ class State:
                    np.zeros(model.joint_count))
 
     def copy(self) -> 'State':
-        return State(**{f.name: (getattr(self, f.name).copy()
-                                 if isinstance(getattr(self, f.name), np.ndarray)
-                                 else getattr(self, f.name)) for f in fields(self)})
+        return State(self.time, self.q.copy(), self.v.copy(), self.q_prev.copy(), self.v_prev.copy(),
+                     self.joint_angle.copy(), self.joint_velocity.copy(), self.step_count,
+                     self.history_dt)
 
 
 @dataclass

@@ -164,7 +164,7 @@ def max_joint_separation(world) -> float:
     return float(kernels.max_joint_separation(pk.mi, pk.mf, world.state.q))
 
 
-def single(world, h, report):
+def single(world, h, report, may_split=False):
     """One (sub-)step; returns None or a failure description (state then invalid).
     The numba twin of `World._single` (same report fields, warnings, failure strings)."""
     m, s, c = world.model, world.state, world.control

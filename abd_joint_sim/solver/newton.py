@@ -6,7 +6,11 @@ with s = 1 (BDF1) or 1/β = 9/4 (BDF2) (PHYSICS.md §2). Each iteration solves H
 H the sum of PSD(-projected) term Hessians plus sM (so H is positive definite on free DOFs),
 then halves α until Π(q + αΔq) ≤ Π(q) (roundoff slack ROUNDOFF·|Π|).
 Convergence (libuipc defaults): every free body's bounding-box corners move less than
-velocity_tol·h under Δq, and max |Δq[3:12]| ≤ transrate_tol·h. Hitting max_iterations, a
+velocity_tol·h under Δq, and max |Δq[3:12]| ≤ transrate_tol·h; and (ours) the Newton
+decrement −½∇Πᵀ Δq, the predicted distance in energy to the minimum, is below what moving
+all bodies by velocity_tol·h costs in the mass metric, s·½Σm(velocity_tol·h)². When H ≈ sM
+the two tests agree; with a stiff mode (the ortho twist of a stretched A, large dt) a
+step-size test alone accepts tiny steps far from the minimiser (docs/decisions.md). Hitting max_iterations, a
 failed line search or a non-finite value is returned as a Status, never hidden.
 """
 from __future__ import annotations
@@ -63,6 +67,8 @@ class NewtonSolver:
         ls_total = 0
         E = self.potential(q, q_tilde, scale, ctx)
         disp = np.inf
+        # the energy that moving every body by velocity_tol·h costs in the mass metric
+        energy_tol = 0.5 * float(np.sum(m.body_mass[free])) * (spec.velocity_tol * h) ** 2
         for it in range(1, spec.max_iterations + 1):
             grad = np.zeros((B, 12))
             diag = np.zeros((B, 12, 12))
@@ -78,11 +84,13 @@ class NewtonSolver:
             move = dqf[:, None, :3] + np.matmul(corners, dqf[:, 3:12].reshape(-1, 3, 3).transpose(0, 2, 1))
             disp = float(np.max(np.linalg.norm(move, axis=2))) if len(dqf) else 0.0
             rate = float(np.max(np.abs(dqf[:, 3:12]))) if len(dqf) else 0.0
-            converged = disp <= spec.velocity_tol * h and rate <= spec.transrate_tol * h
+            decrement = -0.5 * float(np.sum(grad[free] * dqf))      # ≈ Π(q) − min Π
+            converged = (disp <= spec.velocity_tol * h and rate <= spec.transrate_tol * h
+                         and decrement <= scale * energy_tol)
             # At the roundoff floor the line search cannot see a decrease any more: when the
             # predicted decrease −½gᵀΔq is below the rounding error of Π, q is as good as
             # double precision allows, whatever the tolerances ask.
-            if -0.5 * float(np.sum(grad[free] * dqf)) <= ROUNDOFF * abs(E):
+            if decrement <= ROUNDOFF * abs(E):
                 return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
             alpha = 1.0
             for _ in range(spec.line_search_max):

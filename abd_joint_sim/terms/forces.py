@@ -52,17 +52,24 @@ class ExternalTorque:
         return cls(model) if len(model.torque_joints) else None
 
     def axes(self, q):
-        """Symmetrised world axes (ê_i, ê_j), each (T,3)."""
+        """Symmetrised world axes (ê_i, ê_j), each (T,3).
+
+        A degenerate A can map the anchor difference to (almost) nothing; that body's raw
+        axis is then unusable and the other body's is taken for both (so the healthy body
+        still gets its torque); with neither usable the axis is 0 and so is the torque."""
         m = self.model
         A = q[:, 3:12].reshape(-1, 3, 3)
-        e = []
+        e, ok = [], []
         for side, body in enumerate((m.joint_parent[self.joints], m.joint_child[self.joints])):
             d = m.joint_anchor1[self.joints, side] - m.joint_anchor0[self.joints, side]
             v = np.matmul(A[body], d[:, :, None])[:, :, 0]
-            e.append(v / np.linalg.norm(v, axis=1, keepdims=True))
-        e_j = 0.5 * (e[0] + e[1])
+            n = np.linalg.norm(v, axis=1, keepdims=True)
+            good = np.isfinite(n) & (n > 1e-12 * np.linalg.norm(d, axis=1, keepdims=True))
+            e.append(np.divide(v, n, out=np.zeros_like(v), where=good))
+            ok.append(good)
+        both = ok[0] & ok[1]
+        e_j = np.where(both, 0.5 * (e[0] + e[1]), e[0] + e[1])   # one of them is 0 if not both
         return -e_j, e_j
-
     def generalized_force(self, q, tau):
         """F (B,12) for torques `tau` (T,) (0 = none) and the bodies skipped as singular."""
         m = self.model
