@@ -12,6 +12,9 @@ from abd_joint_sim.solver import linsolve
 
 from physics_helpers import box, chain_dict, hinge_dict, scene_dict, world_from
 
+# every test here runs on the numpy reference and on the numba backend
+pytestmark = pytest.mark.usefixtures('each_backend')
+
 I_AXIS = 64 * 0.32 / 12 + 64 * 0.36          # 0.4 m cube, COM 0.6 m from the axis
 TIGHT = dict(velocity_tol=1e-5, transrate_tol=1e-5)
 

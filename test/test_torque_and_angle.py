@@ -11,6 +11,9 @@ from abd_joint_sim.terms.forces import ExternalTorque
 
 from physics_helpers import box, hinge_dict, random_rotation, rotation_about, world_from
 
+# every test here runs on the numpy reference and on the numba backend
+pytestmark = pytest.mark.usefixtures('each_backend')
+
 
 def _tilted_world(axis=(0.3, -0.5, 0.8), rpy_child=(0.4, -0.2, 1.1)):
     """A free pair with a skew axis and rotated bodies, so no basis is axis-aligned."""

@@ -7,14 +7,22 @@ into the backend a World uses:
   or its kernels fail to compile; a model it does not support (a loop of more than 8 free
   bodies) keeps numpy, with a warning.
 - 'auto': the environment variable ABD_BACKEND ('numpy' | 'numba') if set, else numba when
-  it imports and compiles, else numpy with one warning per process.
+  it is importable AND its kernels have been compiled for these very files (a marker that
+  `warm_up()` leaves beside numba's cache), else numpy with one warning per process. A cold
+  compile takes ~45 s, far too long to happen silently inside a node's constructor or a
+  test; `python -m abd_joint_sim.fast --warm-up` does it once per install (the scripts run it).
 numba is imported lazily (on the first World), never by `import abd_joint_sim`.
 `warm_up()` compiles (first run on a machine, ~1 min) or loads from numba's on-disk cache
 (~1 s) every kernel, on a tiny scene.
 """
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
+import importlib.util
 import os
+from pathlib import Path
+import sys
 import time
 import warnings
 
@@ -22,6 +30,30 @@ BACKENDS = ('auto', 'numpy', 'numba')
 ENV_VAR = 'ABD_BACKEND'
 
 _state = {'available': None, 'reason': '', 'ready': False, 'warned': False, 'warm_up': None}
+
+
+def _marker() -> Path:
+    """Marker of a completed warm-up of exactly these kernel sources. numba's own cache index
+    is keyed on the source files' modification times, so the marker is too (a copy made by
+    an install gets a new mtime and needs its own warm-up)."""
+    here = Path(__file__).resolve().parent
+    key = hashlib.sha1()
+    for name in ('kernels.py', 'step.py'):
+        f = here / name
+        st = f.stat()
+        key.update(f.read_bytes())
+        key.update(f'{st.st_mtime_ns}:{st.st_size}'.encode())
+    key.update(importlib.metadata.version('numba').encode())
+    key.update(sys.version.encode())
+    return here / '__pycache__' / f'abd_fast_compiled_{key.hexdigest()[:16]}'
+
+
+def compiled() -> bool:
+    """True when `warm_up()` has completed for these kernel files (cheap: no numba import)."""
+    try:
+        return importlib.util.find_spec('numba') is not None and _marker().exists()
+    except (OSError, importlib.metadata.PackageNotFoundError):
+        return False
 
 
 def _check_import() -> bool:
@@ -80,6 +112,12 @@ def warm_up() -> dict:
     hits = sum(sum(d.stats.cache_hits.values()) for d in (kernels.step_kernel,))
     out = {'seconds': time.perf_counter() - t0, 'cache_hits': hits}
     _state['warm_up'] = out
+    try:
+        marker = _marker()
+        marker.parent.mkdir(exist_ok=True)
+        marker.write_text(f'{out}\n')
+    except OSError:            # read-only install: numba could not cache either
+        pass
     return out
 
 
@@ -116,6 +154,10 @@ def resolve(requested, model) -> str:
         if env in ('numpy', 'numba'):
             requested, explicit = env, True
     if requested == 'numpy':
+        return 'numpy'
+    if not explicit and _check_import() and not _state['ready'] and not compiled():
+        _warn_once('the numba kernels are not compiled for this install yet; using the numpy '
+                   'backend (run `python -m abd_joint_sim.fast --warm-up` once, ~1 min)')
         return 'numpy'
     if not _usable():
         if explicit:
