@@ -11,6 +11,10 @@ to unbox and a step has a budget of a few µs.
 
 Status codes (solver/newton.py `Status`): 0 converged, 1 max_iterations,
 2 line_search_failed, 3 nonfinite.
+
+Header slots beyond the model sizes: mi[11] = may_split (World._single's flag: `step.py`
+keeps one int vector per value, so the kernel's signature and `fast.warm_up` stay as they
+are), mf[5] = Σ m_b over free bodies (Newton's energy_tol), mf[6] = newton.max_step_rotation.
 """
 from __future__ import annotations
 
@@ -26,6 +30,9 @@ TWO_PI = 2.0 * np.pi
 HEADER_INTS = 16
 HEADER_FLOATS = 8
 KIND_DENSE, KIND_TREE = 0, 1
+MI_MAY_SPLIT = 11           # mi slot of the may_split flag
+POST_OK, POST_NEWTON_NONFINITE, POST_STEP_NONFINITE, POST_PREDICTED_SPLIT = 0, 1, 2, 3
+AXIS_EPS = 1e-12            # terms/forces.py ExternalTorque.axes: raw axis unusable below this
 
 
 # --------------------------------------------------------------------------- layout
@@ -616,20 +623,35 @@ def accelerations(q, fixed, Minv, gravity, has_grav, jp, jc, xbar, tj, tval, ton
         if ton[k] and tval[k] != 0.0:
             any_active = True
     if any_active:
+        # ExternalTorque.axes: a raw axis A_k(x̄1 − x̄0) of norm ≤ 1e-12·|x̄1 − x̄0| (or not
+        # finite) is unusable: then the other body's is taken for both, and with neither the
+        # axis (so the torque) is 0.
         e = np.empty((T, 3))
+        es = np.empty((2, 3))
         A = np.empty((3, 3))
         inv = np.empty((3, 3))
         for k in range(T):
             j = tj[k]
+            nok = 0
             for side in range(2):
                 b = jp[j] if side == 0 else jc[j]
-                v = np.zeros(3)
-                for r in range(3):
-                    for c in range(3):
-                        v[r] += q[b, 3 + 3 * r + c] * (xbar[j, side, 1, c] - xbar[j, side, 0, c])
-                nrm = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-                for r in range(3):
-                    e[k, r] = v[r] / nrm if side == 0 else 0.5 * (e[k, r] + v[r] / nrm)
+                v0 = v1 = v2 = 0.0
+                d2 = 0.0
+                for c in range(3):
+                    dc = xbar[j, side, 1, c] - xbar[j, side, 0, c]
+                    d2 += dc * dc
+                    v0 += q[b, 3 + c] * dc
+                    v1 += q[b, 6 + c] * dc
+                    v2 += q[b, 9 + c] * dc
+                nrm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+                if math.isfinite(nrm) and nrm > AXIS_EPS * math.sqrt(d2):
+                    es[side, 0], es[side, 1], es[side, 2] = v0 / nrm, v1 / nrm, v2 / nrm
+                    nok += 1
+                else:
+                    es[side, 0] = es[side, 1] = es[side, 2] = 0.0
+            half = 0.5 if nok == 2 else 1.0          # one of them is 0 if not both
+            for r in range(3):
+                e[k, r] = half * (es[0, r] + es[1, r])
         for side in range(2):
             sign = -1.0 if side == 0 else 1.0            # ê_i = −ê_j
             for k in range(T):
@@ -865,12 +887,15 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     """World._single from the forces to the joint velocities. Returns
     (q, v, joint_angle, joint_velocity, skipped bodies, info) with
     info = [status, newton its, line-search its, rotation, post, n_skipped]; post: 0 ok,
-    1 Newton non-finite, 2 step non-finite (the reference's failure strings)."""
+    1 Newton non-finite, 2 step non-finite (the reference's failure strings), 3 refused
+    before solving (mi[11] = may_split and the predicted rotation, then in info[3], exceeds
+    max_step_rotation; q, v, angles are then not a step). Inputs are only read."""
     (B, J, T, D, L, nf, kind, max_it, ls_max, has_grav, fixed, jp, jc, tj, dj, lj,
      free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints,
      M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr) = unpack(mi, mf)
     vtol, ttol = mf[0], mf[1]
     gravity = mf[2:5]
+    free_mass, max_rot = mf[5], mf[6]
     info = np.zeros(6)
     skipped = np.empty(2 * T, dtype=np.int64)
     # forces: BDF1 at qⁿ, BDF2 at the extrapolation 2qⁿ − qⁿ⁻¹
@@ -900,6 +925,29 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         if fixed[b]:
             for r in range(12):
                 qt[b, r] = q0[b, r]
+    g = np.empty(18)
+    hh18 = np.empty((1, 1))
+    if mi[MI_MAY_SPLIT] != 0 and J > 0:
+        # World._single: refuse (before solving) a step whose linearised rotation
+        # max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| exceeds max_step_rotation (np.max: NaN wins, and a
+        # NaN prediction does not split)
+        predicted = 0.0
+        for j in range(J):
+            joint_theta_derivatives(q0, jp, jc, nbar, bbar, j, g, hh18, False)
+            x = 0.0
+            for a in range(9):
+                x += (g[a] * (qt[jp[j], 3 + a] - q0[jp[j], 3 + a])
+                      + g[9 + a] * (qt[jc[j], 3 + a] - q0[jc[j], 3 + a]))
+            x = abs(x)
+            if x != x:
+                predicted = np.nan
+            elif predicted == predicted:
+                predicted = max(predicted, x)
+        if predicted > max_rot:
+            info[3], info[4] = predicted, POST_PREDICTED_SPLIT
+            return qt, np.empty((B, 12)), np.empty(J), np.empty(J), skipped[:ns], info
+    # the energy that moving every body by velocity_tol·h costs in the mass metric
+    energy_tol = 0.5 * free_mass * (vtol * h) ** 2
     # step context (World._context)
     rel_start = np.empty(J)
     for j in range(J):
@@ -957,7 +1005,9 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
             b = free_idx[k]
             for r in range(12):
                 dec += grad[b, r] * dq[b, r]
-        if -0.5 * dec <= ROUNDOFF * abs(E):
+        decrement = -0.5 * dec                  # Newton decrement ≈ Π(q) − min Π
+        converged = converged and decrement <= scale * energy_tol
+        if decrement <= ROUNDOFF * abs(E):
             status, its = CONVERGED, it
             break
         alpha = 1.0
@@ -991,7 +1041,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     angle = np.empty(J)
     omega = np.empty(J)
     if status == NONFINITE or not _all_finite(q):
-        info[4] = 1
+        info[4] = POST_NEWTON_NONFINITE
         return q, v, angle, omega, skipped[:ns], info
     for b in range(B):
         for r in range(12):
@@ -1003,8 +1053,6 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
                 v[b, r] = (q[b, r] - q0[b, r]) / h
     rotation = 0.0
     finite = True
-    g = np.empty(18)
-    hh18 = np.empty((1, 1))
     for j in range(J):
         theta = joint_theta_derivatives(q, jp, jc, nbar, bbar, j, g, hh18, False)
         rel = unwrap(theta, rel_start[j])
@@ -1021,7 +1069,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         elif rotation == rotation:
             rotation = max(rotation, da, dw)
     if not finite or not _all_finite(v):
-        info[4] = 2
+        info[4] = POST_STEP_NONFINITE
         return q, v, angle, omega, skipped[:ns], info
     info[3] = rotation
     return q, v, angle, omega, skipped[:ns], info

@@ -1,4 +1,4 @@
-"""The numba backend's per-step driver: `single(world, h, report)` is `World._single`.
+"""The numba backend's per-step driver: `single(world, h, report, may_split)` is `World._single`.
 
 Same contract and side effects as the numpy `World._single` (world.py): it takes one
 (sub-)step of size h from `world.state` with `world.control`, adds to `report` the Newton and
@@ -29,10 +29,14 @@ _STATUS = {kernels.CONVERGED: Status.CONVERGED, kernels.MAX_ITERATIONS: Status.M
 
 
 class Packed:
-    """The model as the kernels read it (see `kernels.unpack`)."""
+    """The model as the kernels read it (see `kernels.unpack`). `mi_split` is `mi` with the
+    may_split flag set (header slot `kernels.MI_MAY_SPLIT`): one vector per flag value, so a
+    step passes the flag without a new kernel argument and without writing into `mi`."""
 
     def __init__(self, mi, mf):
         self.mi, self.mf = mi, mf
+        self.mi_split = mi.copy()
+        self.mi_split[kernels.MI_MAY_SPLIT] = 1
 
 
 def _forest(nf, sp, sc):
@@ -133,7 +137,9 @@ def pack_model(model) -> Packed:
                          m.torque_joints, m.drive_joints, m.limit_joints, free_idx, slot,
                          order, eparent, edge_ptr, edge_joint, pair.astype(np.int64)]).astype(np.int64)
     fh = np.zeros(kernels.HEADER_FLOATS)
-    fh[:5] = [m.newton.velocity_tol, m.newton.transrate_tol, *m.gravity]
+    # Newton's energy_tol = ½ Σ_free m_b (velocity_tol·h)²: the mass sum as numpy sums it
+    fh[:7] = [m.newton.velocity_tol, m.newton.transrate_tol, *m.gravity,
+              float(np.sum(m.body_mass[~fixed])), m.newton.max_step_rotation]
     xbar = np.stack([m.joint_anchor0, m.joint_anchor1], axis=2)      # (J, side, anchor, 3)
     init = m.joint_init_angle
     lj = m.limit_joints
@@ -166,23 +172,31 @@ def max_joint_separation(world) -> float:
 
 def single(world, h, report, may_split=False):
     """One (sub-)step; returns None or a failure description (state then invalid).
-    The numba twin of `World._single` (same report fields, warnings, failure strings)."""
+    The numba twin of `World._single` (same report fields, warnings, failure strings).
+    `may_split`: a step predicted to turn a joint more than max_step_rotation is refused
+    before solving (state unchanged). The kernel only reads its inputs: the new State gets
+    new q/v/angle arrays, and the old State's arrays (kept by World.step to undo a step) are
+    never written."""
     m, s, c = world.model, world.state, world.control
     pk = packed_for(world)
     bdf2 = m.integrator == 'bdf2' and s.history_dt == h
     q, v, angle, omega, skipped, info = kernels.step_kernel(
-        pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev, s.joint_angle, c.torque_value,
-        c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, float(h), bdf2)
+        pk.mi_split if may_split else pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev,
+        s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
+        c.drive_passive, float(h), bdf2)
     for b in skipped:
         report.warnings.append(f'body {m.body_names[b]!r}: affine matrix near-singular '
                                f'(|det A|/(|a1||a2||a3|) < {SINGULAR_RATIO}); joint torque not applied')
+    post = info[4]
+    if post == kernels.POST_PREDICTED_SPLIT:
+        return (f'a joint is predicted to turn {float(info[3]):.3g} rad in one step (limit '
+                f'{m.newton.max_step_rotation:.3g})')
     status, iterations = _STATUS[int(info[0])], int(info[1])
     report.newton_iterations += iterations
     report.line_search_iterations += int(info[2])
-    post = info[4]
-    if post == 1.0:
+    if post == kernels.POST_NEWTON_NONFINITE:
         return 'Newton produced a non-finite state'
-    if post == 2.0:
+    if post == kernels.POST_STEP_NONFINITE:
         return 'step produced a non-finite state'
     rotation = float(info[3])
     report.max_step_rotation = max(report.max_step_rotation, rotation)
