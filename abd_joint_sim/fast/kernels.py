@@ -1013,7 +1013,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         alpha = 1.0
         found = False
         E_new = E
-        for _ in range(ls_max):
+        for _ in range(1 if converged else ls_max):   # as solver/newton.py
             for b in range(B):
                 for r in range(12):
                     trial[b, r] = q[b, r] + alpha * dq[b, r]

@@ -93,14 +93,16 @@ class NewtonSolver:
             if decrement <= ROUNDOFF * abs(E):
                 return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
             alpha = 1.0
-            for _ in range(spec.line_search_max):
+            # Once the tolerances hold only the full step is tried: whether it lowers Π is
+            # then decided by rounding, and halving it would only spend iterations.
+            for _ in range(1 if converged else spec.line_search_max):
                 E_new = self.potential(q + alpha * dq, q_tilde, scale, ctx)
                 if E_new <= E + ROUNDOFF * abs(E):
                     break
                 alpha *= 0.5
                 ls_total += 1
             else:
-                if converged:      # the remaining step is below tolerance: accept q as is
+                if converged:      # the step is below tolerance: q is as good
                     return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
                 return NewtonResult(q, Status.LINE_SEARCH_FAILED, it, ls_total, disp)
             if not np.isfinite(E_new):
