@@ -13,6 +13,26 @@ if str(REPO) not in sys.path:          # run as `python study/x.py` from a check
     sys.path.insert(0, str(REPO))
 
 
+# 'auto' | 'numpy' | 'numba' (World(backend=...)); set by the studies' --backend option
+BACKEND = 'auto'
+
+
+def make_world(scene_dict, backend=None):
+    """A World for a scene dict on the studies' backend (which one a World resolved to is
+    `world.backend`: the studies record it in every output)."""
+    from abd_joint_sim import Scene, World
+    return World(Scene.from_dict(scene_dict), backend=backend or BACKEND)
+
+
+def backend_note(used):
+    """One line naming the backend(s) a run used, for the summaries."""
+    used = sorted(set(used))
+    extra = (' (numba: compiled kernels of abd_joint_sim/fast; `python -m abd_joint_sim.fast '
+             '--warm-up` makes `auto` pick it)' if 'numba' in used else
+             ' (numba not compiled or not installed: `python -m abd_joint_sim.fast --warm-up`)')
+    return f'Backend: {", ".join(used)}{extra}.'
+
+
 def pyplot():
     """matplotlib.pyplot with the Agg backend, or None when matplotlib is not installed."""
     try:

@@ -4,7 +4,11 @@
 
 Scenes (study/scenes.py): fixed hinge with constant torque (closed form), free pair with
 internal torque (closed form for the relative angle; momentum must stay zero), pendulum
-under gravity with a sinusoidal torque (DOP853 reference at rtol 1e-12).
+under gravity with a sinusoidal torque (DOP853 reference at rtol 1e-12). With MuJoCo
+installed (optional), the hinge and the pendulum also run in MuJoCo in the same run
+(study/mujoco_peer.py) and the summary gives the run time at equal error, ours/MuJoCo;
+without it the study says so and runs the rest. Options: --backend (auto = numba once
+compiled), --numpy-scene (also time one scene on numpy), --no-mujoco.
 For every point: wall time per simulated second (the step calls only), angle error (max
 over the horizon and final), max joint-anchor separation, Newton iterations per step,
 max |momentum| (free pair). Writes results.csv, summary.md and, with matplotlib, PNGs.
@@ -28,27 +32,32 @@ except ImportError:                      # run as a script
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import common  # type: ignore
 
-from abd_joint_sim import Scene, SimulationError, World  # noqa: E402
+from abd_joint_sim import SimulationError  # noqa: E402
 
 try:
     from . import scenes as S
+    from . import mujoco_peer as M
 except ImportError:
     import scenes as S  # type: ignore
+    import mujoco_peer as M  # type: ignore
 
+# mj_dts: MuJoCo's first-order integrators cost ~3 us per step, so it also gets smaller steps
+# (the equal-error ratios need its envelope to reach 1e-5)
 FULL = dict(dts=(1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4), tols=(0.05, 0.005), horizon=0.3,
-            fit_min_dt=5e-4)
-QUICK = dict(dts=(1e-2, 5e-3, 2e-3, 1e-3), tols=(0.05, 0.005), horizon=0.25, fit_min_dt=1e-3)
+            fit_min_dt=5e-4, mj_extra_dts=(5e-5, 2e-5, 1e-5))
+QUICK = dict(dts=(1e-2, 5e-3, 2e-3, 1e-3), tols=(0.05, 0.005), horizon=0.25, fit_min_dt=1e-3,
+             mj_extra_dts=(1e-4,))
 INTEGRATORS = ('bdf1', 'bdf2')
 EXPECTED_ORDER = {'bdf1': (0.8, 1.3), 'bdf2': (1.7, 2.6)}
-COLUMNS = ('scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt', 'steps', 'sim_time',
+COLUMNS = ('engine', 'backend', 'scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt', 'steps', 'sim_time',
            'wall_s', 'wall_per_sim_s', 'ms_per_step', 'err_max', 'err_final', 'theta_final',
            'max_sep', 'newton_per_step', 'line_search_per_step', 'unconverged_steps',
            'substep_steps', 'max_linear_momentum', 'max_angular_momentum', 'warnings', 'error')
 
 
-def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end'):
+def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end', backend=None):
     """Simulate one point; returns a row dict (see COLUMNS)."""
-    w = World(Scene.from_dict(case.scene(dt, integrator, velocity_tol)))
+    w = common.make_world(case.scene(dt, integrator, velocity_tol), backend)
     w.set_torque_enabled('hinge', True)
     n = int(round(horizon / dt))
     times, angles = np.empty(n), np.empty(n)
@@ -82,6 +91,7 @@ def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end'):
     err = np.abs(angles - ref)
     ok = len(err) and np.all(np.isfinite(err))
     return {
+        'engine': 'abd', 'backend': w.backend,
         'scene': case.name, 'integrator': integrator, 'velocity_tol': velocity_tol,
         'tau_sample': tau_sample, 'dt': dt, 'steps': len(times),
         'sim_time': float(times[-1]) if len(times) else 0.0, 'wall_s': wall,
@@ -235,7 +245,11 @@ def sweep(quick=False, cases=None, integrators=INTEGRATORS, log=print, tols=None
     return rows, cfg
 
 
-def plots(rows, img_dir, prefix=''):
+MJ_STYLE = {'mj_euler': ('C2', '^'), 'mj_implicitfast': ('C4', 'v'), 'mj_rk4': ('C1', 'D')}
+PLOT_FLOOR = 1e-8           # MuJoCo RK4 is exact on the constant torque (1e-16): drawn here
+
+
+def plots(rows, img_dir, prefix='', mj_rows=(), np_rows=()):
     plt = common.pyplot()
     if plt is None:
         return []
@@ -246,17 +260,33 @@ def plots(rows, img_dir, prefix=''):
              ('bdf1', 'start'): ('C0', 'x'), ('bdf2', 'start'): ('C3', 'x')}
     tols = sorted({r['velocity_tol'] for r in rows}, reverse=True)
     ls_tol = {t: ls for t, ls in zip(tols, ('--', '-', ':'))}
+    mj_rows, np_rows = list(mj_rows), list(np_rows)
     for kind in ('dt', 'wall'):
-        fig, axes = plt.subplots(1, len(scenes_), figsize=(5 * len(scenes_), 4.2), squeeze=False)
+        fig, axes = plt.subplots(1, len(scenes_), figsize=(5.4 * len(scenes_), 4.6), squeeze=False)
         for ax, scene in zip(axes[0], scenes_):
             for (s, integ, tol, samp), g in groups(rows).items():
                 if s != scene:
                     continue
                 c, mk = style[(integ, samp)]
                 x = [r['dt'] if kind == 'dt' else r['wall_per_sim_s'] for r in g]
-                lab = f'{integ} tol={tol:g}' + (' tau@t_n' if samp == 'start' else '')
+                lab = f'ours {integ} tol={tol:g}' + (' tau@t_n' if samp == 'start' else '')
                 ax.loglog(x, [r['err_max'] for r in g], ls_tol.get(tol, '-'), color=c, marker=mk,
                           ms=4, label=lab, alpha=0.9 if samp == 'end' else 0.5)
+            for (s, integ, tol, samp), g in groups(mj_rows).items():
+                if s != scene:
+                    continue
+                c, mk = MJ_STYLE[integ]
+                x = [r['dt'] if kind == 'dt' else r['wall_per_sim_s'] for r in g]
+                y = [max(r['err_max'], PLOT_FLOOR) for r in g]
+                exact = max(r['err_max'] for r in g) < PLOT_FLOOR
+                ax.loglog(x, y, '-.', color=c, marker=mk, ms=5, mfc='none',
+                          label=f'MuJoCo {integ[3:]}' + (' (exact: 1e-16, drawn at 1e-8)' if exact else ''))
+            if kind == 'wall':
+                for (s, integ, tol, samp), g in groups(np_rows).items():
+                    if s == scene:
+                        ax.loglog([r['wall_per_sim_s'] for r in g], [r['err_max'] for r in g], '-',
+                                  color='0.5', marker='s', ms=3, alpha=0.7,
+                                  label=f'ours {integ} tol={tol:g}, numpy backend')
             if kind == 'dt':
                 g0 = [r for r in rows if r['scene'] == scene]
                 dts = np.array(sorted({r['dt'] for r in g0}))
@@ -267,11 +297,11 @@ def plots(rows, img_dir, prefix=''):
             else:
                 for r in pareto([r for r in rows if r['scene'] == scene]):
                     ax.plot(r['wall_per_sim_s'], r['err_max'], 'o', mfc='none', mec='k', ms=9)
-                ax.set_xlabel('wall time per simulated second [s]  (circles: Pareto front)')
+                ax.set_xlabel('wall time per simulated second [s]  (circles: our Pareto front)')
             ax.set_ylabel('max |theta - theta_ref| [rad]')
             ax.set_title(scene)
             ax.grid(True, which='both', alpha=0.3)
-            ax.legend(fontsize=7)
+            ax.legend(fontsize=6)
         fig.tight_layout()
         path = img_dir / f'{prefix}error_vs_{kind}.png'
         fig.savefig(path, dpi=90)
@@ -280,10 +310,46 @@ def plots(rows, img_dir, prefix=''):
     return files
 
 
-def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco_note, elapsed, argv):
+MJ_TARGETS = (1e-2, 1e-3, 1e-4, 1e-5)
+
+
+def ours_vs_mujoco(rows, mj_rows):
+    """Run time at equal error, ours (best of bdf1/bdf2 and both tolerances, tau@end, the
+    default backend) over each MuJoCo integrator; log-log interpolation on each envelope."""
+    out = []
+    for scene in dict.fromkeys(r['scene'] for r in mj_rows):
+        ours = [r for r in rows if r['scene'] == scene and r['tau_sample'] == 'end']
+        for target in MJ_TARGETS:
+            c0 = cost_at_error(ours, target)
+            row = {'scene': scene, 'err_target': target, 'ours_wall_per_sim_s': c0}
+            for integ in MJ_STYLE:
+                c = cost_at_error([r for r in mj_rows if r['scene'] == scene and r['integrator'] == integ], target)
+                row[f'{integ}_wall_per_sim_s'] = c
+                row[f'ratio_ours_over_{integ}'] = c0 / c if c0 == c0 and c == c else math.nan
+            out.append(row)
+    return out
+
+
+def backend_table(rows, np_rows):
+    """Per dt: ms per step of the default backend and of numpy on the same points, and the
+    largest difference in the angle error (the backends agree to rounding)."""
+    out = []
+    for r in np_rows:
+        (d,) = [x for x in rows if (x['scene'], x['integrator'], x['velocity_tol'], x['tau_sample'], x['dt']) ==
+                (r['scene'], r['integrator'], r['velocity_tol'], r['tau_sample'], r['dt'])]
+        out.append({'scene': r['scene'], 'integrator': r['integrator'], 'velocity_tol': r['velocity_tol'],
+                    'dt': r['dt'], f'ms_per_step_{d["backend"]}': d['ms_per_step'],
+                    'ms_per_step_numpy': r['ms_per_step'], 'speed_up': r['ms_per_step'] / d['ms_per_step'],
+                    'err_max_diff': abs(r['err_max'] - d['err_max'])})
+    return out
+
+
+def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco_note, elapsed, argv,
+               mj_rows=(), mj_orders=(), mj_ratios=(), bk_rows=()):
     lines = ['# Error against run time', '',
              f'Command: `python study/error_vs_runtime.py {" ".join(argv)}`'
-             f' ({"quick" if quick else "full"} mode, {elapsed:.0f} s). {common.machine()}.', '',
+             f' ({"quick" if quick else "full"} mode, {elapsed:.0f} s). {common.machine()}. '
+             f'{common.backend_note(r["backend"] for r in rows)}', '',
              f'Horizon {cfg["horizon"]} s; dt in {", ".join(f"{d:g}" for d in cfg["dts"])}; Newton '
              f'velocity_tol in {", ".join(f"{t:g}" for t in cfg["tols"])} m/s. Torque sampled at the '
              'step end t_n + h (`tau@end`); `tau@start` is the zero-order hold tau(t_n). Wall time '
@@ -299,22 +365,36 @@ def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco
                'tolerances are reported but not judged: there the Newton stopping error can '
                'dominate the truncation error at large dt.'])
     lines += ['', f'## Measured convergence order (fit of log err_max on log dt, dt >= {cfg["fit_min_dt"]:g})',
-              '', common.md_table(order_rows, ['scene', 'integrator', 'velocity_tol', 'tau_sample', 'fit_range',
-                                               'order_err_max', 'order_err_final', 'local_orders']),
+              '', common.md_table(list(order_rows) + list(mj_orders),
+                                  ['scene', 'integrator', 'velocity_tol', 'tau_sample', 'fit_range',
+                                   'order_err_max', 'order_err_final', 'local_orders']),
               '', '## Run time at equal error (bdf1 / bdf2, log-log interpolation)', '',
               common.md_table(ratios, ['scene', 'err_target', 'bdf1_wall_per_sim_s', 'bdf2_wall_per_sim_s',
                                        'ratio_bdf1_over_bdf2']),
-              '', '## Pareto front (err_max vs wall time per simulated second)', '',
+              '', '## MuJoCo side by side', '', mujoco_note, '']
+    if mj_ratios:
+        cols = ['scene', 'err_target', 'ours_wall_per_sim_s'] + \
+            [c for i in MJ_STYLE for c in (f'{i}_wall_per_sim_s', f'ratio_ours_over_{i}')]
+        lines += ['Run time at equal error, ours (best point of bdf1/bdf2, any tolerance) over MuJoCo '
+                  '(wall seconds per simulated second, log-log interpolation along each envelope; '
+                  'nan: the target is not reached in the dt range; a target looser than the cheapest '
+                  'point costs that point):', '',
+                  common.md_table(mj_ratios, cols), '']
+    if bk_rows:
+        lines += ['## Backends', '', 'The same points on the numpy backend (the reference implementation):', '',
+                  common.md_table(bk_rows, list(bk_rows[0])), '']
+    lines += ['## Pareto front (err_max vs wall time per simulated second)', '',
               common.md_table(par, ['scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt', 'wall_per_sim_s',
                                     'err_max', 'newton_per_step']),
               '', '## All points', '',
-              common.md_table(rows, ['scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt', 'wall_per_sim_s',
-                                     'ms_per_step', 'err_max', 'err_final', 'max_sep', 'newton_per_step',
-                                     'max_angular_momentum', 'unconverged_steps']),
+              common.md_table(list(rows) + list(mj_rows),
+                              ['engine', 'scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt', 'wall_per_sim_s',
+                               'ms_per_step', 'err_max', 'err_final', 'max_sep', 'newton_per_step',
+                               'max_angular_momentum', 'unconverged_steps']),
               '', '## Plots', '']
     lines += [f'![{p.stem}]({p.name if p.parent == Path(".") else p})' for p in pngs] or \
              ['Plots skipped: matplotlib is not installed (`pip install -r requirements-study.txt`).']
-    lines += ['', '## MuJoCo', '', mujoco_note, '']
+    lines += ['']
     return '\n'.join(lines)
 
 
@@ -325,26 +405,49 @@ def main(argv=None):
     ap.add_argument('--img-dir', type=Path, default=None, help='where the PNGs go (default: --out)')
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--scenes', nargs='*', default=None, choices=list(S.CASES))
+    ap.add_argument('--backend', default='auto', choices=('auto', 'numpy', 'numba'),
+                    help='World backend (default auto: numba once compiled)')
+    ap.add_argument('--numpy-scene', default=None, choices=list(S.CASES),
+                    help='also time this scene (bdf2, tightest tolerance) on the numpy backend '
+                         '(default: hinge_const in full mode, none with --quick)')
+    ap.add_argument('--no-mujoco', action='store_true', help='skip the MuJoCo side-by-side run')
     args = ap.parse_args(argv)
+    common.BACKEND = args.backend
     t0 = time.perf_counter()
     rows, cfg = sweep(args.quick, args.scenes)
     order_rows = orders(rows, cfg['fit_min_dt'])
     problems = check(rows, order_rows, cfg)
     par, ratios = pareto(rows), equal_error_ratios(rows)
-    mujoco_note = mujoco_section(rows, args, cfg)
+    mj_rows, mujoco_note = mujoco_run(rows, args, cfg)
+    mj_orders = orders(mj_rows, cfg['fit_min_dt']) if mj_rows else []
+    mj_ratios = ours_vs_mujoco(rows, mj_rows) if mj_rows else []
+    np_scene = args.numpy_scene or (None if args.quick else 'hinge_const')
+    np_rows = []
+    if np_scene and np_scene in {r['scene'] for r in rows} and rows[0]['backend'] != 'numpy':
+        for dt in cfg['dts']:
+            r = run_point(S.CASES[np_scene], dt, 'bdf2', min(cfg['tols']), cfg['horizon'], backend='numpy')
+            np_rows.append(r)
+            print(f'{np_scene:14s} bdf2 numpy backend dt={dt:<7g} {r["ms_per_step"]:.2f} ms/step')
+    bk_rows = backend_table(rows, np_rows)
     args.out.mkdir(parents=True, exist_ok=True)
-    common.write_csv(args.out / 'results.csv', rows, COLUMNS)
-    common.write_csv(args.out / 'orders.csv', order_rows, list(order_rows[0]))
+    common.write_csv(args.out / 'results.csv', rows + mj_rows + np_rows, COLUMNS)
+    common.write_csv(args.out / 'orders.csv', order_rows + mj_orders, list(order_rows[0]))
+    if mj_ratios:
+        common.write_csv(args.out / 'mujoco_equal_error.csv', mj_ratios, list(mj_ratios[0]))
     img_dir = args.img_dir or args.out
-    pngs = plots(rows, img_dir)
+    pngs = plots(rows, img_dir, mj_rows=mj_rows, np_rows=np_rows)
     rel = [Path(__import__('os').path.relpath(p, args.out)) for p in pngs]
     md = summary_md(rows, order_rows, par, ratios, cfg, problems, rel, args.quick, mujoco_note,
-                    time.perf_counter() - t0, argv)
+                    time.perf_counter() - t0, argv, mj_rows, mj_orders, mj_ratios, bk_rows)
     (args.out / 'summary.md').write_text(md)
     print()
-    for o in order_rows:
-        print(f'order {o["scene"]:14s} {o["integrator"]} tol={o["velocity_tol"]:<6g} tau@{o["tau_sample"]:5s} '
+    for o in order_rows + mj_orders:
+        print(f'order {o["scene"]:14s} {o["integrator"]:15s} tol={o["velocity_tol"]:<6} tau@{o["tau_sample"]:5s} '
               f'{o["order_err_max"]:.2f} (final {o["order_err_final"]:.2f})')
+    for r in mj_ratios:
+        print(f'ours/MuJoCo at err {r["err_target"]:g} {r["scene"]:14s} ' +
+              ' '.join(f'{i[3:]}={r[f"ratio_ours_over_{i}"]:.3g}' for i in MJ_STYLE))
+    print(mujoco_note)
     print('plots:', ', '.join(map(str, pngs)) if pngs else 'skipped (matplotlib not installed)')
     print(f'wrote {args.out}/results.csv, orders.csv, summary.md in {time.perf_counter() - t0:.0f} s')
     if problems:
@@ -353,13 +456,26 @@ def main(argv=None):
     return 0
 
 
-def mujoco_section(rows, args, cfg):
-    try:
-        import mujoco  # noqa: F401
-    except ImportError:
-        return ('MuJoCo is not installed, so the side-by-side comparison was skipped '
-                '(optional: `pip install -r requirements-study.txt`).')
-    return 'MuJoCo is installed but the side-by-side comparison is not implemented yet.'
+def mujoco_run(rows, args, cfg):
+    """(MuJoCo rows, a note for the summary); no rows when MuJoCo is missing or skipped."""
+    if args.no_mujoco:
+        return [], 'MuJoCo side-by-side run skipped (--no-mujoco).'
+    mj = M.module()
+    if mj is None:
+        return [], ('MuJoCo is not installed, so the side-by-side comparison was skipped '
+                    '(optional: `pip install -r requirements-bench.txt`).')
+    scenes_ = [n for n in M.SCENES if any(r['scene'] == n for r in rows)]
+    if not scenes_:
+        return [], 'MuJoCo: none of its scenes (hinge_const, pendulum_sine) was run.'
+    I = M.hinge_inertia_of(S.CASES['hinge_const'])
+    mj_rows = M.sweep(tuple(cfg['dts']) + tuple(cfg['mj_extra_dts']), cfg['horizon'], scenes_)
+    return mj_rows, (f'MuJoCo {mj.__version__} ran `{"`, `".join(scenes_)}` in the same run (study/mujoco_peer.py): '
+                     f'one body on a hinge joint with the same inertia about the hinge (MuJoCo reports '
+                     f'{I:.5f} kg m^2), a motor actuator, the same gravity, dt and references; '
+                     'integrators Euler (semi-implicit), implicitfast and RK4, dt also down to '
+                     f'{min(cfg["mj_extra_dts"]):g}. MuJoCo holds ctrl over a step, '
+                     'so it gets the mid-step torque tau(t_n + h/2) (`tau@mid`). Wall time = setting ctrl + '
+                     '`mj_step` from Python (median of 3 runs), as ours = `set_torque` + `step`.')
 
 
 if __name__ == '__main__':

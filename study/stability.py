@@ -20,13 +20,17 @@ Criteria checked after every step:
   reference   where known, |θ − θ_ref| <= rtol |θ_ref| + α h t + velocity_tol t / 0.6 + 1e-9 rad
               (α h t = twice the BDF1 error ½ α h t of PHYSICS.md §7; the last term is what the
               Newton tolerance on point velocities allows at the 0.6 m lever arm);
-  momentum    (free pairs) |P|, |L| <= 1e-3 τ t + 1e-12 (the Newton tolerance limits it).
+  momentum    (free pairs) |P|, |L| <= 1e-3 τ t + 4 eps Σ m (|p| + size) / h + 1e-12 (the
+              Newton tolerance limits it; the middle term is the rounding floor of m v when
+              v comes from positions known to eps: it matters for an 8e8 kg body).
 Verdicts: `pass` (all criteria hold; warnings the simulator gave, e.g. sub-stepping, are
 listed), `fail-loud` (a criterion failed, and the simulator said so: SimulationError, a
 StepReport warning or an unconverged status — acceptable), `FAIL-SILENT` (a criterion failed
-and the simulator said nothing — a bug). Cases that expose a known physics-core issue carry
-`known` (described in docs/studies.md); they are reported but do not set the exit status.
-Exit status 1 when any other case fails silently or a case expected to pass does not.
+and the simulator said nothing — a bug). `expect`: 'pass' (must pass) or 'loud' (passing or
+failing loudly are both right: the case is beyond what the method resolves at that dt).
+Cases that expose a known, still open physics-core issue carry `known` (docs/studies.md
+section 3); they are reported but do not set the exit status. Exit status 1 when any other
+case fails silently or not as expected.
 """
 from __future__ import annotations
 
@@ -45,7 +49,7 @@ except ImportError:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import common  # type: ignore
 
-from abd_joint_sim import Scene, SimulationError, World  # noqa: E402
+from abd_joint_sim import SimulationError, World  # noqa: E402,F401
 
 try:
     from . import scenes as S
@@ -95,11 +99,13 @@ class PhaseResult:
     ref_err: float = math.nan
     max_momentum: float = math.nan
     wall: float = 0.0
+    backend: str = ''
 
 
 def run_phase(p: Phase) -> PhaseResult:
     r = PhaseResult()
-    w = World(Scene.from_dict(p.scene))
+    w = common.make_world(p.scene)
+    r.backend = w.backend
     m = w.model
     for j in w.actuated_joint_names:
         w.set_torque_enabled(j, p.torque != 0.0)
@@ -112,6 +118,9 @@ def run_phase(p: Phase) -> PhaseResult:
     rise, theta_prev = -math.inf, w.joint_angles()
     errs, moms = [], []
     seen_warning = not p.expect_warning
+    free = ~m.body_fixed            # rounding floor of the momentum (see the module docstring)
+    mom_floor = 4 * np.finfo(float).eps * float(np.sum(
+        m.body_mass[free] * (np.linalg.norm(w.state.q[free, :3], axis=1) + m.body_size[free]))) / m.dt
     t0 = time.perf_counter()
     for k in range(p.steps):
         try:
@@ -153,7 +162,7 @@ def run_phase(p: Phase) -> PhaseResult:
             P, L = w.momentum()
             mom = max(float(np.linalg.norm(P)), float(np.linalg.norm(L)))
             moms.append(mom)
-            if mom > MOMENTUM_RTOL * abs(p.torque) * w.time + 1e-12 and not any('momentum' in v for v in r.violations):
+            if mom > MOMENTUM_RTOL * abs(p.torque) * w.time + mom_floor + 1e-12 and not any('momentum' in v for v in r.violations):
                 r.violations.append(f'momentum {mom:.3g} at t={w.time:.4g}s')
     r.wall = time.perf_counter() - t0
     if r.max_sep_rel > SEP_FRAC:
@@ -205,11 +214,12 @@ def run_case(c: Case) -> dict:
         'steps': sum(r.steps_done for r in results),
         'substep_steps': sum(r.substep_steps for r in results),
         'max_sep_rel': max(r.max_sep_rel for r in results),
-        'ref_rel_err': forced[0].ref_err if forced else math.nan,
+        'ref_rel_err': next((r.ref_err for p, r in zip(c.phases, results) if p.reference is not None), math.nan),
         'energy_max_rise_rel': unforced[0].max_energy_rise if unforced else math.nan,
         'energy_drop_rel': unforced[0].energy_drop if unforced else math.nan,
         'max_momentum': max((r.max_momentum for r in results if r.max_momentum == r.max_momentum), default=math.nan),
         'wall_s': sum(r.wall for r in results),
+        'backend': '+'.join(sorted({r.backend for r in results})),
     }
 
 
@@ -246,12 +256,17 @@ def _singular(eps):
     return prepare
 
 
-NEWTON_STOP = ('Newton stop test is on the step size only: with an ill-conditioned H (large h^2 kappa) '
-               'it accepts a state far from the minimiser as converged')
-ROTATION_LAG = ('ABD rotation lag: the affine update under-resolves large per-step rotations well below '
-                'max_step_rotation (pi/2), which then never triggers sub-stepping')
-LIGHT_BODY = ('light parent: the torque on a body whose inertia is << h^2 kappa v and the joint '
-              'stiffness is partly lost (angular momentum not conserved), without a warning')
+# Known, still open physics-core issues (docs/studies.md section 3 has the reproductions).
+# Fixed by the core since the first run, and their tags removed: the step-size-only Newton stop
+# (decrement criterion), large per-step rotations that never sub-stepped (predicted-rotation
+# split + bdf1 damping warning), the light parent losing torque silently (now warned), NaN on
+# a degenerate torque axis.
+NEWTON_DRIFT = ('stiff kappa, default velocity_tol: every step stops within velocity_tol*h of the '
+                'minimiser (both tests hold) but the residual has the same sign every step and '
+                'accumulates into the angle; nothing is reported')
+BDF2_ROTATION = ('bdf2 at 0.3-0.6 rad per step: the affine step loses rotation (forced: lags the '
+                 'torque; unforced: loses spin energy) below the sub-step trigger, and the '
+                 'rotation-damping warning is given for bdf1 only')
 
 
 def cases(quick=False):
@@ -259,7 +274,7 @@ def cases(quick=False):
     out = []
     for k in (1e4, 1e6, 1e8, 1e10, 1e11, 1e13):
         c = _hinge_pair('kappa', f'kappa={k:g} Pa', 50, 50 if q else 200, kappa=k,
-                        known=NEWTON_STOP if k >= 1e11 else '')
+                        known=NEWTON_DRIFT if k >= 1e11 else '')
         if k < 1e6:                       # a soft body deforms: the rigid answer does not apply
             c.phases[0].reference, c.note = None, 'soft body: rigid reference not applied'
         out.append(c)
@@ -269,16 +284,18 @@ def cases(quick=False):
         out.append(_hinge_pair('strength_ratio', f'gamma={g:g}', 50, 50 if q else 200, strength_ratio=g))
     for tau in (1e-6, 1e-3, 1.0, 1e3, 1e6):
         out.append(_hinge_pair('torque', f'tau={tau:g} N m', 100, 0, tau=tau, dt=1e-3,
-                               known=ROTATION_LAG if tau >= 1e6 else ''))
+                               expect='loud' if tau >= 1e6 else 'pass'))
+    out.append(_hinge_pair('torque', 'tau=1e+06 N m (bdf2)', 100, 0, tau=1e6, dt=1e-3,
+                           integrator='bdf2', expect='loud', known=BDF2_ROTATION))
     for r in (1e-8, 1e-4, 1.0, 1e4, 1e8):
         out.append(Case('mass_ratio', f'm_parent/m_child={r:g}',
                         [Phase('forced', S.free_pair_scene(1e-3, parent_density=1000.0 * r), 50 if q else 200,
                                torque=1.0, momentum=True)],
-                        known=LIGHT_BODY if r < 1e-2 else (NEWTON_STOP if r > 1e6 else '')))
+                        expect='loud' if r < 1e-2 else 'pass'))
     for dt in (1e-5, 1e-4, 1e-3, 1e-2, 0.1):
-        out.append(_hinge_pair('dt', f'dt={dt:g} s', 50, 50, dt=dt, known=NEWTON_STOP if dt >= 0.1 else ''))
+        out.append(_hinge_pair('dt', f'dt={dt:g} s', 50, 50, dt=dt, expect='loud' if dt >= 0.1 else 'pass'))
     out.append(_hinge_pair('dt', 'dt=0.1 s, velocity_tol=1e-4', 50, 50, dt=0.1, velocity_tol=1e-4,
-                           known=ROTATION_LAG))
+                           expect='loud'))
     for label, box in (('plate 0.4x0.4x4e-4', [0.4, 0.4, 4e-4]), ('rod 0.4x4e-4x4e-4', [0.4, 4e-4, 4e-4])):
         I, _ = S.hinge_inertia(child_box=box)
         out.append(_hinge_pair('thin', f'{label} (aspect 1e-3)', 50, 50 if q else 200, tau=4.0 * I,
@@ -299,12 +316,17 @@ def cases(quick=False):
             Phase('forced', S.hinge_scene(1e-2, integ, tau=1e5), 30, torque=1e5,
                   reference=lambda t: 0.5 * 1e5 / I * t * t, ref_rtol=0.1,
                   ref_slack=lambda t: 1e5 / I * 1e-2 * t, expect_warning='sub-steps')],
-            note='must sub-step', known=ROTATION_LAG))
+            expect='loud', note='must sub-step'))
     out.append(Case('step_rotation', 'tau=1e7, dt=1e-2: beyond 2^4 sub-steps', [
         Phase('forced', S.hinge_scene(1e-2, tau=1e7), 10, torque=1e7,
               reference=lambda t: 0.5 * 1e7 / I * t * t, ref_rtol=0.1,
               ref_slack=lambda t: 1e7 / I * 1e-2 * t)], expect='loud',
-        note='cannot be resolved at this dt; must be reported', known=ROTATION_LAG))
+        note='cannot be resolved at this dt; must be reported'))
+    for integ in ('bdf1', 'bdf2'):      # unforced rigid spin at 0.6 rad per step: theta = w t
+        out.append(Case('step_rotation', f'spin 60 rad/s, dt=1e-2 ({integ}): 0.6 rad/step', [
+            Phase('unforced', S.hinge_scene(1e-2, integ, tau=0.0, angular_velocity=60.0), 50,
+                  reference=lambda t: 60.0 * t, ref_rtol=0.1)], expect='loud',
+            known=BDF2_ROTATION if integ == 'bdf2' else ''))
     for eps in (1e-7, 0.0):
         out.append(Case('singular_A', f'a3 = cos(e) a2 + sin(e) a3, e={eps:g}', [
             Phase('forced', S.hinge_scene(1e-2, tau=100.0), 20, torque=100.0, prepare=_singular(eps),
@@ -318,7 +340,10 @@ def main(argv=None):
     ap.add_argument('--out', default='out/stability', type=Path)
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--group', nargs='*', default=None, help='only these groups')
+    ap.add_argument('--backend', default='auto', choices=('auto', 'numpy', 'numba'),
+                    help="World backend (default auto: numba once compiled)")
     args = ap.parse_args(argv)
+    common.BACKEND = args.backend
     t0 = time.perf_counter()
     rows = run_all(args.quick, args.group)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -357,7 +382,8 @@ def summary_md(rows, quick, elapsed, argv):
     counts = {v: sum(r['verdict'] == v for r in rows) for v in ('pass', 'fail-loud', 'FAIL-SILENT')}
     lines = ['# Stability on stiff and extreme cases', '',
              f'Command: `python study/stability.py {" ".join(argv)}` ({"quick" if quick else "full"} mode, '
-             f'{elapsed:.0f} s). {common.machine()}.', '',
+             f'{elapsed:.0f} s). {common.machine()}. '
+             f'{common.backend_note(b for r in rows for b in r["backend"].split("+"))}', '',
              f'{len(rows)} cases: {counts["pass"]} pass, {counts["fail-loud"]} fail loudly (reported by the '
              f'simulator), {counts["FAIL-SILENT"]} fail silently.', '',
              'Criteria (see study/stability.py): finite state; joint separation <= 1% of the smallest body '
@@ -370,7 +396,12 @@ def summary_md(rows, quick, elapsed, argv):
                                     'ref_rel_err', 'energy_max_rise_rel', 'energy_drop_rel', 'max_momentum',
                                     'wall_s']),
              '', '## Reasons and notes', '',
-             common.md_table(rows, ['case', 'verdict', 'reason', 'notes']), '']
+             common.md_table(rows, ['case', 'expect', 'verdict', 'reason', 'notes']), '',
+             '## Known open core issues (tagged cases do not set the exit status)', '']
+    for tag, text in (('NEWTON_DRIFT', NEWTON_DRIFT), ('BDF2_ROTATION', BDF2_ROTATION)):
+        hit = [r['case'] for r in rows if r['known'] == text]
+        lines.append(f'- {tag}: {text}. Cases: {", ".join(hit) if hit else "none in this run"}.')
+    lines += ['', f'Unexpected results (exit status): {len(unexpected(rows))}.', '']
     return '\n'.join(lines)
 
 
