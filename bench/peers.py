@@ -16,19 +16,23 @@ def make_mujoco(n_links, *, tau=1.0, dt=1e-3, link=0.2):
         import mujoco
     except ImportError:
         return None
-    half = (link / 2, link / 4, link / 4)
-    body = ''
-    for k in range(n_links, 0, -1):        # nest from the tip inwards
-        pos = f'{0.5 * link} 0 0' if k == 1 else f'{link} 0 0'
-        body = (f'<body name="link{k}" pos="{pos}">'
-                f'<joint name="j{k}" type="hinge" axis="0 0 1" pos="0 0 0"/>'
-                f'<geom type="box" size="{half[0]} {half[1]} {half[2]}" pos="{0.5 * link} 0 0" '
-                f'density="1000" contype="0" conaffinity="0"/>{body}</body>')
-    actuators = ''.join(f'<motor joint="j{k}" gear="1"/>' for k in range(1, n_links + 1))
-    xml = (f'<mujoco><option timestep="{dt}" integrator="Euler" gravity="0 0 0"/>'
-           f'<worldbody><geom type="box" size="{link / 2} {link / 2} {link / 2}" contype="0" '
-           f'conaffinity="0"/>{body}</worldbody><actuator>{actuators}</actuator></mujoco>')
-    model = mujoco.MjModel.from_xml_string(xml)
+    # Built with MjSpec, not MJCF text: a 1000-deep body nesting exceeds the XML parser's
+    # element depth limit.
+    spec = mujoco.MjSpec()
+    spec.option.timestep = dt
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    spec.option.gravity = [0.0, 0.0, 0.0]
+    box = mujoco.mjtGeom.mjGEOM_BOX
+    spec.worldbody.add_geom(type=box, size=[link / 2] * 3, contype=0, conaffinity=0)
+    parent = spec.worldbody
+    for k in range(1, n_links + 1):
+        body = parent.add_body(name=f'link{k}', pos=[0.5 * link if k == 1 else link, 0, 0])
+        body.add_joint(name=f'j{k}', type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
+        body.add_geom(type=box, size=[link / 2, link / 4, link / 4], pos=[0.5 * link, 0, 0],
+                      density=1000.0, contype=0, conaffinity=0)
+        spec.add_actuator(name=f'm{k}', target=f'j{k}', trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        parent = body
+    model = spec.compile()
     data = mujoco.MjData(model)
     data.ctrl[:] = tau
 
