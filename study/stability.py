@@ -225,6 +225,7 @@ def run_case(c: Case) -> dict:
 
 def _warning_kind(w):
     for key, label in (('sub-steps of', 'sub-stepping'), ('near-singular', 'near-singular A'),
+                       ('damps rotation', 'bdf1 rotation damping'), ('overloaded', 'joint overloaded'),
                        ('Newton stopped', 'Newton stopped'), ('result kept', 'result kept')):
         if key in w:
             return label
