@@ -8,6 +8,8 @@ the engine is not installed.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 
@@ -45,34 +47,48 @@ def make_mujoco(n_links, *, tau=1.0, dt=1e-3, link=0.2):
     return step, angles
 
 
+def chain_urdf(n_links, link=0.2, density=1000.0) -> str:
+    """The benchmark chain as URDF (inertias written out: PyBullet must not guess them)."""
+    L = link
+    m = density * L * (L / 2) ** 2
+    ixx = m * (2 * (L / 2) ** 2) / 12           # box (L, L/2, L/2) about its centre
+    iyy = izz = m * (L ** 2 + (L / 2) ** 2) / 12
+    parts = ['<?xml version="1.0"?>', '<robot name="chain">',
+             f'<link name="base"><inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" '
+             'iyy="0" iyz="0" izz="0"/></inertial><collision><geometry>'
+             f'<box size="{L} {L} {L}"/></geometry></collision></link>']
+    for k in range(1, n_links + 1):
+        parts.append(
+            f'<link name="link{k}"><inertial><origin xyz="{L / 2} 0 0"/><mass value="{m}"/>'
+            f'<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{iyy}" iyz="0" izz="{izz}"/></inertial>'
+            f'<collision><origin xyz="{L / 2} 0 0"/><geometry><box size="{L} {L / 2} {L / 2}"/>'
+            '</geometry></collision></link>\n'
+            f'<joint name="j{k}" type="continuous"><parent link="{"base" if k == 1 else f"link{k - 1}"}"/>'
+            f'<child link="link{k}"/><origin xyz="{L / 2 if k == 1 else L} 0 0"/>'
+            '<axis xyz="0 0 1"/></joint>')
+    parts.append('</robot>')
+    return '\n'.join(parts)          # one element per line: TinyXML chokes on very long lines
+
+
 def make_pybullet(n_links, *, tau=1.0, dt=1e-3, link=0.2):
     try:
         import pybullet as p
     except ImportError:
         return None
+    import tempfile
     cid = p.connect(p.DIRECT)
     p.setGravity(0, 0, 0, physicsClientId=cid)
     p.setPhysicsEngineParameter(fixedTimeStep=dt, physicsClientId=cid)
-    base = p.createCollisionShape(p.GEOM_BOX, halfExtents=[link / 2] * 3, physicsClientId=cid)
-    shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[link / 2, link / 4, link / 4],
-                                   physicsClientId=cid)
-    mass = 1000.0 * link * (link / 2) ** 2
-    # link frame = joint frame at the hinge; the centre of mass sits L/2 further along x.
-    # linkPositions are relative to the parent's link frame (URDF joint origins).
-    body = p.createMultiBody(
-        baseMass=0.0, baseCollisionShapeIndex=base,
-        linkMasses=[mass] * n_links, linkCollisionShapeIndices=[shape] * n_links,
-        linkVisualShapeIndices=[-1] * n_links,
-        linkPositions=[[0.5 * link, 0, 0]] + [[link, 0, 0]] * (n_links - 1),
-        linkOrientations=[[0, 0, 0, 1]] * n_links,
-        linkInertialFramePositions=[[0.5 * link, 0, 0]] * n_links,
-        linkInertialFrameOrientations=[[0, 0, 0, 1]] * n_links,
-        linkParentIndices=list(range(n_links)), linkJointTypes=[p.JOINT_REVOLUTE] * n_links,
-        linkJointAxis=[[0, 0, 1]] * n_links, physicsClientId=cid)
-    for k in range(n_links):               # no collisions: only the joints, as in the others
-        p.setCollisionFilterGroupMask(body, k, 0, 0, physicsClientId=cid)
-    p.setCollisionFilterGroupMask(body, -1, 0, 0, physicsClientId=cid)
+    # URDF, not createMultiBody: the latter silently stops at 127 links.
+    with tempfile.NamedTemporaryFile('w', suffix='.urdf', delete=False) as f:
+        f.write(chain_urdf(n_links, link))
+    body = p.loadURDF(f.name, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+                      physicsClientId=cid)
+    Path(f.name).unlink()
+    assert p.getNumJoints(body, physicsClientId=cid) == n_links
     joints = list(range(n_links))
+    for k in range(-1, n_links):           # no collisions: only the joints, as in the others
+        p.setCollisionFilterGroupMask(body, k, 0, 0, physicsClientId=cid)
     p.setJointMotorControlArray(body, joints, p.VELOCITY_CONTROL, forces=[0.0] * n_links,
                                 physicsClientId=cid)
     for k in joints:                       # PyBullet damps links by default; the others don't
