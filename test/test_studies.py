@@ -2,7 +2,7 @@
 
 Budget: ~5 s on the numba backend (after `python -m abd_joint_sim.fast --warm-up`), ~50-65 s
 on numpy, 2 shared cores. The full studies run from the command line (docs/studies.md).
-The two strict xfails are open physics-core issues (docs/studies.md section 3): when the core
+The strict xfail is an open physics-core issue (docs/studies.md section 3): when the core
 fixes one, its test XPASSes and fails, and the case's `known` tag in study/stability.py goes.
 """
 from __future__ import annotations
@@ -197,12 +197,12 @@ def test_open_stiff_kappa_drift(stability_rows):
     assert r['verdict'] != 'FAIL-SILENT', r
 
 
-@pytest.mark.xfail(strict=True, reason='open core issue BDF2_ROTATION (docs/studies.md 3.2): bdf2 loses '
-                   'rotation at 0.3-0.6 rad per step below the sub-step trigger; the damping warning is bdf1-only')
-def test_open_bdf2_fast_rotation(stability_rows):
+def test_bdf2_fast_rotation_is_reported(stability_rows):
+    # formerly xfail (BDF2_ROTATION): bdf2 damps rotation at 0.3-0.6 rad per step; World.step
+    # now reports it for bdf2 too (threshold 0.3 rad/step), so the cases fail loudly
     by = {r['case']: r for r in stability_rows}
     for name in ('tau=1e+06 N m (bdf2)', 'spin 60 rad/s, dt=1e-2 (bdf2): 0.6 rad/step'):
-        assert by[name]['verdict'] != 'FAIL-SILENT', by[name]
+        assert by[name]['verdict'] == 'fail-loud' and by[name]['as_expected'], by[name]
 
 
 def test_mujoco_peer_matches_the_scene():
