@@ -2,7 +2,7 @@
 # README's first command: set everything up, build the package with colcon into ./install,
 # and run sim_node on the packaged default scene with recording on (./bags/<timestamp>), as
 # `ros2 run abd_joint_sim sim_node` would. Extra arguments are passed to the node, e.g.
-#   bash scripts/run_default.sh --ros-args -p real_time_factor:=0.5 -p record:=''
+#   bash scripts/run_default.sh --ros-args -p real_time_factor:=0.5 -p "record:=''"
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -36,13 +36,16 @@ fi
 
 # The installed copy of the numba backend has its own cache: compile it once (~1 min the first
 # time, ~1 s after). Without it the node still runs, on the numpy backend.
-echo "[run_default] fast backend: $(python -m abd_joint_sim.fast --warm-up 2>&1 | tail -n 1)" >&2
+# (Run from / : `python -m` puts the current directory first on sys.path, and from the
+# repository root that would compile the source tree's copy instead of the installed one.)
+echo "[run_default] fast backend of the install (first time ~1 min): $(cd / && python -m abd_joint_sim.fast --warm-up 2>&1 | tail -n 1)" >&2
 
 # `ros2 run abd_joint_sim sim_node`: <prefix>/lib/<pkg>/<exe> found through the ament index.
 EXE="$(python -c 'import os; from ament_index_python.packages import get_package_prefix as p
 print(os.path.join(p("abd_joint_sim"), "lib", "abd_joint_sim", "sim_node"))')"
 BAG="$ROOT/bags/$(date +%Y%m%d-%H%M%S)"
 mkdir -p "$ROOT/bags"
-echo "[run_default] $EXE (recording to $BAG; Ctrl-C stops the node and closes the bag)" >&2
-# Later --ros-args sections win, so `--ros-args -p record:=''` from the caller turns it off.
+echo "[run_default] $EXE (recording to $BAG unless overridden; Ctrl-C stops the node and closes the bag)" >&2
+# Later --ros-args sections win, so `--ros-args -p "record:=''"` from the caller turns it off
+# (the inner quotes make a YAML empty string; a bare `record:=` does not parse).
 exec "$EXE" --ros-args -p "record:=$BAG" "$@"
