@@ -12,7 +12,8 @@ to unbox and a step has a budget of a few µs.
 Status codes (solver/newton.py `Status`): 0 converged, 1 max_iterations,
 2 line_search_failed, 3 nonfinite.
 
-Header slots beyond the model sizes: mi[11] = may_split (World._single's flag: `step.py`
+Header slots beyond the model sizes: mi[12] = number of floating groups
+(solver/retraction.py), mi[11] = may_split (World._single's flag: `step.py`
 keeps one int vector per value, so the kernel's signature and `fast.warm_up` stay as they
 are), mf[5] = Σ m_b over free bodies (Newton's energy_tol), mf[6] = newton.max_step_rotation.
 """
@@ -32,6 +33,8 @@ HEADER_FLOATS = 8
 KIND_DENSE, KIND_TREE = 0, 1
 MI_MAY_SPLIT = 11           # mi slot of the may_split flag
 POST_OK, POST_NEWTON_NONFINITE, POST_STEP_NONFINITE, POST_PREDICTED_SPLIT = 0, 1, 2, 3
+SMALL_ANGLE = 1e-2          # solver/retraction.py SMALL_ANGLE (checked equal by the tests)
+SCREW_STRAIN = 1e-2         # solver/retraction.py SCREW_STRAIN (checked equal by the tests)
 AXIS_EPS = 1e-12            # terms/forces.py ExternalTorque.axes: raw axis unusable below this
 
 
@@ -55,6 +58,7 @@ def unpack(mi, mf):
     edge_ptr = mi[o:o + nf + 1]; o += nf + 1
     edge_joint = mi[o:o + E]; o += E
     pair_joints = mi[o:o + J]; o += J          # 1 where both bodies are free
+    group = mi[o:o + B]; o += B                # retraction.floating_groups (-1: anchored)
     f = HEADER_FLOATS
     M = mf[f:f + 144 * B].reshape((B, 12, 12)); f += 144 * B
     Minv = mf[f:f + 144 * B].reshape((B, 12, 12)); f += 144 * B
@@ -70,9 +74,10 @@ def unpack(mi, mf):
     lo = mf[f:f + L]; f += L
     up = mf[f:f + L]; f += L
     lstr = mf[f:f + L]; f += L
+    share = mf[f:f + B]; f += B                # m_b / Σ m of its floating group
     return (B, J, T, D, L, nf, kind, max_it, ls_max, has_grav, fixed, jp, jc, tj, dj, lj,
-            free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints,
-            M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr)
+            free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints, group,
+            M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr, share)
 
 
 # --------------------------------------------------------------------------- joint angle
@@ -883,6 +888,107 @@ def convergence(dq, free_idx, corners, h, vtol, ttol):
 
 # --------------------------------------------------------------------------- whole step
 @njit(cache=True, error_model='numpy')
+def retract(q, dq, alpha, free_idx, group, share, ngroups, out, mean):
+    """solver/retraction.py `retract`: out = q ⊕ α·dq, each free body moved along the screw
+    motion of its step, the floating groups' mean turn translation removed."""
+    nf = len(free_idx)
+    for g in range(ngroups):
+        mean[g, 0] = mean[g, 1] = mean[g, 2] = 0.0
+    for b in range(q.shape[0]):
+        for r in range(12):
+            out[b, r] = q[b, r] + alpha * dq[b, r]
+    W = np.empty((3, 3))
+    R = np.empty((3, 3))
+    AD = np.empty((3, 3))
+    corr_wd = np.empty((3, 3))
+    Y = np.empty((3, 3))
+    Ainv = np.empty((3, 3))
+    for k in range(nf):
+        b = free_idx[k]
+        strain = 0.0
+        for i in range(3):
+            for j in range(3):
+                acc = -1.0 if i == j else 0.0
+                for c in range(3):
+                    acc += q[b, 3 + 3 * i + c] * q[b, 3 + 3 * j + c]
+                strain = max(strain, abs(acc))
+        if not strain <= SCREW_STRAIN:          # far from a rotation: the linear step
+            continue
+        # spin W = skew(ΔA A⁻¹) as the axial vector w; A⁻¹ = adj(A)/det A
+        for i in range(3):
+            for j in range(3):
+                i1, i2, j1, j2 = (j + 1) % 3, (j + 2) % 3, (i + 1) % 3, (i + 2) % 3
+                Ainv[i, j] = (q[b, 3 + 3 * i1 + j1] * q[b, 3 + 3 * i2 + j2]
+                              - q[b, 3 + 3 * i1 + j2] * q[b, 3 + 3 * i2 + j1])
+        det = q[b, 3] * Ainv[0, 0] + q[b, 4] * Ainv[1, 0] + q[b, 5] * Ainv[2, 0]
+        S = np.zeros((3, 3))
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for c in range(3):
+                    acc += dq[b, 3 + 3 * i + c] * Ainv[c, j]
+                S[i, j] = alpha * acc / det
+        w0 = 0.5 * (S[2, 1] - S[1, 2])
+        w1 = 0.5 * (S[0, 2] - S[2, 0])
+        w2 = 0.5 * (S[1, 0] - S[0, 1])
+        W[0, 0] = W[1, 1] = W[2, 2] = 0.0
+        W[2, 1], W[1, 2] = w0, -w0
+        W[0, 2], W[2, 0] = w1, -w1
+        W[1, 0], W[0, 1] = w2, -w2
+        th2 = w0 * w0 + w1 * w1 + w2 * w2
+        th = math.sqrt(th2)
+        if th < SMALL_ANGLE:                  # retraction.screw_coefficients' series
+            cb = th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
+            cs = 1.0 - cb
+            cc = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
+        else:
+            cs, cc, cb = math.sin(th) / th, (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / th
+        # exp(W)(A + D) − (A + ΔA) = −b W A + s W D + c W²(A + D), D = ΔA − W A: added to
+        # q + αΔq (retraction.py: a tiny step rounds like the linear one)
+        for i in range(3):
+            for j in range(3):
+                wa = 0.0
+                for c in range(3):
+                    wa += W[i, c] * q[b, 3 + 3 * c + j]
+                R[i, j] = wa                                          # W A
+                AD[i, j] = alpha * dq[b, 3 + 3 * i + j] - wa          # D
+        for i in range(3):
+            for j in range(3):
+                wd = 0.0
+                for c in range(3):
+                    wd += W[i, c] * AD[c, j]
+                corr_wd[i, j] = wd                                    # W D
+                Y[i, j] = R[i, j] + wd                                # W (A + D)
+        for i in range(3):
+            for j in range(3):
+                wwad = 0.0
+                for c in range(3):
+                    wwad += W[i, c] * Y[c, j]
+                out[b, 3 + 3 * i + j] += -cb * R[i, j] + cs * corr_wd[i, j] + cc * wwad
+        t0, t1, t2 = alpha * dq[b, 0], alpha * dq[b, 1], alpha * dq[b, 2]
+        wt = w0 * t0 + w1 * t1 + w2 * t2
+        f = wt / th2 if th2 > 0.0 else 0.0
+        u0 = cc * (w1 * t2 - w2 * t1) - cb * (t0 - w0 * f)
+        u1 = cc * (w2 * t0 - w0 * t2) - cb * (t1 - w1 * f)
+        u2 = cc * (w0 * t1 - w1 * t0) - cb * (t2 - w2 * f)
+        out[b, 0] += u0
+        out[b, 1] += u1
+        out[b, 2] += u2
+        g = group[b]
+        if g >= 0:
+            mean[g, 0] += share[b] * u0
+            mean[g, 1] += share[b] * u1
+            mean[g, 2] += share[b] * u2
+    if ngroups > 0:
+        for k in range(nf):
+            b = free_idx[k]
+            g = group[b]
+            if g >= 0:
+                for r in range(3):
+                    out[b, r] -= mean[g, r]
+
+
+@njit(cache=True, error_model='numpy')
 def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h, bdf2):
     """World._single from the forces to the joint velocities. Returns
     (q, v, joint_angle, joint_velocity, skipped bodies, info) with
@@ -891,8 +997,8 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     before solving (mi[11] = may_split and the predicted rotation, then in info[3], exceeds
     max_step_rotation; q, v, angles are then not a step). Inputs are only read."""
     (B, J, T, D, L, nf, kind, max_it, ls_max, has_grav, fixed, jp, jc, tj, dj, lj,
-     free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints,
-     M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr) = unpack(mi, mf)
+     free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints, group,
+     M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr, share) = unpack(mi, mf)
     vtol, ttol = mf[0], mf[1]
     gravity = mf[2:5]
     free_mass, max_rot = mf[5], mf[6]
@@ -960,6 +1066,8 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     d_on = don
     q = qt.copy()
     trial = np.empty_like(q)
+    ngroups = mi[12]
+    mean = np.empty((max(ngroups, 1), 3))
     ls = 0
 
     def potential(x):
@@ -1013,13 +1121,13 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         alpha = 1.0
         found = False
         E_new = E
-        for _ in range(1 if converged else ls_max):   # as solver/newton.py
-            for b in range(B):
-                for r in range(12):
-                    trial[b, r] = q[b, r] + alpha * dq[b, r]
+        for _ in range(ls_max):                       # as solver/newton.py
+            retract(q, dq, alpha, free_idx, group, share, ngroups, trial, mean)
             E_new = potential(trial)
             if E_new <= E + ROUNDOFF * abs(E):
                 found = True
+                break
+            if converged:
                 break
             alpha *= 0.5
             ls += 1
@@ -1029,9 +1137,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         if not math.isfinite(E_new):
             status, its = NONFINITE, it
             break
-        for b in range(B):
-            for r in range(12):
-                q[b, r] = q[b, r] + alpha * dq[b, r]
+        q[:] = trial
         E = E_new
         if converged and alpha == 1.0:
             status, its = CONVERGED, it
@@ -1080,8 +1186,8 @@ def max_joint_separation(mi, mf, q):
     """World.max_joint_separation (revolute.joint_separation, max over joints): the largest
     distance between the two bodies' copies of P0 or P1. [m]"""
     (B, J, T, D, L, nf, kind, max_it, ls_max, has_grav, fixed, jp, jc, tj, dj, lj,
-     free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints,
-     M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr) = unpack(mi, mf)
+     free_idx, slot, order, eparent, edge_ptr, edge_joint, pair_joints, group,
+     M, Minv, weight, corners, xbar, K, Hj, nbar, bbar, init, dK, lo, up, lstr, share) = unpack(mi, mf)
     d = np.empty(3)
     out = 0.0
     for j in range(J):

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..solver.linsolve import DENSE_MAX_DOF
 from ..solver.newton import Status
+from ..solver.retraction import ScrewRetraction
 from ..state import State
 from ..terms.forces import SINGULAR_RATIO
 from . import kernels
@@ -132,10 +133,16 @@ def pack_model(model) -> Packed:
     head = np.zeros(kernels.HEADER_INTS, dtype=np.int64)
     head[:11] = [B, J, T, D, L, len(free_idx), kind, m.newton.max_iterations,
                  m.newton.line_search_max, int(m.has_gravity), len(edge_joint)]
+    screw = ScrewRetraction(m)
+    group = np.full(B, -1, dtype=np.int64)
+    share = np.zeros(B)
+    floating = screw.bodies[screw.floating]
+    group[floating], share[floating] = screw.group, screw.share
+    head[12] = screw.groups
     pair = (~fixed[m.joint_parent] & ~fixed[m.joint_child]) if J else np.zeros(0, bool)
     mi = np.concatenate([head, fixed.astype(np.int64), m.joint_parent, m.joint_child,
                          m.torque_joints, m.drive_joints, m.limit_joints, free_idx, slot,
-                         order, eparent, edge_ptr, edge_joint, pair.astype(np.int64)]).astype(np.int64)
+                         order, eparent, edge_ptr, edge_joint, pair.astype(np.int64), group]).astype(np.int64)
     fh = np.zeros(kernels.HEADER_FLOATS)
     # Newton's energy_tol = ½ Σ_free m_b (velocity_tol·h)²: the mass sum as numpy sums it
     fh[:7] = [m.newton.velocity_tol, m.newton.transrate_tol, *m.gravity,
@@ -148,7 +155,7 @@ def pack_model(model) -> Packed:
                          xbar.ravel(), m.joint_K.ravel(), m.joint_hessian.ravel(),
                          m.joint_nbar.ravel(), m.joint_bbar.ravel(), init.ravel(),
                          m.drive_K.ravel(), (m.limit_lower - init[lj]).ravel(),
-                         (m.limit_upper - init[lj]).ravel(), m.limit_strength.ravel()]).astype(np.float64)
+                         (m.limit_upper - init[lj]).ravel(), m.limit_strength.ravel(), share]).astype(np.float64)
     return Packed(np.ascontiguousarray(mi), np.ascontiguousarray(mf))
 
 

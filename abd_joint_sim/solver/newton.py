@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .retraction import ScrewRetraction
+
 # Every term of Π is nonnegative and computed without cancellation, so Π's rounding error
 # is a small multiple of eps·Π; below this relative decrement Newton cannot improve q.
 ROUNDOFF = 1e-12
@@ -47,6 +49,7 @@ class NewtonSolver:
         self.terms = terms
         self.system = system
         self.free = ~model.body_fixed
+        self.retract = ScrewRetraction(model)
         self.M_free = np.ascontiguousarray(model.body_M[self.free])
 
     def potential(self, q, q_tilde, scale, ctx) -> float:
@@ -93,21 +96,24 @@ class NewtonSolver:
             if decrement <= ROUNDOFF * abs(E):
                 return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
             alpha = 1.0
-            # Once the tolerances hold only the full step is tried: whether it lowers Π is
-            # then decided by rounding, and halving it would only spend iterations.
-            for _ in range(1 if converged else spec.line_search_max):
-                E_new = self.potential(q + alpha * dq, q_tilde, scale, ctx)
+            # The step follows rigid screw motions (solver/retraction.py): a stiff body turns
+            # without stretching. Once the tolerances hold only the full step is tried:
+            # whether it lowers Π is then decided by rounding, and halving would only spend
+            # iterations.
+            for _ in range(spec.line_search_max):
+                trial = self.retract(q, alpha * dq)
+                E_new = self.potential(trial, q_tilde, scale, ctx)
                 if E_new <= E + ROUNDOFF * abs(E):
                     break
+                if converged:      # the step is below tolerance: q is as good
+                    return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
                 alpha *= 0.5
                 ls_total += 1
             else:
-                if converged:      # the step is below tolerance: q is as good
-                    return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
                 return NewtonResult(q, Status.LINE_SEARCH_FAILED, it, ls_total, disp)
             if not np.isfinite(E_new):
                 return NewtonResult(q, Status.NONFINITE, it, ls_total, disp)
-            q = q + alpha * dq
+            q = trial
             E = E_new
             if converged and alpha == 1.0:     # a cut step left part of Δq undone: go on
                 return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
