@@ -10,7 +10,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 
-@dataclass
+@dataclass(slots=True)
 class State:
     time: float                 #: [s]
     q: np.ndarray               #: (B,12) body states [p, a1, a2, a3]
@@ -21,6 +21,13 @@ class State:
     joint_velocity: np.ndarray  #: [rad/s] (J,)
     step_count: int = 0
     history_dt: float = 0.0     #: [s] step size q_prev/v_prev belong to; 0 = no history (BDF2 restarts)
+    #: (B,12) Newton's last correction (q − q̃)/(c h²), c = 1 (BDF1) or 4/9 (BDF2): the next
+    #: step starts Newton from q̃ + c h² warm_start (MuJoCo's qacc_warmstart). None = zeros.
+    warm_start: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.warm_start is None:
+            self.warm_start = np.zeros_like(self.q)
 
     @classmethod
     def initial(cls, model) -> 'State':
@@ -32,7 +39,7 @@ class State:
     def copy(self) -> 'State':
         return State(self.time, self.q.copy(), self.v.copy(), self.q_prev.copy(), self.v_prev.copy(),
                      self.joint_angle.copy(), self.joint_velocity.copy(), self.step_count,
-                     self.history_dt)
+                     self.history_dt, self.warm_start.copy())
 
 
 @dataclass

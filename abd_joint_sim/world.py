@@ -46,7 +46,7 @@ ENERGY_TERMS = (OrthoPotential, RevoluteJoint, Driving, Limit)
 FORCES = (Gravity, ExternalTorque)
 
 
-@dataclass
+@dataclass(slots=True)
 class StepReport:
     """What one call of `World.step` did (the last step when several were taken)."""
 
@@ -71,6 +71,12 @@ class World:
         # 'numpy' (this file: the reference) or 'numba' (fast/, same step compiled); 'auto'
         # = ABD_BACKEND if set, else numba when importable (docs/fast-backend.md)
         self.backend = fast.resolve(backend, m)
+        # the compiled step (fast/step.py `single`), bound once: importing it per step costs
+        # ~1 µs, and only a numba World may import numba
+        self._fast_single = None
+        if self.backend == 'numba':
+            from .fast.step import single as fast_single
+            self._fast_single = fast_single
         self.energy_terms = [t for t in (c.build(m) for c in ENERGY_TERMS) if t is not None]
         self.forces = [f for f in (c.build(m) for c in FORCES) if f is not None]
         self.solver = NewtonSolver(m, self.energy_terms, LinearSystem(m))
@@ -231,14 +237,17 @@ class World:
             # a reference is enough to undo it.
             start = self.state
             try:
-                # overflow in a failing step is caught by the finite checks and reported once
-                with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
-                    self._advance(self.model.dt, 0, report)
+                if self._fast_single is not None:     # no numpy arithmetic in the step;
+                    self._advance(self.model.dt, 0, report)     # fast/step.py sets the separation
+                else:
+                    # overflow in a failing step is caught by the finite checks, reported once
+                    with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
+                        self._advance(self.model.dt, 0, report)
+                    report.max_joint_separation = self.max_joint_separation()
             except SimulationError:
                 self.state = start          # whole step undone: time stays a multiple of dt
                 raise
             report.time = self.state.time
-            report.max_joint_separation = self.max_joint_separation()
             if report.max_joint_separation > self._separation_warn:
                 self._warn_separation(report)
             x = report.max_step_rotation
@@ -285,9 +294,8 @@ class World:
     def _single(self, h, report, may_split=False):
         """One (sub-)step; returns None or a failure description (state then invalid).
         `may_split`: a step predicted to turn a joint too far is refused before solving."""
-        if self.backend == 'numba':
-            from .fast.step import single      # same contract, compiled (fast/step.py)
-            return single(self, h, report, may_split)
+        if self._fast_single is not None:      # same contract, compiled (fast/step.py)
+            return self._fast_single(self, h, report, may_split)
         m, s = self.model, self.state
         free = ~m.body_fixed
         # BDF2 needs one step of history at this h. Without it (first step, after a reset,
@@ -320,9 +328,13 @@ class World:
                 return (f'a joint is predicted to turn {predicted:.3g} rad in one step (limit '
                         f'{m.newton.max_step_rotation:.3g})')
         ctx = self._context(h)
-        # Start from the prediction: with no contact to guard, q̃ is the better guess (one
-        # Newton iteration usually converges, against two from qⁿ).
-        result = self.solver.minimize(q_tilde, q_tilde, scale, ctx)
+        # Start from the prediction plus the last step's correction (State.warm_start): with
+        # no contact to guard, q̃ is a good guess, but the joints correct the free-body
+        # prediction by about the same amount every step (a couple on a link spins it about
+        # its own centre; the hinge makes it turn about the joint), so q̃ alone costs one
+        # Newton iteration more (docs/decisions.md).
+        cw = h * h / scale
+        result = self.solver.minimize(q_tilde + cw * s.warm_start, q_tilde, scale, ctx, q_other=q_tilde)
         report.newton_iterations += result.iterations
         report.line_search_iterations += result.line_search_iterations
         q = result.q
@@ -345,7 +357,8 @@ class World:
         if not (np.all(np.isfinite(rel)) and np.all(np.isfinite(v))):
             return 'step produced a non-finite state'
         report.max_step_rotation = max(report.max_step_rotation, rotation)
-        self.state = State(time=s.time + h, q=q, v=v, q_prev=s.q, v_prev=s.v,
+        warm = (q - q_tilde) / cw
+        self.state = State(time=s.time + h, q=q, v=v, q_prev=s.q, v_prev=s.v, warm_start=warm,
                            joint_angle=rel + m.joint_init_angle, joint_velocity=omega,
                            step_count=s.step_count + 1, history_dt=h)
         if rotation > m.newton.max_step_rotation:

@@ -26,6 +26,8 @@ import sys
 import time
 import warnings
 
+import numpy as np
+
 BACKENDS = ('auto', 'numpy', 'numba')
 ENV_VAR = 'ABD_BACKEND'
 
@@ -106,9 +108,10 @@ def warm_up() -> dict:
     for kind in (kernels.KIND_TREE, kernels.KIND_DENSE):
         pk.mi[6] = kind
         for bdf2 in (False, True):
-            kernels.step_kernel(pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev, s.joint_angle,
+            kernels.step_kernel(pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
                                 c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
-                                c.drive_passive, model.dt, bdf2)
+                                c.drive_passive, model.dt, bdf2, np.empty((3, model.body_count, 12)),
+                                np.empty((2, model.joint_count)), pk.skipped, pk.info)
     hits = sum(sum(d.stats.cache_hits.values()) for d in (kernels.step_kernel,))
     out = {'seconds': time.perf_counter() - t0, 'cache_hits': hits}
     _state['warm_up'] = out

@@ -989,10 +989,14 @@ def retract(q, dq, alpha, free_idx, group, share, ngroups, out, mean):
 
 
 @njit(cache=True, error_model='numpy')
-def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h, bdf2):
-    """World._single from the forces to the joint velocities. Returns
-    (q, v, joint_angle, joint_velocity, skipped bodies, info) with
-    info = [status, newton its, line-search its, rotation, post, n_skipped]; post: 0 ok,
+def step_kernel(mi, mf, q0, v0, qp0, vp0, warm0, angle0, tval, ton, daim, don, dpas, h, bdf2,
+                qvw, aw, skipped, info):
+    """World._single from the forces to the joint velocities. Writes the new state into the
+    caller's arrays (returning arrays would box each: ~1 µs apiece, a tenth of a small
+    step): qvw (3,B,12) = q, v, warm_start; aw (2,J) = joint angle, joint velocity;
+    skipped[:n_skipped] = bodies skipped by the singular guard; info (7) =
+    [status, newton its, line-search its, rotation, post, n_skipped, max joint separation
+    after the step (World.max_joint_separation)]; post: 0 ok,
     1 Newton non-finite, 2 step non-finite (the reference's failure strings), 3 refused
     before solving (mi[11] = may_split and the predicted rotation, then in info[3], exceeds
     max_step_rotation; q, v, angles are then not a step). Inputs are only read."""
@@ -1002,8 +1006,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     vtol, ttol = mf[0], mf[1]
     gravity = mf[2:5]
     free_mass, max_rot = mf[5], mf[6]
-    info = np.zeros(6)
-    skipped = np.empty(2 * T, dtype=np.int64)
+    info[:] = 0.0
     # forces: BDF1 at qⁿ, BDF2 at the extrapolation 2qⁿ − qⁿ⁻¹
     if bdf2:
         qf = 2 * q0 - qp0
@@ -1051,7 +1054,7 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
                 predicted = max(predicted, x)
         if predicted > max_rot:
             info[3], info[4] = predicted, POST_PREDICTED_SPLIT
-            return qt, np.empty((B, 12)), np.empty(J), np.empty(J), skipped[:ns], info
+            return
     # the energy that moving every body by velocity_tol·h costs in the mass metric
     energy_tol = 0.5 * free_mass * (vtol * h) ** 2
     # step context (World._context)
@@ -1062,9 +1065,13 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     for k in range(D):
         j = dj[k]
         d_target[k] = rel_start[j] if dpas[k] else daim[k] - init[j]
-    # ---- Newton (NewtonSolver.minimize), from q̃; inlined here: one compiled unit less
+    # ---- Newton (NewtonSolver.minimize) from q̃ + c h² warm_start (World._single); inlined
     d_on = don
-    q = qt.copy()
+    cw = (beta if bdf2 else 1.0) * h * h
+    q = np.empty((B, 12))
+    for b in range(B):
+        for r in range(12):
+            q[b, r] = qt[b, r] + cw * warm0[b, r]
     trial = np.empty_like(q)
     ngroups = mi[12]
     mean = np.empty((max(ngroups, 1), 3))
@@ -1078,6 +1085,10 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
         return E
 
     E = potential(q)
+    E_other = potential(qt)                    # NewtonSolver.minimize(q_other=q̃)
+    if E_other < E:
+        q[:] = qt
+        E = E_other
     grad = np.empty((B, 12))
     diag = np.empty((B, 12, 12))
     pair = np.empty((J, 12, 12))
@@ -1146,9 +1157,13 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
     v = np.empty((B, 12))
     angle = np.empty(J)
     omega = np.empty(J)
+    warm = np.empty((B, 12))
     if status == NONFINITE or not _all_finite(q):
         info[4] = POST_NEWTON_NONFINITE
-        return q, v, angle, omega, skipped[:ns], info
+        return
+    for b in range(B):
+        for r in range(12):
+            warm[b, r] = (q[b, r] - qt[b, r]) / cw
     for b in range(B):
         for r in range(12):
             if fixed[b]:
@@ -1176,9 +1191,24 @@ def step_kernel(mi, mf, q0, v0, qp0, vp0, angle0, tval, ton, daim, don, dpas, h,
             rotation = max(rotation, da, dw)
     if not finite or not _all_finite(v):
         info[4] = POST_STEP_NONFINITE
-        return q, v, angle, omega, skipped[:ns], info
+        return
     info[3] = rotation
-    return q, v, angle, omega, skipped[:ns], info
+    sep = 0.0
+    for j in range(J):                         # max_joint_separation, one dispatch less
+        for a in range(2):
+            _separation(q, jp[j], jc[j], xbar, j, a, g)
+            n = math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+            if n > sep or n != n:
+                sep = n
+    info[6] = sep
+    for b in range(B):
+        for r in range(12):
+            qvw[0, b, r] = q[b, r]
+            qvw[1, b, r] = v[b, r]
+            qvw[2, b, r] = warm[b, r]
+    for j in range(J):
+        aw[0, j] = angle[j]
+        aw[1, j] = omega[j]
 
 
 @njit(cache=True, error_model='numpy')

@@ -38,6 +38,9 @@ class Packed:
         self.mi, self.mf = mi, mf
         self.mi_split = mi.copy()
         self.mi_split[kernels.MI_MAY_SPLIT] = 1
+        # step_kernel's scratch outputs, read right after each call
+        self.info = np.zeros(7)
+        self.skipped = np.zeros(2 * int(mi[2]), dtype=np.int64)
 
 
 def _forest(nf, sp, sc):
@@ -187,30 +190,38 @@ def single(world, h, report, may_split=False):
     m, s, c = world.model, world.state, world.control
     pk = packed_for(world)
     bdf2 = m.integrator == 'bdf2' and s.history_dt == h
-    q, v, angle, omega, skipped, info = kernels.step_kernel(
-        pk.mi_split if may_split else pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev,
+    # the new state's arrays: q, v, warm_start and joint angle, velocity (views of two buffers)
+    qvw = np.empty((3, m.body_count, 12))
+    aw = np.empty((2, m.joint_count))
+    info = pk.info
+    kernels.step_kernel(
+        pk.mi_split if may_split else pk.mi, pk.mf, s.q, s.v, s.q_prev, s.v_prev, s.warm_start,
         s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
-        c.drive_passive, float(h), bdf2)
-    for b in skipped:
+        c.drive_passive, float(h), bdf2, qvw, aw, pk.skipped, info)
+    status_code, iterations, ls_its, rotation, post, n_skipped, separation = info.tolist()
+    for b in pk.skipped[:int(n_skipped)]:
         report.warnings.append(f'body {m.body_names[b]!r}: affine matrix near-singular '
                                f'(|det A|/(|a1||a2||a3|) < {SINGULAR_RATIO}); joint torque not applied')
-    post = info[4]
     if post == kernels.POST_PREDICTED_SPLIT:
-        return (f'a joint is predicted to turn {float(info[3]):.3g} rad in one step (limit '
+        return (f'a joint is predicted to turn {rotation:.3g} rad in one step (limit '
                 f'{m.newton.max_step_rotation:.3g})')
-    status, iterations = _STATUS[int(info[0])], int(info[1])
+    status, iterations = _STATUS[int(status_code)], int(iterations)
     report.newton_iterations += iterations
-    report.line_search_iterations += int(info[2])
+    report.line_search_iterations += int(ls_its)
     if post == kernels.POST_NEWTON_NONFINITE:
         return 'Newton produced a non-finite state'
     if post == kernels.POST_STEP_NONFINITE:
         return 'step produced a non-finite state'
-    rotation = float(info[3])
     report.max_step_rotation = max(report.max_step_rotation, rotation)
+    q, v, warm = qvw
+    angle, omega = aw
     world.state = State(time=s.time + h, q=q, v=v, q_prev=s.q, v_prev=s.v,
                         joint_angle=angle,
                         joint_velocity=omega if m.joint_count else s.joint_velocity,
-                        step_count=s.step_count + 1, history_dt=h)
+                        step_count=s.step_count + 1, history_dt=h, warm_start=warm)
+    # World.step reads the separation of the final state from here (the last single() that
+    # set world.state took the final step): one compiled call less per step
+    report.max_joint_separation = separation
     if rotation > m.newton.max_step_rotation:
         return (f'a joint turned {rotation:.3g} rad in one step (limit '
                 f'{m.newton.max_step_rotation:.3g})')

@@ -59,7 +59,10 @@ class NewtonSolver:
             E += term.energy(q, ctx)
         return E
 
-    def minimize(self, q_start, q_tilde, scale, ctx) -> NewtonResult:
+    def minimize(self, q_start, q_tilde, scale, ctx, q_other=None) -> NewtonResult:
+        """Minimise Π from q_start, or from `q_other` if Π is lower there (World._single
+        passes the warm start and q̃: the better guess wins, so a warm start never starts
+        Newton further down the energy than the plain prediction would)."""
         m = self.model
         spec = m.newton
         h = ctx.h
@@ -69,6 +72,10 @@ class NewtonSolver:
         corners = m.body_corners[free]
         ls_total = 0
         E = self.potential(q, q_tilde, scale, ctx)
+        if q_other is not None:
+            E_other = self.potential(q_other, q_tilde, scale, ctx)
+            if E_other < E:
+                q, E = q_other.copy(), E_other
         disp = np.inf
         # the energy that moving every body by velocity_tol·h costs in the mass metric
         energy_tol = 0.5 * float(np.sum(m.body_mass[free])) * (spec.velocity_tol * h) ** 2

@@ -3,8 +3,9 @@
 Newton's step is linear in q = [p, A]; a body turning by δ rad under q + Δq is also
 stretched by ~δ²/2. At everyday stiffness that stretch costs nothing, but at κ ≳ 1e11 the
 ortho potential blocks the linear step, the line search cuts it, and Newton crawls along the
-curved valley of rotations taking tiny steps that look converged (docs/studies.md §3.1, the
-Maratos effect of a stiff penalty on a curved constraint). So each body's step is split into
+curved valley of rotations taking tiny steps that look converged (docs/studies.md §3,
+fixed item 6; the Maratos effect of a stiff penalty on a curved constraint). So each
+body's step is split into
     Δp = t,   ΔA = W A + D,   W = skew(ΔA A⁻¹)   (the spin of the velocity gradient)
 and applied as the screw motion that (t, W) describe, plus the remaining deformation D:
     A' = exp(W) (A + D),   p' = c + exp(W)(p − c) + t∥
