@@ -340,6 +340,12 @@ def test_misuse_gives_bag_error(tmp_path):
             bag.write('/clock', 0, Bool())
         with pytest.raises(BagError, match='stamp_ns -1'):
             bag.write('/clock', -1, Clock())
+        with pytest.raises(BagError, match='stamp_ns -1'):
+            bag.write_serialized('/clock', -1, b'\x00\x01\x00\x00' + bytes(8))
+        with pytest.raises(BagError, match='must be bytes, got Clock'):
+            bag.write_serialized('/clock', 0, Clock())
+        with pytest.raises(BagError, match="topic '/nope' was not added"):
+            bag.write_serialized('/nope', 0, b'')
         with pytest.raises(BagError, match="'/clock' is registered already"):
             bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
         with pytest.raises(BagError, match="reliability 'fast'"):

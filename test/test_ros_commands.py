@@ -161,6 +161,33 @@ def test_convert_messages():
     assert d.status[0].values[0].value == 'False'
 
 
+def test_clock_encoder_gives_rclpys_bytes():
+    """sim_node publishes /clock as bytes from convert.ClockEncoder: they must be exactly what
+    rclpy.serialization makes of the same Clock, and deserialise to the same stamp."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from rosgraph_msgs.msg import Clock
+    enc = convert.ClockEncoder()
+    assert enc.checked
+    stamps = [0, 1, 999_999_999, 1_000_000_000, 1_500_000_001, 86_400 * 10 ** 9 + 7,
+              (2 ** 31 - 1) * 10 ** 9 + 999_999_999]
+    stamps += [int(convert.seconds_to_ns(k * 1e-3)) for k in range(0, 5000, 7)]
+    for ns in stamps:
+        raw = enc.encode(ns)
+        assert raw == serialize_message(convert.clock_msg(ns)), ns
+        assert convert.time_msg_to_ns(deserialize_message(raw, Clock).clock) == ns
+    enc.checked = False                     # the fallback path: rclpy itself
+    assert enc.encode(123) == serialize_message(convert.clock_msg(123))
+
+
+def test_joint_state_refill_matches_a_new_message():
+    msg = convert.joint_state_msg(0, ['a', 'b'], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0])
+    convert.fill_joint_state(msg, 2_250_000_000, [0.1, 0.2], [1.0, 2.0], [0.0, 3.0], 'base')
+    assert msg == convert.joint_state_msg(2_250_000_000, ['a', 'b'], [0.1, 0.2], [1.0, 2.0],
+                                          [0.0, 3.0], 'base')
+    with pytest.raises(ValueError, match='differ in length'):
+        convert.fill_joint_state(msg, 0, [0.1], [1.0, 2.0], [0.0, 3.0], '')
+
+
 def test_scene_limits_combine_with_parameter_limits():
     buf = CommandBuffer(['shoulder', 'elbow'], [], [10.0, 10.0], 0.0,
                         scene_limits={'shoulder': 50.0, 'elbow': 5.0})

@@ -260,13 +260,7 @@ class BagWriter:
 
         Raises BagError (and stops the recording) if the bytes cannot be written.
         """
-        self._require_open(topic)
-        entry = self._topics.get(topic)
-        if entry is None:
-            raise BagError(f"bag '{self.path}': topic '{topic}' was not added (add_topic)")
-        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
-            raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
-                           'an int >= 0 (nanoseconds)')
+        entry = self._entry(topic)
         if type(msg) is not entry.cls:
             raise BagError(f"bag '{self.path}': topic '{topic}' records "
                            f'{entry.record.msg_type}, got {type(msg).__module__}.'
@@ -276,6 +270,28 @@ class BagWriter:
         except Exception as exc:  # rclpy raises TypeError/ValueError/RuntimeError variants
             raise BagError(f"bag '{self.path}': topic '{topic}': cannot serialise: {exc}") \
                 from None
+        self._add(topic, entry, stamp_ns, data)
+
+    def write_serialized(self, topic: str, stamp_ns: int, data: bytes) -> None:
+        """Record CDR bytes already serialised for ``topic``'s type (what a publisher sent,
+        e.g. sim_node's /clock, convert.ClockEncoder). Same checks and errors as write()."""
+        entry = self._entry(topic)
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise BagError(f"bag '{self.path}': topic '{topic}': serialized data must be bytes, "
+                           f'got {type(data).__name__}')
+        self._add(topic, entry, stamp_ns, data)
+
+    def _entry(self, topic: str):
+        self._require_open(topic)
+        entry = self._topics.get(topic)
+        if entry is None:
+            raise BagError(f"bag '{self.path}': topic '{topic}' was not added (add_topic)")
+        return entry
+
+    def _add(self, topic: str, entry, stamp_ns: int, data) -> None:
+        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
+            raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
+                           'an int >= 0 (nanoseconds)')
         assert self._writer is not None
         try:
             self._writer.add_message(channel_id=entry.channel_id, log_time=stamp_ns,

@@ -234,6 +234,9 @@ class CommandBuffer:
     def apply(self, world: CommandTarget) -> Applied:
         """Write pending commands into `world`, then apply the command timeout."""
         now = float(world.time)
+        if not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
+                or self._pending_array is not None or self._pending_enable_all is not None):
+            return Applied(time=now)        # the common boundary: nothing to do
         out = Applied(time=now, array=self._pending_array, enable_all=self._pending_enable_all)
         for joint, flag in self._pending_enable.items():
             world.set_torque_enabled(joint, flag)
