@@ -6,6 +6,10 @@ gives the ratio (noise on a shared machine mostly cancels). The engines' joint a
 compared on a 3-link chain before anything is timed; a mismatch exits 1.
 
     python bench/bench.py [--quick] [--no-peers] [--no-node] [--backend numpy|numba|auto]
+
+The node figures come two ways: `_step_once` against `World.step` in one process (the
+node's per-step overhead), and sim_node end to end in its own process over DDS, as users run
+it, with the real-time factor it reports on /diagnostics.
 """
 from __future__ import annotations
 
@@ -125,6 +129,74 @@ def node_overhead(steps, backend):
     return min(node_t), min(world_t), used
 
 
+def node_end_to_end(seconds, backend, record_dir=None, subscribe=True):
+    """sim_node as users run it: its own process, real DDS (loopback only), as fast as
+    possible (real_time_factor 0), /clock every step, /joint_states at the default 100 Hz,
+    optionally recording, and with `subscribe` a subscriber on both in this process (which
+    then shares the 2 cores with the node). Returns the real-time factors the node reports
+    on /diagnostics (steps x dt / wall, once a second) after the first report (start-up),
+    and the messages the probe received."""
+    import signal
+    import subprocess
+    try:
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+    except Exception as exc:  # noqa: BLE001 - optional section
+        print(f'node end to end: skipped ({exc})')
+        return None
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               ROS_DOMAIN_ID=str(80 + os.getpid() % 9),
+               PYTHONPATH=os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]),
+                                                        os.environ.get('PYTHONPATH')])))
+    args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p', 'real_time_factor:=0.0']
+    if record_dir:                  # (rcl cannot parse an empty `record:=`; the default is off)
+        args += ['-p', f'record:={record_dir}']
+    if backend != 'default':
+        args += ['-p', f'backend:={backend}']
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    old_domain = os.environ.get('ROS_DOMAIN_ID')
+    os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
+    rtfs, counts = [], {'clock': 0, 'states': 0}
+    rclpy.init()
+    try:
+        node = rclpy.create_node('bench_probe')
+
+        def on_diag(msg):
+            for st in msg.status:
+                kv = {k.key: k.value for k in st.values}
+                if 'real_time_factor_achieved' in kv and kv.get('paused') == 'False':
+                    rtfs.append(float(kv['real_time_factor_achieved']))
+
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        if subscribe:
+            node.create_subscription(Clock, '/clock',
+                                     lambda m: counts.__setitem__('clock', counts['clock'] + 1),
+                                     QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+            node.create_subscription(JointState, '/joint_states',
+                                     lambda m: counts.__setitem__('states', counts['states'] + 1), 10)
+        deadline = time.monotonic() + seconds + 15.0
+        while time.monotonic() < deadline and len(rtfs) < seconds + 1:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+        if old_domain is None:
+            os.environ.pop('ROS_DOMAIN_ID', None)
+        else:
+            os.environ['ROS_DOMAIN_ID'] = old_domain
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return rtfs[1:], counts
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
@@ -197,6 +269,22 @@ def main(argv=None):
                   f'vs World.step {t_world * 1e6:.0f} µs -> node overhead '
                   f'{(t_node - t_world) * 1e6:.0f} µs/step; real-time factor with the node at '
                   f'dt 1 ms: {1e-3 / t_node:.1f}')
+        import tempfile
+        with tempfile.TemporaryDirectory() as tmp:
+            for label, rec, sub in (('no subscriber, not recording', None, False),
+                                    ('a subscriber on /clock and /joint_states', None, True),
+                                    ('no subscriber, recording', str(Path(tmp) / 'bag'), False)):
+                res = node_end_to_end(4 if args.quick else 8, args.backend, rec, sub)
+                if res and res[0]:
+                    rtfs, counts = res
+                    print(f'sim_node end to end (own process, DDS, as fast as possible, default '
+                          f'scene, {label}): real-time factor median {statistics.median(rtfs):.1f} '
+                          f'(min {min(rtfs):.1f}, max {max(rtfs):.1f}; {len(rtfs)} one-second '
+                          f'reports on /diagnostics'
+                          + (f'; the probe received {counts["clock"]} /clock and '
+                             f'{counts["states"]} /joint_states)' if sub else ')'))
+                elif res is not None:
+                    print(f'sim_node end to end ({label}): no /diagnostics report received')
     return 0
 
 

@@ -83,6 +83,11 @@ class Applied:
         return bool(self.torques or self.enables or self.timed_out)
 
 
+NOTHING_APPLIED = Applied(time=math.nan)
+"""What `CommandBuffer.apply` returns when nothing was pending and no timeout runs (falsy;
+shared, so never modify it): most step boundaries, and building an Applied costs ~1.5 µs."""
+
+
 class CommandBuffer:
     """Pending torque/enable commands, effort limits and the command timeout.
 
@@ -236,7 +241,7 @@ class CommandBuffer:
         now = float(world.time)
         if not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
                 or self._pending_array is not None or self._pending_enable_all is not None):
-            return Applied(time=now)        # the common boundary: nothing to do
+            return NOTHING_APPLIED          # the common boundary: nothing to do
         out = Applied(time=now, array=self._pending_array, enable_all=self._pending_enable_all)
         for joint, flag in self._pending_enable.items():
             world.set_torque_enabled(joint, flag)

@@ -244,13 +244,12 @@ class SimNode(Node):
         self.fault = None
         self.steps += 1
         self._stats_steps += 1
-        if not getattr(report, 'converged', True):
+        if not report.converged:
             self._not_converged += 1
             self.get_logger().warn(
                 f'Newton did not converge at t={self.world.time:.6f} s '
-                f'({getattr(report, "newton_iterations", "?")} iterations)',
-                throttle_duration_sec=LOG_THROTTLE)
-        for text in getattr(report, 'warnings', None) or ():
+                f'({report.newton_iterations} iterations)', throttle_duration_sec=LOG_THROTTLE)
+        for text in report.warnings:
             self.get_logger().warn(f'step: {text}', throttle_duration_sec=LOG_THROTTLE)
         self._publish_state(force=force_publish)
         return True
