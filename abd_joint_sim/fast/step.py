@@ -213,12 +213,11 @@ def single(world, h, report, may_split=False):
     if post == kernels.POST_STEP_NONFINITE:
         return 'step produced a non-finite state'
     report.max_step_rotation = max(report.max_step_rotation, rotation)
-    q, v, warm = qvw
-    angle, omega = aw
-    world.state = State(time=s.time + h, q=q, v=v, q_prev=s.q, v_prev=s.v,
-                        joint_angle=angle,
-                        joint_velocity=omega if m.joint_count else s.joint_velocity,
-                        step_count=s.step_count + 1, history_dt=h, warm_start=warm)
+    # (indexing: unpacking an ndarray by iteration costs three times as much)
+    world.state = State(time=s.time + h, q=qvw[0], v=qvw[1], q_prev=s.q, v_prev=s.v,
+                        joint_angle=aw[0],
+                        joint_velocity=aw[1] if m.joint_count else s.joint_velocity,
+                        step_count=s.step_count + 1, history_dt=h, warm_start=qvw[2])
     # World.step reads the separation of the final state from here (the last single() that
     # set world.state took the final step): one compiled call less per step
     report.max_joint_separation = separation
