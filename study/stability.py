@@ -175,7 +175,7 @@ def run_phase(p: Phase) -> PhaseResult:
         scale = max(abs(E0), abs(E_prev), 1e-12)      # E0 = 0 for a chain starting at y = 0
         r.max_energy_rise = rise / scale
         r.energy_drop = (E0 - E_prev) / scale
-    r.ref_err = max(errs) if errs else math.nan
+    r.ref_err = float(max(errs)) if errs else math.nan
     r.max_momentum = max(moms) if moms else math.nan
     return r
 
@@ -225,7 +225,7 @@ def run_case(c: Case) -> dict:
 
 def _warning_kind(w):
     for key, label in (('sub-steps of', 'sub-stepping'), ('near-singular', 'near-singular A'),
-                       ('damps rotation', 'bdf1 rotation damping'), ('overloaded', 'joint overloaded'),
+                       ('damps rotation', 'rotation damping (integrator)'), ('overloaded', 'joint overloaded'),
                        ('Newton stopped', 'Newton stopped'), ('result kept', 'result kept')):
         if key in w:
             return label
