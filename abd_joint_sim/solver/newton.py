@@ -4,7 +4,8 @@
 
 with s = 1 (BDF1) or 1/β = 9/4 (BDF2) (PHYSICS.md §2). Each iteration solves H Δq = −∇Π with
 H the sum of PSD(-projected) term Hessians plus sM (so H is positive definite on free DOFs),
-then halves α until Π(q + αΔq) ≤ Π(q) (roundoff slack ROUNDOFF·|Π|).
+then halves α until Π(q ⊕ αΔq) ≤ Π(q) (roundoff slack ROUNDOFF·|Π|), where q ⊕ Δq applies
+each body's step as a screw motion (solver/retraction.py; = q + Δq to first order).
 Convergence (libuipc defaults): every free body's bounding-box corners move less than
 velocity_tol·h under Δq, and max |Δq[3:12]| ≤ transrate_tol·h; and (ours) the Newton
 decrement −½∇Πᵀ Δq, the predicted distance in energy to the minimum, is below what moving
@@ -62,7 +63,7 @@ class NewtonSolver:
     def minimize(self, q_start, q_tilde, scale, ctx, q_other=None) -> NewtonResult:
         """Minimise Π from q_start, or from `q_other` if Π is lower there (World._single
         passes the warm start and q̃: the better guess wins, so a warm start never starts
-        Newton further down the energy than the plain prediction would)."""
+        Newton at a higher Π than the plain prediction would)."""
         m = self.model
         spec = m.newton
         h = ctx.h
