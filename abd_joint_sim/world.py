@@ -258,6 +258,18 @@ class World:
             self.last_step = report
         return self.last_step
 
+    def step_clean(self, n: int):
+        """Up to n steps that need no sub-stepping and give no warning, in one compiled call
+        (numba backend; ~30 µs of Python per step saved, for sim_node's batches). Returns
+        (count, times, joint angles (count,J), joint velocities (count,J)); state and
+        `last_step` are exactly as after `count` calls of `step`. Fewer than n (possibly 0)
+        when a step is not clean, and always 0 on the numpy backend: the caller then takes
+        that step with `step`, which sub-steps, warns or raises as usual."""
+        if self._fast_single is None or n <= 0:
+            return 0, [], np.empty((0, self.model.joint_count)), np.empty((0, self.model.joint_count))
+        from .fast.step import clean_steps
+        return clean_steps(self, int(n))
+
     def _warn_separation(self, report):
         sep = joint_separation(self.model, self.state.q)
         for j in np.flatnonzero(sep > self._joint_separation_limit):

@@ -98,9 +98,9 @@ def check_agreement():
 
 def node_overhead(steps, backend):
     """Per-step cost of sim_node's step (pending commands, step, /clock every step,
-    /joint_states at its 100 Hz default) against World.step alone: one process, no
-    subscribers, no recording; rounds interleaved and the minimum of each kept, so load
-    from other jobs on the machine affects both alike."""
+    /joint_states at its 100 Hz default), one at a time and in the node's batches, against
+    World.step alone: one process, no subscribers, no recording; rounds interleaved and the
+    minimum of each kept, so load from other jobs on the machine affects all alike."""
     try:
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         os.environ.setdefault('ROS_DOMAIN_ID', str(90 + os.getpid() % 9))
@@ -118,15 +118,17 @@ def node_overhead(steps, backend):
             params.append(Parameter('backend', value=backend))
         node = SimNode(parameter_overrides=params)
         node._step_once()
-        node_t, world_t = [], []
+        node_t, world_t, batch_t = [], [], []
+        batch = 16                        # node.BATCH_STEPS: steps per compiled call
         for _ in range(7):
             node_t += time_steps(node._step_once, steps, 1)
             world_t += time_steps(node.world.step, steps, 1)
+            batch_t += [t / batch for t in time_steps(lambda: node._step_batch(batch), steps // batch, 1)]
         used = node.world.backend
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    return min(node_t), min(world_t), used
+    return min(node_t), min(world_t), min(batch_t), used
 
 
 def node_end_to_end(seconds, backend, record_dir=None, subscribe=True):
@@ -264,11 +266,12 @@ def main(argv=None):
     if not args.no_node:
         res = node_overhead(100 if args.quick else 500, args.backend)
         if res:
-            t_node, t_world, used = res
+            t_node, t_world, t_batch, used = res
             print(f'\nsim_node step on the default scene ({used} backend): {t_node * 1e6:.0f} µs '
                   f'vs World.step {t_world * 1e6:.0f} µs -> node overhead '
                   f'{(t_node - t_world) * 1e6:.0f} µs/step; real-time factor with the node at '
-                  f'dt 1 ms: {1e-3 / t_node:.1f}')
+                  f'dt 1 ms: {1e-3 / t_node:.1f} one step at a time, {1e-3 / t_batch:.1f} in '
+                  f'batches of 16 while no command is pending ({t_batch * 1e6:.0f} µs/step)')
         import tempfile
         with tempfile.TemporaryDirectory() as tmp:
             for label, rec, sub in (('no subscriber, not recording', None, False),

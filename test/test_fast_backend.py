@@ -486,3 +486,50 @@ else:
     proc = subprocess.run([sys.executable, '-c', code], cwd=REPO, env=env, capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+@pytest.mark.parametrize('case', ['default_torques', 'default_bdf2', 'default_idle', 'hinge_substeps'])
+def test_step_clean_is_bit_identical_to_single_steps(case):
+    """World.step_clean (sim_node's batches: several steps per compiled call) must leave the
+    same state, bit for bit, as the same number of World.step calls, report each step's
+    joint angles, and stop before a step World.step would sub-step or warn on (the large
+    torque on the hinge: every step), which the caller then takes with World.step."""
+    d, n, setup = {
+        'default_torques': (scene_dict('default'), 300, _torques(3.0)),
+        'default_bdf2': (dict(scene_dict('default'), integrator='bdf2'), 300, _torques(-4.0)),
+        'default_idle': (scene_dict('default'), 100, None),
+        'hinge_substeps': (hinge_dict(dt=0.01), 20, _torques(1e5)),
+    }[case]
+    one, batched = World(Scene.from_dict(d), backend='numba'), World(Scene.from_dict(d), backend='numba')
+    for w in (one, batched):
+        if setup:
+            setup(w)
+    angles_one, angles_batched, fallbacks, steps = [], [], 0, 0
+    for _ in range(n):
+        one.step()
+        angles_one.append(one.state.joint_angle.copy())
+    while steps < n:
+        count, times, angles, _ = batched.step_clean(min(7, n - steps))
+        assert len(times) == count == len(angles)
+        angles_batched += [a.copy() for a in angles]
+        steps += count
+        if count == 0:
+            batched.step()
+            angles_batched.append(batched.state.joint_angle.copy())
+            fallbacks += 1
+            steps += 1
+    for f in ('time', 'q', 'v', 'q_prev', 'v_prev', 'warm_start', 'joint_angle', 'joint_velocity',
+              'step_count', 'history_dt'):
+        assert np.array_equal(getattr(one.state, f), getattr(batched.state, f)), f
+    assert np.array_equal(np.array(angles_one), np.array(angles_batched))
+    assert _report_key(one.last_step) == _report_key(batched.last_step)
+    if case == 'hinge_substeps':
+        assert fallbacks == n                   # every step sub-steps: none is clean
+    else:
+        assert fallbacks == 0
+
+
+def test_step_clean_takes_no_step_on_numpy():
+    w = World(Scene.from_dict(scene_dict('default')), backend='numpy')
+    count, times, angles, velocities = w.step_clean(5)
+    assert count == 0 and times == [] and angles.shape == (0, 2) and w.state.step_count == 0

@@ -252,12 +252,16 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
     n = InProcess(scene='hinge', real_time_factor=0.0, publish_rate=0.0, record=str(bag))
     try:
         world = n.sim.world
-        real_step, real_angles = world.step, world.joint_angles
+        real_step, real_efforts = world.step, world.applied_torques
         n.spin_until(lambda: n.sim.steps >= 20, 20.0, '20 steps')
 
         def failing_step(*a, **k):
             raise SimulationError(f't={world.time:.6g}s: Newton produced a non-finite state '
                                   'even with 16 sub-steps (injected)')
+        # A failing step is never "clean": World.step_clean stops before it (0 steps) and
+        # the node takes it with World.step, which raises.
+        real_clean = world.step_clean
+        world.step_clean = lambda count: real_clean(0)
         world.step = failing_step
         n.spin_until(lambda: n.sim.paused, 10.0, 'the node to pause')
         stopped_at = n.sim.steps
@@ -273,7 +277,7 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
         assert n.sim.steps == stopped_at, 'stepped while paused after a fault'
 
         # Recover: reset (clears the fault), real step again, unpause.
-        world.step = real_step
+        world.step, world.step_clean = real_step, real_clean
         client = {s: n.probe.create_client(Trigger, f'/abd_joint_sim/{s}')
                   for s in ('reset', 'unpause')}
         for name in ('reset', 'unpause'):
@@ -284,14 +288,15 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
         assert n.sim.fault is None
         n.spin_until(lambda: n.sim.steps >= stopped_at + 10, 10.0, 'stepping again')
 
-        # A world that goes non-finite without raising: guarded in the publish path.
+        # A world that goes non-finite without raising (here the effort it reports, which
+        # both the one-step and the batched publish read): guarded in the publish path.
         states_before = len(n.states)
-        world.joint_angles = lambda: np.full(len(world.joint_names), np.nan)
+        world.applied_torques = lambda: np.full(len(world.joint_names), np.nan)
         n.spin_until(lambda: n.sim.paused, 10.0, 'the node to pause on NaN')
         print(f'non-finite state -> log: {n.log.text("error").splitlines()[-1]!r}')
         assert 'non-finite state' in n.log.text('error')
         assert 'non-finite' in n.sim.fault
-        world.joint_angles = real_angles
+        world.applied_torques = real_efforts
         n.spin_for(0.3)
         assert len(n.states) > states_before > 0
         assert _finite_states(n.states), 'a non-finite joint state was published'

@@ -1227,3 +1227,33 @@ def max_joint_separation(mi, mf, q):
             if n > out or n != n:
                 out = n
     return out
+
+
+@njit(cache=True, error_model='numpy')
+def batch_kernel(mi, mf, q0, v0, qp0, vp0, warm0, angle0, tval, ton, daim, don, dpas, h, bdf2,
+                 bdf2_next, n, max_clean_rotation, max_clean_separation, qvw, aw, skipped, info):
+    """Up to n consecutive steps of size h, each exactly `step_kernel` on the previous one's
+    output (so bit-identical to n World.step calls), stopping before the first step that is
+    not clean: refused, unconverged, non-finite, a skipped torque, a rotation above
+    `max_clean_rotation` or a joint separation above `max_clean_separation` (the steps on
+    which World.step sub-steps or warns; the caller redoes that one through World.step).
+    Step k writes qvw[k] = (q, v, warm_start), aw[k] = (angle, velocity), info[k]. Returns
+    the number of clean steps. `bdf2`: the first step's flag; `bdf2_next`: the others'."""
+    done = 0
+    for k in range(n):
+        if k == 0:
+            step_kernel(mi, mf, q0, v0, qp0, vp0, warm0, angle0, tval, ton, daim, don, dpas, h,
+                        bdf2, qvw[0], aw[0], skipped, info[0])
+        elif k == 1:
+            step_kernel(mi, mf, qvw[0, 0], qvw[0, 1], q0, v0, qvw[0, 2], aw[0, 0], tval, ton,
+                        daim, don, dpas, h, bdf2_next, qvw[1], aw[1], skipped, info[1])
+        else:
+            step_kernel(mi, mf, qvw[k - 1, 0], qvw[k - 1, 1], qvw[k - 2, 0], qvw[k - 2, 1],
+                        qvw[k - 1, 2], aw[k - 1, 0], tval, ton, daim, don, dpas, h, bdf2_next,
+                        qvw[k], aw[k], skipped, info[k])
+        i = info[k]
+        if (i[4] != POST_OK or i[0] != CONVERGED or i[5] != 0.0
+                or not i[3] <= max_clean_rotation or not i[6] <= max_clean_separation):
+            break
+        done += 1
+    return done

@@ -228,3 +228,44 @@ def single(world, h, report, may_split=False):
         report.status, report.converged = status.value, False
         return f'Newton stopped: {status.value} after {iterations} iterations'
     return None
+
+
+def clean_steps(world, n):
+    """Up to n steps of size dt in one compiled call (`kernels.batch_kernel`), stopping before
+    the first step on which World.step would sub-step, warn or fail; returns
+    (count, times, joint angles (count,J), joint velocities (count,J)) and leaves world.state
+    and world.last_step as `count` World.step calls would (bit-identical: the same kernel on
+    the same inputs). Only for World.step_clean."""
+    from ..world import ACCURACY_ROTATION, StepReport
+    m, s, c = world.model, world.state, world.control
+    pk = packed_for(world)
+    h = m.dt
+    B, J = m.body_count, m.joint_count
+    qvw = np.empty((n, 3, B, 12))
+    aw = np.empty((n, 2, J))
+    info = np.empty((n, 7))
+    bdf2_ok = m.integrator == 'bdf2'
+    done = kernels.batch_kernel(
+        pk.mi_split if m.newton.max_substep_depth > 0 else pk.mi, pk.mf, s.q, s.v, s.q_prev,
+        s.v_prev, s.warm_start, s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
+        c.drive_enabled, c.drive_passive, float(h), bdf2_ok and s.history_dt == h, bdf2_ok, n,
+        min(m.newton.max_step_rotation, ACCURACY_ROTATION[m.integrator]),
+        world._separation_warn, qvw, aw, pk.skipped, info)
+    if done == 0:
+        return 0, [], aw[:0, 0], aw[:0, 1]
+    times = []
+    t = s.time
+    for _ in range(done):
+        t = t + h                                  # as World.step accumulates it
+        times.append(t)
+    k = done - 1
+    world.state = State(time=t, q=qvw[k, 0], v=qvw[k, 1],
+                        q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,
+                        joint_angle=aw[k, 0], joint_velocity=aw[k, 1] if J else s.joint_velocity,
+                        step_count=s.step_count + done, history_dt=h, warm_start=qvw[k, 2])
+    status, iterations, ls_its, rotation, _, _, separation = info[k].tolist()
+    world.last_step = StepReport(time=t, newton_iterations=int(iterations),
+                                 line_search_iterations=int(ls_its),
+                                 max_joint_separation=separation,
+                                 max_step_rotation=max(0.0, rotation))
+    return done, times, aw[:done, 0], aw[:done, 1]

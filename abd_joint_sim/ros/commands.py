@@ -236,12 +236,18 @@ class CommandBuffer:
         self._timed_out.clear()
 
     # -- at the step boundary ----------------------------------------------------------
+    @property
+    def idle(self) -> bool:
+        """Nothing pending and no command timeout to run: `apply` would change nothing at
+        any boundary until a new command arrives (sim_node then steps in batches)."""
+        return not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
+                    or self._pending_array is not None or self._pending_enable_all is not None)
+
     def apply(self, world: CommandTarget) -> Applied:
         """Write pending commands into `world`, then apply the command timeout."""
-        now = float(world.time)
-        if not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
-                or self._pending_array is not None or self._pending_enable_all is not None):
+        if self.idle:
             return NOTHING_APPLIED          # the common boundary: nothing to do
+        now = float(world.time)
         out = Applied(time=now, array=self._pending_array, enable_all=self._pending_enable_all)
         for joint, flag in self._pending_enable.items():
             world.set_torque_enabled(joint, flag)

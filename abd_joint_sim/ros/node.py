@@ -48,6 +48,7 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
+BATCH_STEPS = 16              # clean steps per compiled call while no command is pending
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 
@@ -207,7 +208,7 @@ class SimNode(Node):
         if rtf == 0.0:
             deadline = time.monotonic() + AFAP_BATCH_WALL
             while not self.paused and time.monotonic() < deadline and self.context.ok():
-                if not self._step_once():
+                if not self._step_batch(BATCH_STEPS) and not self._step_once():
                     break
             return
         now = time.monotonic()
@@ -226,7 +227,8 @@ class SimNode(Node):
         deadline = now + AFAP_BATCH_WALL
         while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
                and time.monotonic() < deadline and self.context.ok()):
-            if not self._step_once():
+            due = int((target - self.world.time) / dt + 1e-6)       # whole steps behind
+            if not self._step_batch(min(due, BATCH_STEPS)) and not self._step_once():
                 break
 
     # -------------------------------------------------------------------- steps ----
@@ -253,6 +255,23 @@ class SimNode(Node):
             self.get_logger().warn(f'step: {text}', throttle_duration_sec=LOG_THROTTLE)
         self._publish_state(force=force_publish)
         return True
+
+    def _step_batch(self, max_steps: int) -> int:
+        """Up to max_steps steps in one compiled call (World.step_clean) while no command is
+        pending: ~30 µs of Python saved per step. Commands are applied at every boundary
+        all the same, since none is pending (and the executor only delivers new ones between
+        timer rounds). Stops before any step that would sub-step, warn or fail, which
+        _step_once then takes. Returns the number of steps taken (0: none)."""
+        if max_steps < 2 or not self.commands.idle:
+            return 0
+        count, times, angles, velocities = self.world.step_clean(max_steps)
+        if count:
+            self.fault = None
+            self.steps += count
+            self._stats_steps += count
+            for t, position, velocity in zip(times, angles, velocities):
+                self._publish_state(t=t, position=position, velocity=velocity)
+        return count
 
     def _on_applied(self, applied: Applied) -> None:
         for joint in applied.timed_out:
@@ -283,9 +302,13 @@ class SimNode(Node):
         self._publish_diagnostics()
         self._flush_recorder()
 
-    def _publish_state(self, force: bool = False) -> None:
-        """/clock after every step, /joint_states when due; never a non-finite value."""
-        t = self.world.time
+    def _publish_state(self, force: bool = False, t: Optional[float] = None,
+                       position=None, velocity=None) -> None:
+        """/clock after every step, /joint_states when due; never a non-finite value. A
+        batch (_step_batch) passes each step's time and joint angles and velocities; by
+        default they are the world's current ones."""
+        if t is None:
+            t = self.world.time
         if not math.isfinite(t):
             self._stop_on_fault(f'non-finite time {t!r} s not published')
             return
@@ -300,8 +323,10 @@ class SimNode(Node):
         if not self.publish_schedule.due(t_ns, self.config.publish_rate, force):
             return
         w = self.world
-        position = np.asarray(w.joint_angles(), dtype=float).tolist()
-        velocity = np.asarray(w.joint_velocities(), dtype=float).tolist()
+        if position is None:
+            position, velocity = w.joint_angles(), w.joint_velocities()
+        position = np.asarray(position, dtype=float).tolist()
+        velocity = np.asarray(velocity, dtype=float).tolist()
         effort = np.asarray(w.applied_torques(), dtype=float).tolist()
         if not all(map(math.isfinite, position + velocity + effort)):
             bad = [f'{name} {arr}' for name, arr in
