@@ -77,6 +77,22 @@ class ShapeSpec:
 
 
 @dataclass(frozen=True)
+class VisualSpec:
+    """What a body looks like (markers, pictures); no effect on the physics.
+
+    Pose in the body's frame (the frame of `BodySpec.position`/`rpy`; for a URDF robot the
+    link frame), as a URDF ``<visual><origin>``.
+    """
+
+    kind: str                               # 'box' | 'sphere' | 'cylinder' | 'mesh'
+    size: tuple = ()                        # box: (a, b, c); sphere: (R,); cylinder: (radius, length); mesh: scale (sx, sy, sz)
+    mesh_uri: str = ''                      # mesh only: e.g. package://pkg/meshes/link.stl
+    origin_xyz: tuple = (0.0, 0.0, 0.0)     # [m] in the body frame
+    origin_rpy: tuple = (0.0, 0.0, 0.0)     # [rad] URDF convention
+    rgba: tuple | None = None               # colour, None = the viewer's default
+
+
+@dataclass(frozen=True)
 class BodySpec:
     name: str
     shape: ShapeSpec
@@ -87,6 +103,7 @@ class BodySpec:
     fixed: bool
     velocity: tuple
     angular_velocity: tuple
+    visuals: tuple = ()                     # VisualSpec, ...; () = draw the shape (or a fallback)
 
 
 @dataclass(frozen=True)
