@@ -8,6 +8,7 @@ The format is documented in README.md ("Scene format").
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,34 +20,149 @@ from .errors import SceneError
 INTEGRATORS = ('bdf1', 'bdf2')
 
 
+MAX_YAML_BYTES = 1 << 20
+"""Largest scene/schedule file read [bytes] (the packaged scenes are ~2 KB)."""
+MAX_YAML_NODES = 100_000
+"""Largest document, counted with every alias expanded (a billion-laughs file is ~1 KB of
+text and ~1e9 nodes expanded: refused before anything walks it)."""
+MAX_YAML_DEPTH = 64
+"""Deepest nesting of lists/mappings (a scene needs 4-5)."""
+
+
+class YAMLLimitError(yaml.YAMLError):
+    """A YAML document beyond MAX_YAML_NODES / MAX_YAML_DEPTH, or a recursive alias."""
+
+    def __init__(self, problem: str, mark=None):
+        super().__init__(problem)
+        self.problem, self.problem_mark = problem, mark
+
+
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that also reads YAML 1.2 floats such as 1e8 and 1.0e8 (YAML 1.1, and so
-    plain PyYAML, would read them as strings)."""
+    """SafeLoader with YAML 1.2 core-schema scalars and bounded documents.
+
+    * Numbers are decimal as in YAML 1.2 (``1``, ``-2.5``, ``1e8``, ``.inf``): plain PyYAML
+      (YAML 1.1) reads ``1e8`` as a string but ``1:30`` as 90 and ``0x10``/``010`` as 16/8;
+      here the latter stay strings, so the field check names them. Booleans are
+      ``true``/``false`` only (YAML 1.1 also took ``yes``/``no``/``on``/``off``).
+    * A key given twice in one mapping is an error (YAML says keys are unique; PyYAML keeps
+      the last one silently).
+    * Nesting deeper than MAX_YAML_DEPTH, more than MAX_YAML_NODES nodes with aliases
+      expanded, and an alias inside its own anchor are errors, raised before the data is
+      constructed (so an alias bomb costs microseconds, not gigabytes).
+    """
+
+    yaml_implicit_resolvers: dict = {}
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise YAMLLimitError(f'nested deeper than {MAX_YAML_DEPTH} levels',
+                                     self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def get_single_node(self):
+        node = super().get_single_node()
+        if node is not None:
+            _expanded_size(node)
+        return node
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = {}
+            for key_node, _ in node.value:
+                if key_node.tag == 'tag:yaml.org,2002:merge' or \
+                        not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                key = self.construct_object(key_node)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f'duplicate key {key!r} (first at line '
+                        f'{seen[key].line + 1}); each key may appear once',
+                        key_node.start_mark)
+                seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
 
 
-_Loader.add_implicit_resolver(
-    'tag:yaml.org,2002:float',
-    __import__('re').compile(r'''^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-    |[-+]?\.(?:inf|Inf|INF)
-    |\.(?:nan|NaN|NAN))$''', __import__('re').X),
-    list('-+0123456789.'))
+def _expanded_size(root) -> int:
+    """Nodes of the document with every alias expanded (memoised over the shared nodes);
+    YAMLLimitError beyond MAX_YAML_NODES or for a node that contains itself."""
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+    # Iterative post-order walk: the depth is already bounded, but keep Python's stack out.
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children = []
+        if isinstance(node, yaml.SequenceNode):
+            children = node.value
+        elif isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        if done:
+            active.discard(key)
+            sizes[key] = size = 1 + sum(sizes[id(c)] for c in children)
+            if size > MAX_YAML_NODES:
+                raise YAMLLimitError(
+                    f'more than {MAX_YAML_NODES} values once aliases (*name) are expanded; '
+                    'a scene is far smaller (an alias bomb?)', node.start_mark)
+            continue
+        if key in sizes:
+            continue
+        if key in active:
+            raise YAMLLimitError('an alias (*name) refers to a node that contains it',
+                                 node.start_mark)
+        active.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in sizes)
+    return sizes[id(root)]
+
+
+for _tag, _regexp, _first in (
+        ('tag:yaml.org,2002:null', r'^(?:~|null|Null|NULL|)$', ['~', 'n', 'N', '']),
+        ('tag:yaml.org,2002:bool', r'^(?:true|True|TRUE|false|False|FALSE)$', list('tTfF')),
+        ('tag:yaml.org,2002:int', r'^[-+]?[0-9]+$', list('-+0123456789')),
+        ('tag:yaml.org,2002:float',
+         r'''^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?
+         |[-+]?\.(?:inf|Inf|INF)
+         |\.(?:nan|NaN|NAN))$''', list('-+0123456789.')),
+        ('tag:yaml.org,2002:merge', r'^(?:<<)$', ['<']),
+):
+    _Loader.add_implicit_resolver(_tag, re.compile(_regexp, re.X), _first)
+# Decimal, as YAML 1.2 (PyYAML's constructor reads a leading 0 as octal: 010 -> 8).
+_Loader.add_constructor('tag:yaml.org,2002:int',
+                        lambda loader, node: int(loader.construct_scalar(node), 10))
 
 
 def load_yaml(text: str):
-    """Parse YAML text the way scene files are parsed."""
+    """Parse YAML text the way scene files are parsed (see `_Loader`)."""
     return yaml.load(text, Loader=_Loader)
 
 
 def read_yaml_file(path, error: type[Exception], what: str):
-    """(text, data) of a YAML file; unreadable or invalid YAML raises `error` with a
-    one-line message naming the file (and the line and column of a syntax error)."""
+    """(text, data) of a YAML file; unreadable, too large, not UTF-8 or invalid YAML
+    (including `_Loader`'s limits) raises `error` with a one-line message naming the file
+    (and the line and column where that is known)."""
     path = Path(path)
     try:
-        text = path.read_text()
+        with open(path, 'rb') as f:
+            raw = f.read(MAX_YAML_BYTES + 1)
     except OSError as exc:
         raise error(f'{path}: cannot read {what}: {exc.strerror or exc}') from None
+    if len(raw) > MAX_YAML_BYTES:
+        raise error(f'{path}: {what} larger than {MAX_YAML_BYTES} bytes; not read')
+    try:
+        text = raw.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b'\n') + 1
+        raise error(f'{path}: {what} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at '
+                    f'offset {exc.start}, line {line})') from None
     try:
         return text, load_yaml(text)
     except yaml.YAMLError as exc:
@@ -54,6 +170,40 @@ def read_yaml_file(path, error: type[Exception], what: str):
         where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
         problem = getattr(exc, 'problem', None) or str(exc)
         raise error(f'{path}: not valid YAML{where}: {problem}') from None
+    except RecursionError:
+        raise error(f'{path}: not valid YAML: nested too deeply') from None
+    except ValueError as exc:     # e.g. an integer of more than 4300 digits
+        raise error(f'{path}: not valid YAML: {exc}') from None
+
+
+RANGES = {
+    # name: (lowest, highest, unit); positive quantities must lie in [lowest, highest],
+    # signed ones in magnitude below highest. Far wider than any mechanism needs, and
+    # narrow enough that the solver's arithmetic (masses ~ density * size^3, stiffness ~
+    # kappa * volume / dt^2, 1/dt) stays inside float64 with digits to spare.
+    'dt': (1e-6, 1.0, 's'),
+    'gravity': (0.0, 1e4, 'm/s^2'),
+    'length': (1e-4, 1e3, 'm'),
+    'position': (0.0, 1e4, 'm'),
+    'angle': (0.0, 1e4, 'rad'),
+    'speed': (0.0, 1e4, 'm/s'),
+    'angular_speed': (0.0, 1e4, 'rad/s'),
+    'density': (1e-3, 1e6, 'kg/m^3'),
+    'mass': (1e-9, 1e9, 'kg'),
+    'inertia': (0.0, 1e9, 'kg m^2'),
+    'volume': (1e-12, 1e9, 'm^3'),
+    'kappa': (1.0, 1e16, 'Pa'),
+    'strength': (1e-6, 1e9, ''),
+    'torque': (0.0, 1e9, 'N m'),
+    'effort_limit': (1e-9, 1e9, 'N m'),
+    'tolerance': (1e-12, 1e3, ''),
+}
+"""Sane ranges of the numbers a scene carries (SceneError beyond; docs/robustness.md)."""
+
+MAX_SUBSTEP_DEPTH = 10
+"""A failed step is retried as up to 2**depth sub-steps (1024 at the bound)."""
+
+MAX_ITERATIONS = 10_000
 
 
 @dataclass(frozen=True)
@@ -214,23 +364,36 @@ class _Parser:
                 self.fail(where, f'missing required key {key!r}')
         return value
 
-    def number(self, where, value, *, positive=False, nonneg=False):
+    def number(self, where, value, *, positive=False, nonneg=False, bound=None):
+        """A finite float; `bound` names a row of RANGES (the sane magnitude range)."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(where, f'must be a number, got {value!r}')
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:
+            self.fail(where, f'must be finite, got an integer of {len(str(abs(value)))} digits')
         if not math.isfinite(value):
             self.fail(where, f'must be finite, got {value!r}')
         if positive and value <= 0.0:
             self.fail(where, f'must be > 0, got {value!r}')
         if nonneg and value < 0.0:
             self.fail(where, f'must be >= 0, got {value!r}')
+        if bound is not None:
+            lo, hi, unit = RANGES[bound]
+            unit = f' {unit}' if unit else ''
+            if positive and not lo <= value <= hi:
+                self.fail(where, f'{value!r} is outside the supported range {lo:g} to {hi:g}{unit}')
+            if not positive and abs(value) > hi:
+                self.fail(where, f'{value!r} is outside the supported range: |value| <= {hi:g}{unit}')
         return value
 
-    def integer(self, where, value, minimum):
+    def integer(self, where, value, minimum, maximum=None):
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(where, f'must be an integer, got {value!r}')
         if value < minimum:
             self.fail(where, f'must be >= {minimum}, got {value!r}')
+        if maximum is not None and value > maximum:
+            self.fail(where, f'must be <= {maximum}, got {value!r}')
         return value
 
     def boolean(self, where, value):
@@ -254,8 +417,8 @@ class _Parser:
             self.fail('', 'empty scene')
         d = self.mapping('', data, ('name', 'description', 'dt', 'gravity', 'integrator',
                                     'newton', 'bodies', 'joints'), required=('dt', 'bodies'))
-        dt = self.number('dt', d['dt'], positive=True)
-        gravity = self.vector('gravity', d.get('gravity', [0.0, 0.0, 0.0]))
+        dt = self.number('dt', d['dt'], positive=True, bound='dt')
+        gravity = self.vector('gravity', d.get('gravity', [0.0, 0.0, 0.0]), bound='gravity')
         integrator = d.get('integrator', 'bdf1')
         if integrator not in INTEGRATORS:
             self.fail('integrator', f'must be one of {", ".join(INTEGRATORS)}, got {integrator!r}')
@@ -291,10 +454,12 @@ class _Parser:
         kw = {}
         for key in ('velocity_tol', 'transrate_tol', 'max_step_rotation'):
             if key in d:
-                kw[key] = self.number(f'newton.{key}', d[key], positive=True)
-        for key, minimum in (('max_iterations', 1), ('line_search_max', 1), ('max_substep_depth', 0)):
+                kw[key] = self.number(f'newton.{key}', d[key], positive=True,
+                                      bound=None if key == 'max_step_rotation' else 'tolerance')
+        for key, minimum, maximum in (('max_iterations', 1, MAX_ITERATIONS), ('line_search_max', 1, 64),
+                                      ('max_substep_depth', 0, MAX_SUBSTEP_DEPTH)):
             if key in d:
-                kw[key] = self.integer(f'newton.{key}', d[key], minimum)
+                kw[key] = self.integer(f'newton.{key}', d[key], minimum, maximum)
         spec = NewtonSpec(**{**defaults.__dict__, **kw})
         if spec.max_step_rotation >= math.pi:
             self.fail('newton.max_step_rotation', 'must be < pi: the multi-turn angle is only '
@@ -316,49 +481,50 @@ class _Parser:
         if kind == 'inertial':
             shape = self.inertial(w, d[kind])
             if 'density' in d:
-                density = self.number(f'{where}.density', d['density'], positive=True)
+                density = self.number(f'{where}.density', d['density'], positive=True, bound='density')
                 if shape.volume == 0.0:
                     shape = ShapeSpec(**{**shape.__dict__, 'volume': shape.mass / density})
         else:
             if 'density' not in d:
                 self.fail(where, f'body {name!r} with a {kind} needs a density (kg/m^3)')
-            density = self.number(f'{where}.density', d['density'], positive=True)
+            density = self.number(f'{where}.density', d['density'], positive=True, bound='density')
             if kind == 'box':
-                shape = ShapeSpec('box', self.vector(w, d[kind], positive=True))
+                shape = ShapeSpec('box', self.vector(w, d[kind], positive=True, bound='length'))
             elif kind == 'sphere':
                 r = d[kind]
                 if isinstance(r, dict):
                     r = self.mapping(w, r, ('radius',), ('radius',))['radius']
-                shape = ShapeSpec('sphere', (self.number(w, r, positive=True),))
+                shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
             else:
                 c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
-                shape = ShapeSpec('cylinder', (self.number(f'{w}.radius', c['radius'], positive=True),
-                                               self.number(f'{w}.length', c['length'], positive=True)))
+                shape = ShapeSpec('cylinder', (self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
+                                               self.number(f'{w}.length', c['length'], positive=True, bound='length')))
         return BodySpec(
             name=name, shape=shape, density=density,
-            kappa=self.number(f'{where}.kappa', d.get('kappa', 1.0e8), positive=True),
-            position=self.vector(f'{where}.position', d.get('position', [0, 0, 0])),
-            rpy=self.vector(f'{where}.rpy', d.get('rpy', [0, 0, 0])),
+            kappa=self.number(f'{where}.kappa', d.get('kappa', 1.0e8), positive=True, bound='kappa'),
+            position=self.vector(f'{where}.position', d.get('position', [0, 0, 0]), bound='position'),
+            rpy=self.vector(f'{where}.rpy', d.get('rpy', [0, 0, 0]), bound='angle'),
             fixed=self.boolean(f'{where}.fixed', d.get('fixed', False)),
-            velocity=self.vector(f'{where}.velocity', d.get('velocity', [0, 0, 0])),
+            velocity=self.vector(f'{where}.velocity', d.get('velocity', [0, 0, 0]), bound='speed'),
             angular_velocity=self.vector(f'{where}.angular_velocity',
-                                         d.get('angular_velocity', [0, 0, 0])))
+                                         d.get('angular_velocity', [0, 0, 0]), bound='angular_speed'))
 
     def inertial(self, where, value):
         d = self.mapping(where, value, ('mass', 'com', 'inertia', 'volume'), ('mass', 'inertia'))
-        mass = self.number(f'{where}.mass', d['mass'], positive=True)
-        com = self.vector(f'{where}.com', d.get('com', [0, 0, 0]))
+        mass = self.number(f'{where}.mass', d['mass'], positive=True, bound='mass')
+        com = self.vector(f'{where}.com', d.get('com', [0, 0, 0]), bound='position')
         raw = d['inertia']
         if isinstance(raw, dict):
             i = self.mapping(f'{where}.inertia', raw, ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz'),
                              ('ixx', 'iyy', 'izz'))
-            v = {k: self.number(f'{where}.inertia.{k}', i.get(k, 0.0)) for k in
+            v = {k: self.number(f'{where}.inertia.{k}', i.get(k, 0.0), bound='inertia') for k in
                  ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz')}
             inertia = (v['ixx'], v['ixy'], v['ixz'], v['ixy'], v['iyy'], v['iyz'],
                        v['ixz'], v['iyz'], v['izz'])
         elif isinstance(raw, list) and len(raw) == 3 and all(isinstance(r, list) for r in raw):
             inertia = tuple(self.number(f'{where}.inertia[{r}][{c}]', raw[r][c] if len(raw[r]) == 3
-                                        else self.fail(f'{where}.inertia[{r}]', 'must have 3 entries'))
+                                        else self.fail(f'{where}.inertia[{r}]', 'must have 3 entries'),
+                                        bound='inertia')
                             for r in range(3) for c in range(3))
         else:
             self.fail(f'{where}.inertia', 'must be {ixx, ixy, ixz, iyy, iyz, izz} or a 3x3 list, '
@@ -373,7 +539,7 @@ class _Parser:
         if eig[0] <= 0 or eig[0] + eig[1] <= eig[2] * (1 + 1e-12):
             self.fail(f'{where}.inertia', 'is not a physical inertia: principal moments '
                                           f'{eig.round(12).tolist()} must be > 0 and each <= the sum of the other two')
-        volume = self.number(f'{where}.volume', d['volume'], positive=True) if 'volume' in d else 0.0
+        volume = self.number(f'{where}.volume', d['volume'], positive=True, bound='volume') if 'volume' in d else 0.0
         return ShapeSpec('inertial', mass=mass, com=com, inertia=inertia, volume=volume)
 
     def joint(self, where, value, body_names):
@@ -392,36 +558,46 @@ class _Parser:
                 self.fail(f'{where}.{key}', f'unknown body {d[key]!r}; bodies: {", ".join(sorted(body_names))}')
         if d['parent'] == d['child']:
             self.fail(f'{where}.child', f'joint {name!r} connects body {d["child"]!r} to itself')
-        p0 = self.vector(f'{where}.p0', d['p0'])
-        p1 = self.vector(f'{where}.p1', d['p1'])
+        p0 = self.vector(f'{where}.p0', d['p0'], bound='position')
+        p1 = self.vector(f'{where}.p1', d['p1'], bound='position')
         if math.dist(p0, p1) < 1e-9:
             self.fail(f'{where}.p1', f'must differ from p0 (the axis is p0 -> p1), both are {list(p0)}')
         torque = driving = limit = None
         if d.get('external_torque') is not None:
             w = f'{where}.external_torque'
             t = self.mapping(w, d['external_torque'], ('torque', 'enabled', 'effort_limit'))
-            torque = TorqueSpec(self.number(f'{w}.torque', t.get('torque', 0.0)),
+            torque = TorqueSpec(self.number(f'{w}.torque', t.get('torque', 0.0), bound='torque'),
                                 self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                                self.number(f'{w}.effort_limit', t['effort_limit'], positive=True)
+                                self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
+                                            bound='effort_limit')
                                 if 'effort_limit' in t else math.inf)
             if abs(torque.torque) > torque.effort_limit:
                 self.fail(f'{w}.torque', f'|{torque.torque}| exceeds effort_limit {torque.effort_limit}')
         if d.get('driving') is not None:
             w = f'{where}.driving'
             t = self.mapping(w, d['driving'], ('strength_ratio', 'aim_angle', 'passive', 'enabled'))
-            driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0), positive=True),
-                                  self.number(f'{w}.aim_angle', t.get('aim_angle', 0.0)),
+            driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0), positive=True,
+                                              bound='strength'),
+                                  self.number(f'{w}.aim_angle', t.get('aim_angle', 0.0), bound='angle'),
                                   self.boolean(f'{w}.passive', t.get('passive', False)),
                                   self.boolean(f'{w}.enabled', t.get('enabled', False)))
         if d.get('limit') is not None:
             w = f'{where}.limit'
             t = self.mapping(w, d['limit'], ('lower', 'upper', 'strength'), ('lower', 'upper'))
-            limit = LimitSpec(self.number(f'{w}.lower', t['lower']), self.number(f'{w}.upper', t['upper']),
-                              self.number(f'{w}.strength', t.get('strength', 1.0), positive=True))
+            limit = LimitSpec(self.number(f'{w}.lower', t['lower'], bound='angle'), self.number(f'{w}.upper', t['upper'], bound='angle'),
+                              self.number(f'{w}.strength', t.get('strength', 1.0), positive=True, bound='strength'))
             if limit.lower > limit.upper:
                 self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper}')
+            init = d.get('init_angle', 0.0)
+            if isinstance(init, (int, float)) and not isinstance(init, bool) and \
+                    not limit.lower <= init <= limit.upper:
+                # The limit energy grows as the cube of the distance outside the range over
+                # its width: a start far outside is a huge kick at the first step, not a
+                # mechanism anyone meant (the backends fail or fling the body differently).
+                self.fail(f'{where}.init_angle', f'{init!r} rad is outside the joint\'s limit '
+                                                 f'[{limit.lower:g}, {limit.upper:g}]; start inside it')
         return JointSpec(name=name, parent=d['parent'], child=d['child'], p0=p0, p1=p1,
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
-                                                    positive=True),
-                         init_angle=self.number(f'{where}.init_angle', d.get('init_angle', 0.0)),
+                                                    positive=True, bound='strength'),
+                         init_angle=self.number(f'{where}.init_angle', d.get('init_angle', 0.0), bound='angle'),
                          external_torque=torque, driving=driving, limit=limit)

@@ -2,6 +2,7 @@
 names the source and the field (issue 7 item 1); mass properties match closed forms."""
 import copy
 import math
+import time
 import subprocess
 import sys
 
@@ -79,6 +80,25 @@ BAD = [
      'bodies[1].inertial.mass', 'must be > 0'),
     ('newton_iterations_zero', ('newton',), {'max_iterations': 0}, 'newton.max_iterations', '>= 1'),
     ('rotation_limit_pi', ('newton',), {'max_step_rotation': 3.2}, 'newton.max_step_rotation', '< pi'),
+    # Sane ranges (issue 14, item 11/13): each of these used to pass validation and then
+    # fail deep inside the solver (LinAlgError, ZeroDivisionError, overflow) or hang.
+    ('dt_tiny', ('dt',), 1e-300, 'dt', 'outside the supported range 1e-06 to 1 s'),
+    ('dt_huge_int', ('dt',), 10 ** 400, 'dt', 'integer of 401 digits'),
+    ('velocity_tol_huge', ('newton',), {'velocity_tol': 1e300}, 'newton.velocity_tol',
+     'outside the supported range'),
+    ('box_tiny', ('bodies', 1, 'box'), [1e-200, 0.4, 0.4], 'bodies[1].box[0]', 'outside the supported range'),
+    ('density_huge', ('bodies', 1, 'density'), 1e30, 'bodies[1].density', 'kg/m^3'),
+    ('kappa_huge', ('bodies', 1, 'kappa'), 1e300, 'bodies[1].kappa', 'outside the supported range'),
+    ('position_far', ('bodies', 1, 'position'), [1e200, 0, 0], 'bodies[1].position[0]', '|value| <= 10000 m'),
+    ('strength_tiny', ('joints', 0, 'strength_ratio'), 1e-300, 'joints[0].strength_ratio', 'supported range'),
+    ('torque_huge', ('joints', 0, 'external_torque', 'torque'), 1e300,
+     'joints[0].external_torque.torque', 'supported range'),
+    ('substep_depth_11', ('newton',), {'max_substep_depth': 11}, 'newton.max_substep_depth', 'must be <= 10'),
+    ('substep_depth_30', ('newton',), {'max_substep_depth': 30}, 'newton.max_substep_depth', 'must be <= 10'),
+    ('init_outside_limit', ('joints', 0), {'name': 'hinge', 'parent': 'base', 'child': 'arm',
+                                           'p0': [0, 0, -0.5], 'p1': [0, 0, 0.5], 'init_angle': -20.0,
+                                           'limit': {'lower': -1.0, 'upper': 1.0}},
+     'joints[0].init_angle', "outside the joint's limit [-1, 1]"),
 ]
 
 
@@ -176,3 +196,114 @@ def test_scene_errors_are_clean_on_the_command_line(tmp_path):
             'try:\n    Scene.from_yaml(sys.argv[1])\nexcept SceneError as e:\n    sys.exit(f"error: {e}")\n')
     r = subprocess.run([sys.executable, '-c', code, str(p)], capture_output=True, text=True)
     assert r.returncode == 1 and r.stderr.strip() == f'error: {p}: dt: must be > 0, got -1.0'
+
+
+# -- the YAML loader's limits (issue 14, items 10, 11, 14) --------------------------------
+
+def _write(tmp_path, text, name='s.yaml'):
+    p = tmp_path / name
+    p.write_bytes(text if isinstance(text, bytes) else text.encode())
+    return p
+
+
+def _one_line_error(path):
+    with pytest.raises(SceneError) as err:
+        Scene.from_yaml(path)
+    msg = str(err.value)
+    assert msg.startswith(f'{path}: ') and '\n' not in msg, msg
+    return msg
+
+
+def test_alias_bomb_fails_fast_with_bounded_memory(tmp_path):
+    """Billion laughs: 1 KB of text, ~1e9 values expanded. Refused from the node graph,
+    before anything expands it."""
+    lines = ['a0: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]']
+    for k in range(1, 10):
+        lines.append(f'a{k}: &a{k} [' + ', '.join([f'*a{k - 1}'] * 10) + ']')
+    lines.append('dt: 0.01\nbodies: *a9')
+    p = _write(tmp_path, '\n'.join(lines) + '\n')
+    assert p.stat().st_size < 1100
+    import tracemalloc
+    tracemalloc.start()
+    t0 = time.monotonic()
+    msg = _one_line_error(p)
+    wall = time.monotonic() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert 'more than 100000 values once aliases' in msg, msg
+    assert wall < 10.0 and peak < 50e6, (wall, peak)
+
+
+def test_recursive_alias_and_deep_nesting_are_clear_errors(tmp_path):
+    msg = _one_line_error(_write(tmp_path, 'dt: 0.01\nbodies: &b [*b]\n'))
+    assert 'refers to a node that contains it' in msg, msg
+    msg = _one_line_error(_write(tmp_path, 'dt: 0.01\nbodies: ' + '[' * 100_000 + '\n', 'deep.yaml'))
+    assert 'nested deeper than 64 levels' in msg, msg
+
+
+def test_anchors_and_merge_keys_still_work(tmp_path):
+    text = (SCENES / 'hinge.yaml').read_text()
+    text = text.replace('  - name: base\n', '  - &cube\n    name: base\n', 1)
+    text = text.replace('  - name: arm\n    box: [0.4, 0.4, 0.4]\n    density: 1000.0\n'
+                        '    kappa: 1.0e8\n', '  - <<: *cube\n    name: arm\n    fixed: false\n', 1)
+    scene = Scene.from_yaml(_write(tmp_path, text))
+    assert scene.bodies[1].name == 'arm' and scene.bodies[1].shape.size == (0.4, 0.4, 0.4)
+    assert not scene.bodies[1].fixed
+
+
+def test_file_size_and_encoding_named(tmp_path):
+    msg = _one_line_error(_write(tmp_path, b'dt: 0.01\nname: caf\xe9\n'))
+    assert 'is not UTF-8 text (byte 0xe9 at offset 18, line 2)' in msg, msg
+    msg = _one_line_error(_write(tmp_path, 'dt: 0.01\n' + '#' * (1 << 20), 'big.yaml'))
+    assert 'larger than 1048576 bytes' in msg, msg
+
+
+def test_huge_integer_literal_is_a_field_error(tmp_path):
+    text = (SCENES / 'hinge.yaml').read_text().replace('dt: 0.01', 'dt: 1' + '0' * 400)
+    msg = _one_line_error(_write(tmp_path, text))
+    assert ': dt: must be finite' in msg, msg
+    text = (SCENES / 'hinge.yaml').read_text().replace('dt: 0.01', 'dt: 1' + '0' * 5000)
+    msg = _one_line_error(_write(tmp_path, text, 'b.yaml'))
+    assert 'not valid YAML' in msg, msg
+
+
+def test_duplicate_key_names_the_key(tmp_path):
+    text = (SCENES / 'hinge.yaml').read_text() + 'bodies: []\n'
+    msg = _one_line_error(_write(tmp_path, text))
+    assert "duplicate key 'bodies' (first at line" in msg and '(line 28, column 1)' in msg, msg
+
+
+@pytest.mark.parametrize('literal', ['1:30', '0x10', '0o17', '1_000', '0b11'])
+def test_yaml11_number_forms_are_not_numbers(tmp_path, literal):
+    """YAML 1.1 reads 1:30 as 90 and 0x10 as 16; here they stay text and the field check
+    names them (numbers are decimal)."""
+    text = (SCENES / 'hinge.yaml').read_text().replace('dt: 0.01', f'dt: {literal}')
+    msg = _one_line_error(_write(tmp_path, text))
+    assert f": dt: must be a number, got '{literal}'" in msg, msg
+
+
+def test_leading_zero_is_decimal_as_in_yaml12():
+    from abd_joint_sim.scene import load_yaml
+    assert load_yaml('a: 010\nb: -007.5\nc: 1e3') == {'a': 10, 'b': -7.5, 'c': 1000.0}
+
+
+def test_yaml11_yes_is_not_a_boolean(tmp_path):
+    text = (SCENES / 'hinge.yaml').read_text().replace('fixed: true', 'fixed: yes')
+    msg = _one_line_error(_write(tmp_path, text))
+    assert "bodies[0].fixed: must be true or false, got 'yes'" in msg, msg
+
+
+def test_supported_range_corners_build_and_step():
+    """The ends of the ranges are usable, not only accepted: the smallest and largest bodies
+    at the extreme densities and stiffnesses build and take steps at both dt bounds."""
+    for dt in (1e-6, 1.0):
+        for size, density, kappa in ((1e-4, 1e-3, 1.0), (1e-4, 1e6, 1e16), (1e3, 1e6, 1e16),
+                                     (1e3, 1e-3, 1.0)):
+            d = hinge_dict(dt=dt)
+            for b, x in zip(d['bodies'], (-1.5, 1.5)):
+                b.update(box=[size] * 3, density=density, kappa=kappa, position=[x * size, 0, 0])
+            d['joints'][0].update(p0=[0, 0, -size], p1=[0, 0, size])
+            world = World(Scene.from_dict(d), backend='numpy')
+            for _ in range(2):
+                world.step()
+            assert np.all(np.isfinite(world.joint_angles()))
