@@ -262,6 +262,12 @@ BAD_SCHEDULES = [
     ('events: [{t: 0, torque: {elbow: 1}}]\nduration: 0', 'duration: 0 must be > 0'),
     ('[unclosed', 'not valid YAML'),
     ('just text', 'expected a mapping with `events`'),
+    # issue 14 item 11: these ended in OverflowError/ValueError tracebacks (exit 1)
+    ('events: [{t: 0, torque: {elbow: 1}}]\nduration: 1e300', 'duration: 1e+300 must be > 0 and at most'),
+    ('- {t: 1e300, torque: {shoulder: 1.0}}', 'events[0].t: 1e+300 is beyond the supported'),
+    ('parameters: {publish_rate: 1e-300}\nevents: []', 'outside the supported range'),
+    ('duration: 1:30\nevents: []', "duration: expected a number, got '1:30'"),
+    ('events: []\nevents: []', "duplicate key 'events'"),
 ]
 
 
@@ -299,6 +305,12 @@ def test_bad_scene_out_and_arguments_exit_2(tmp_path, capsys):
         (['--schedule', sched, '--out', tmp_path / 'o', '--dt', 'nan'], '--dt nan'),
         (['--schedule', sched, '--out', tmp_path / 'o', '--publish-every', '0'],
          '--publish-every 0'),
+        (['--schedule', sched, '--out', tmp_path / 'o', '--duration', '1e300'],
+         '--duration 1e+300: beyond'),
+        (['--schedule', sched, '--out', tmp_path / 'o', '--dt', '1e-300'],
+         "parameter 'time_step': 1e-300 is outside the supported range"),
+        (['--schedule', sched, '--out', tmp_path / 'o', '--scene', 'hinj'],
+         "'hinj' is no packaged scene (did you mean 'hinge'?"),
         (['--out', tmp_path / 'o'], 'one of the arguments --schedule --from-bag is required'),
         (['--from-bag', tmp_path / 'no_bag', '--out', tmp_path / 'o'], 'does not exist'),
     ]
@@ -310,6 +322,39 @@ def test_bad_scene_out_and_arguments_exit_2(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 2, (args, err)
         assert len(err.strip().splitlines()) == 1 and expected in err, (args, err)
+    assert not (tmp_path / 'o').exists()
+
+
+def test_scene_faults_from_issue_14_are_one_line_exit_2(tmp_path):
+    """Scenes that used to end in ~3000 lines of traceback and exit 1 (a 1e-200 m box, dt
+    1e-300, a 400-digit dt, non-UTF-8 bytes): one line naming file and field, exit 2."""
+    sched = tmp_path / 's.yaml'
+    sched.write_text('- {t: 0.0, torque: {hinge: 1.0}}\n')
+    hinge = (REPO / 'abd_joint_sim' / 'scenes' / 'hinge.yaml').read_text()
+    cases = {
+        'tiny_box.yaml': (hinge.replace('box: [0.4, 0.4, 0.4]', 'box: [1e-200, 0.4, 0.4]', 1),
+                          'bodies[0].box[0]: 1e-200 is outside the supported range'),
+        'dt.yaml': (hinge.replace('dt: 0.01', 'dt: 1e-300'), 'dt: 1e-300 is outside'),
+        'digits.yaml': (hinge.replace('dt: 0.01', 'dt: 1' + '0' * 400), 'dt: must be finite'),
+        'latin1.yaml': (hinge.replace('name: hinge', 'name: h\xe9').encode('latin-1'),
+                        'is not UTF-8 text'),
+    }
+    for name, (text, expected) in cases.items():
+        scene = tmp_path / name
+        scene.write_bytes(text if isinstance(text, bytes) else text.encode())
+        res = _cli('run_headless', '--schedule', sched, '--scene', scene, '--out', tmp_path / 'o')
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1, (name, res.stderr[-2000:])
+        assert str(scene) in lines[0] and expected in lines[0], (name, lines)
+    assert not (tmp_path / 'o').exists()
+    # A torque the node would reject (no effort limit on the hinge): refused before the run,
+    # not a ValueError traceback in the middle of it.
+    for text, expected in (('- {t: 0.0, torque: {hinge: 1e300}}', "joint 'hinge': 1e+300 rejected"),
+                           ('- {t: 0.0, torque: [1e300]}', 'whole array ignored')):
+        sched.write_text(text + '\n')
+        res = _cli('run_headless', '--schedule', sched, '--scene', 'hinge', '--out', tmp_path / 'o')
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and expected in lines[0], res.stderr[-2000:]
     assert not (tmp_path / 'o').exists()
 
 

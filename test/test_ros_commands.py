@@ -230,3 +230,37 @@ def test_publish_schedule_and_parameter_events():
                                       'publish_rate': 50.0}
     empty = parameter_changes(parameter_event_msg(0, '/n', {'effort_limits': []}))
     assert coerce('effort_limits', empty['effort_limits']) == []
+
+
+# -- issue 14: parameter ranges and scene names -------------------------------------------
+@pytest.mark.parametrize('name,value', [
+    ('publish_rate', 1e-300), ('publish_rate', 5e-300), ('publish_rate', 1e300),
+    ('real_time_factor', 1e-300), ('real_time_factor', 1e300),
+    ('time_step', 1e-300), ('time_step', 10.0), ('command_timeout', 1e300),
+])
+def test_numeric_parameters_out_of_range_are_refused(name, value):
+    with pytest.raises(ValueError, match=rf"parameter '{name}': .* is outside the supported range"):
+        coerce(name, value)
+    reason = check_live_value(name, value)
+    if name in ('publish_rate', 'real_time_factor', 'command_timeout'):
+        assert reason and 'outside the supported range' in reason
+    assert coerce(name, 0) == 0.0          # 0 keeps its meaning (off / auto / every step)
+
+
+def test_effort_limit_beyond_largest_torque_refused():
+    with pytest.raises(ValueError, match=r"entry 1 is 1e\+300, beyond"):
+        coerce('effort_limits', [1.0, 1e300])
+    assert coerce('effort_limits', [1.0, 1e9]) == [1.0, 1e9]
+
+
+def test_unknown_packaged_scene_lists_them_and_suggests():
+    from abd_joint_sim.errors import SceneError
+    with pytest.raises(SceneError) as err:
+        resolve_scene('hinj')
+    msg = str(err.value)
+    assert "'hinj' is no packaged scene (did you mean 'hinge'?" in msg, msg
+    assert 'default, free_pair, hinge' in msg, msg
+    with pytest.raises(SceneError, match=r'packaged: default, free_pair, hinge; or give'):
+        resolve_scene('zzzz')
+    with pytest.raises(SceneError):
+        config_from_values({'scene': 'hinj'})

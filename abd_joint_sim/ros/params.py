@@ -105,13 +105,34 @@ def default_scene_path() -> str:
     return os.path.join(packaged_scenes_dir(), 'default.yaml')
 
 
+def packaged_scenes() -> list[str]:
+    """Names of the packaged scenes (what a bare `scene` value may be)."""
+    try:
+        return sorted(f[:-5] for f in os.listdir(packaged_scenes_dir()) if f.endswith('.yaml'))
+    except OSError:
+        return []
+
+
 def resolve_scene(value: str) -> str:
-    """Scene parameter -> file path ('' = default scene, bare name = packaged scene)."""
+    """Scene parameter -> file path ('' = default scene, bare name = packaged scene).
+
+    A bare name that is no packaged scene raises SceneError listing them (and the closest
+    name): ``scene:=hinj`` is a typo, and "No such file" would not say of what."""
     value = value.strip()
     if not value:
         return default_scene_path()
     if os.sep not in value and not value.endswith(('.yaml', '.yml')):
-        return os.path.join(packaged_scenes_dir(), value + '.yaml')
+        path = os.path.join(packaged_scenes_dir(), value + '.yaml')
+        if not os.path.isfile(path):
+            import difflib
+            from abd_joint_sim.errors import SceneError
+            names = packaged_scenes()
+            close = difflib.get_close_matches(value, names, n=1)
+            hint = f'did you mean {close[0]!r}? ' if close else ''
+            raise SceneError(
+                f'parameter \'scene\': {value!r} is no packaged scene ({hint}packaged: '
+                f'{", ".join(names) or "none found"}; or give the path of a .yaml file)')
+        return path
     return os.path.abspath(os.path.expanduser(value))
 
 
@@ -124,10 +145,29 @@ def _as_float(name: str, value: Any) -> float:
     return value
 
 
+RANGES = {
+    # name: (lowest, highest) of a non-zero value; 0 means "off"/"auto"/"every step".
+    # Beyond them a value is a typo, not a wish, and the arithmetic on it overflows
+    # (1e9 / publish_rate ns, dt / real_time_factor s, ...).
+    'time_step': (1e-6, 1.0),                  # s, as a scene's dt
+    'real_time_factor': (1e-4, 1e4),
+    'publish_rate': (1e-6, 1e9),               # Hz of simulated time; 1e9 = every ns
+    'command_timeout': (1e-6, 1e6),            # s of simulated time
+}
+"""Sane ranges of the numeric parameters (refused beyond, at start and live)."""
+
+MAX_EFFORT_LIMIT = 1e9
+"""[N m] Largest effort limit (= commands.MAX_ABS_TORQUE, the largest accepted torque)."""
+
+
 def _as_nonneg(name: str, value: Any) -> float:
     value = _as_float(name, value)
     if value < 0.0:
         raise ValueError(f'parameter {name!r}: {value} is negative (0 means "off"/"auto")')
+    lo, hi = RANGES.get(name, (0.0, math.inf))
+    if value != 0.0 and not lo <= value <= hi:
+        raise ValueError(f'parameter {name!r}: {value!r} is outside the supported range '
+                         f'{lo:g} to {hi:g} (or 0)')
     return value
 
 
@@ -183,6 +223,10 @@ def _check_limits(limits: list[float]) -> list[float]:
             raise ValueError(
                 f'parameter \'effort_limits\': entry {i} is {lim}; limits must be > 0 '
                 '(use an empty list for no limits)')
+        if lim > MAX_EFFORT_LIMIT:
+            raise ValueError(
+                f'parameter \'effort_limits\': entry {i} is {lim!r}, beyond the largest '
+                f'supported torque {MAX_EFFORT_LIMIT:g} N m')
     return limits
 
 

@@ -188,7 +188,7 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
                 f'{bag}: stored time step {stored_dt} differs from the one the stored scene '
                 f'and parameters give ({sim.world.dt!r})')
     try:
-        check_plan(run.plan, sim.actuated, sim.commands.order)
+        check_plan(run.plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
     except ScheduleError as exc:
         raise ReplayInputError(f'{bag}: recorded command does not fit the stored scene: '
                                f'{exc}') from None

@@ -19,6 +19,7 @@ import time
 from typing import Optional, Sequence
 
 PROG = 'run_headless'
+MAX_WARNINGS = 10     # clamp warnings listed one by one; the rest are counted
 
 
 class _Parser(argparse.ArgumentParser):
@@ -87,7 +88,7 @@ def _run(args) -> int:
     from abd_joint_sim.ros.params import resolve_scene
 
     from .bagrun import BagInputError, config_for, load_bag, scene_from_text
-    from .schedule import check_plan, load_schedule, ScheduleError
+    from .schedule import check_plan, load_schedule, MAX_TIME, ScheduleError
     from .sim import BagRecorder, HeadlessSim
 
     # -- what to run ---------------------------------------------------------------------
@@ -114,6 +115,8 @@ def _run(args) -> int:
                                   or (value == 0.0 and name != '--publish-rate')):
             raise _InputError(f'{name} {value}: must be a finite number > 0'
                               + (' (or 0)' if name == '--publish-rate' else ''))
+    if args.duration is not None and args.duration > MAX_TIME:
+        raise _InputError(f'--duration {args.duration:g}: beyond the supported {MAX_TIME:g} s')
     if args.publish_every is not None and args.publish_every < 1:
         raise _InputError(f'--publish-every {args.publish_every}: must be >= 1')
     if args.dt is not None:
@@ -148,15 +151,15 @@ def _run(args) -> int:
     if args.duration is not None:
         plan.segments[-1].end_ns = seconds_to_ns(args.duration)
     try:
-        check_plan(plan, sim.actuated, sim.commands.order)
+        check_plan(plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
     except ScheduleError as exc:
         raise _InputError(str(exc)) from None
-    for seg in plan.segments:
-        for cmd in seg.commands:
-            if cmd.t_ns >= seg.end_ns:
-                print(f'{PROG}: warning: {cmd.describe()}: at or after the end of the run '
-                      f'(t = {seg.end_ns / NS_PER_S:g} s), never takes effect',
-                      file=sys.stderr)
+    late = [(cmd, seg) for seg in plan.segments for cmd in seg.commands if cmd.t_ns >= seg.end_ns]
+    if late:
+        cmd, seg = late[0]
+        more = f' (and {len(late) - 1} later command(s))' if len(late) > 1 else ''
+        print(f'{PROG}: warning: {cmd.describe()}{more}: at or after the end of the run '
+              f'(t = {seg.end_ns / NS_PER_S:g} s), never takes effect', file=sys.stderr)
 
     # -- run and record --------------------------------------------------------------------
     try:
@@ -168,8 +171,11 @@ def _run(args) -> int:
     status = 0
     try:
         sim.run(plan, recorder)
-    except SimulationError as exc:
-        print(f'{PROG}: error: step at t={sim.world.time:.6f} s failed: {exc}; the bag '
+    except (SimulationError, ArithmeticError, ValueError) as exc:
+        # ArithmeticError/ValueError (LinAlgError is one): a solver failure the world did not
+        # wrap; still one line, and the bag stays readable.
+        what = str(exc) if isinstance(exc, SimulationError) else f'{type(exc).__name__}: {exc}'
+        print(f'{PROG}: error: step at t={sim.world.time:.6f} s failed: {what}; the bag '
               f'ends there', file=sys.stderr)
         status = 1
     except KeyboardInterrupt:
@@ -179,8 +185,11 @@ def _run(args) -> int:
     finally:
         recorder.close()
     wall = time.monotonic() - wall0
-    for cmd, clamp in sim.clamps:
+    for cmd, clamp in sim.clamps[:MAX_WARNINGS]:
         print(f'{PROG}: warning: {cmd.describe()}: {clamp}', file=sys.stderr)
+    if len(sim.clamps) > MAX_WARNINGS:
+        print(f'{PROG}: warning: {len(sim.clamps) - MAX_WARNINGS} more command(s) clamped',
+              file=sys.stderr)
     if not args.quiet:
         c = recorder.counts
         print(f'{PROG}: {scene.name or scene_path}, dt {sim.world.dt:g} s, {sim.steps} steps to '

@@ -45,6 +45,10 @@ SCHEDULE_PARAMETERS = ('time_step', 'publish_rate', 'command_timeout', 'effort_l
 DEFAULT_TAIL = 1.0
 """Seconds simulated after the last event when no duration is given."""
 
+MAX_TIME = 1e6
+"""[s] Latest event time and longest duration (11.6 simulated days; at the smallest dt
+that is 1e12 steps, far beyond any run, and well inside int64 nanoseconds)."""
+
 
 class ScheduleError(ValueError):
     """A schedule (or a command taken from a bag) that cannot be run; one line."""
@@ -159,6 +163,8 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
         t = _number(f'{where}.t', event['t'])
         if t < 0.0:
             raise _fail(f'{where}.t', f'{t:g} is negative; times start at 0')
+        if t > MAX_TIME:
+            raise _fail(f'{where}.t', f'{t:g} is beyond the supported {MAX_TIME:g} s')
         if last_t is not None and t <= last_t:
             raise _fail(f'{where}.t', f'{t:g} is not after the previous event\'s t = '
                                       f'{last_t:g}; list events in increasing time, one per time')
@@ -201,8 +207,9 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
     duration = data.get('duration')
     if duration is not None:
         duration = _number(f'{source}: duration', duration)
-        if duration <= 0.0:
-            raise _fail(f'{source}: duration', f'{duration:g} must be > 0')
+        if not 0.0 < duration <= MAX_TIME:
+            raise _fail(f'{source}: duration', f'{duration:g} must be > 0 and at most '
+                                               f'{MAX_TIME:g} s')
         end_ns = seconds_to_ns(duration)
     else:
         end_ns = seconds_to_ns((last_t or 0.0) + DEFAULT_TAIL)
@@ -216,9 +223,12 @@ def load_schedule(path: str | Path) -> Plan:
     return parse_schedule(data, str(path))
 
 
-def check_plan(plan: Plan, actuated: Sequence[str], order: Sequence[str]) -> None:
+def check_plan(plan: Plan, actuated: Sequence[str], order: Sequence[str],
+               buffer: Any = None) -> None:
     """Every command names an actuated joint and every array has one value per joint of
-    `order` (what sim_node would reject)."""
+    `order` (what sim_node would reject); with `buffer` (a fresh CommandBuffer configured
+    as the run's), every torque value is also one that buffer accepts (finite, within
+    MAX_ABS_TORQUE on a joint without an effort limit)."""
     actuated_set = set(actuated)
     for seg in plan.segments:
         for cmd in seg.commands:
@@ -229,3 +239,10 @@ def check_plan(plan: Plan, actuated: Sequence[str], order: Sequence[str]) -> Non
                 raise ScheduleError(f'{cmd.describe()}: {len(cmd.value)} values, expected '
                                     f'{len(order)} (one per joint of `joints`: '
                                     f'{", ".join(order)})')
+            rejections = []
+            if buffer is not None and cmd.kind == 'array':
+                rejections = buffer.command_array(cmd.value)[0]
+            elif buffer is not None and cmd.kind == 'torque':
+                rejections = buffer.command_torque(cmd.joint, cmd.value)[0]
+            if rejections:
+                raise ScheduleError(f'{cmd.describe()}: {rejections[0]}')

@@ -72,6 +72,12 @@ class HeadlessSim:
         self.unapplied: list[Command] = []
         self.observer: Optional[Observer] = None
 
+    def fresh_buffer(self) -> CommandBuffer:
+        """A CommandBuffer configured as this run's, for checking a plan before it runs."""
+        return CommandBuffer(self.actuated, self.commands.order,
+                             self.config.effort_limits if self.clamp else [], 0.0,
+                             scene_limits=self.commands.scene_limits)
+
     @property
     def time_ns(self) -> int:
         return convert.seconds_to_ns(self.world.time)
