@@ -512,3 +512,36 @@ def test_soak_short():
     assert s['blocks_growth'] < 2000, s             # Python heap blocks (a leak grows ~steps)
     assert s['rss_growth_kib'] < 4096, s
     assert s['rejections'] >= 1 and s['clamps'] >= 1, s
+
+
+# ------------------------------------------------- issue 14: warnings that must not vanish ----
+def test_first_rejection_of_each_command_form_shows_at_once_and_disabled_warning_is_throttled():
+    """A per-joint NaN and then, within the throttle window, an array NaN for the same joint:
+    both warnings appear at once (keyed per command form). A sender toggling the enable
+    while sending torques to a disabled joint gets one 'stored but disabled' line per
+    window, not one per toggle."""
+    from std_msgs.msg import Bool, Float64, Float64MultiArray
+    n = InProcess(scene='hinge', real_time_factor=0.0, publish_rate=0.0)
+    try:
+        torque = n.publisher(Float64, '/joint_torque/hinge')
+        array = n.publisher(Float64MultiArray, '/joint_torque_commands')
+        enable = n.publisher(Bool, '/joint_torque_enable/hinge')
+        torque.publish(Float64(data=math.nan))
+        n.spin_for(0.2)
+        array.publish(Float64MultiArray(data=[math.nan]))
+        n.spin_for(0.2)
+        said = [t for _, t in n.log.lines if 'nan rejected' in t]
+        assert len(said) == 2 and said[0].startswith("joint 'hinge'") and \
+            said[1].startswith("array command: joint 'hinge'"), said
+        before = len(n.log.lines)
+        for k in range(20):
+            enable.publish(Bool(data=False))
+            n.spin_for(0.03)
+            torque.publish(Float64(data=float(k + 1)))
+            n.spin_for(0.03)
+            enable.publish(Bool(data=True))
+            n.spin_for(0.03)
+        disabled = [t for _, t in n.log.lines[before:] if 'stored but the torque is disabled' in t]
+        assert 1 <= len(disabled) <= 2, disabled
+    finally:
+        n.close()

@@ -397,3 +397,99 @@ def test_recording_failure_keeps_simulating(tmp_path):
         if node.alive():
             node.stop(signal.SIGKILL)
     assert list(existing.iterdir()) == []
+
+
+# -- issue 14: start-up parameters and use_sim_time ---------------------------------------
+def _node_cmd(*ros_args: str) -> list[str]:
+    import sys
+    return [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', *ros_args]
+
+
+def _start(tmp_path: Path, domain: int, name: str, *ros_args: str) -> NodeProcess:
+    from conftest import ros_env
+    log_dir = tmp_path / f'{name}_ros_log'
+    log_dir.mkdir(exist_ok=True)
+    return NodeProcess(_node_cmd(*ros_args), ros_env(domain, log_dir), tmp_path / f'{name}.log')
+
+
+def test_use_sim_time_does_not_freeze_the_node(tmp_path):
+    """use_sim_time:=true (as a launch file may set for every node): the node's clock would
+    follow /clock, which only this node moves; it must step on wall time regardless."""
+    from sensor_msgs.msg import JointState
+    domain = next_domain_id()
+    node = _start(tmp_path, domain, 'simtime', '-p', 'scene:=hinge', '-p', 'use_sim_time:=true',
+                  '-p', 'publish_rate:=0.0')
+    probe = Probe(domain)
+    stamps: list[int] = []
+    try:
+        probe.node.create_subscription(JointState, '/joint_states',
+                                       lambda m: stamps.append(_ns(m.header.stamp)), 100)
+        probe.wait_for(lambda: stamps and max(stamps) >= 0.3e9, 30.0,
+                       'joint states stamped >= 0.3 s (the node stepping)', node)
+        assert 'ignores use_sim_time for its own pacing' in node.output()
+        assert node.stop(signal.SIGINT) == 0, node.output()[-3000:]
+    finally:
+        probe.close()
+        if node.alive():
+            node.stop(signal.SIGKILL)
+
+
+def test_misspelt_and_overridden_parameters_are_reported(tmp_path):
+    """-p real_time_factr:=0.5 (typo) is warned about, naming the closest parameter; a
+    --params-file whose record: "" overrides -p record:=<bag> says recording is off."""
+    repo = Path(__file__).resolve().parents[1]
+    bag = tmp_path / 'bag'
+    node = _start(tmp_path, next_domain_id(), 'typo', '-p', 'scene:=hinge',
+                  '-p', 'real_time_factr:=0.5', '-p', f'record:={bag}',
+                  '--params-file', str(repo / 'config' / 'sim.yaml'), '-p', 'start_paused:=true')
+    try:
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and 'real-time factor' not in node.output():
+            time.sleep(0.1)
+        out = node.output()
+        assert ("parameter 'real_time_factr' is not a parameter of this node and is ignored "
+                "(did you mean 'real_time_factor'?)") in out, out[-3000:]
+        assert "parameter 'record' is given more than once" in out, out[-3000:]
+        assert f"-p record:={bag}" in out and "in effect: '' -> recording is OFF" in out, out[-3000:]
+        assert 'recording off' in out and not bag.exists()
+        assert node.stop(signal.SIGINT) == 0
+    finally:
+        if node.alive():
+            node.stop(signal.SIGKILL)
+
+
+@pytest.mark.parametrize('name,value', [('publish_rate', '1e-300'), ('time_step', '1e-300'),
+                                        ('real_time_factor', '1e300')])
+def test_absurd_start_parameter_is_one_line_exit_1(tmp_path, name, value):
+    node = _start(tmp_path, next_domain_id(), 'absurd', '-p', 'scene:=hinge', '-p', f'{name}:={value}')
+    try:
+        node.proc.wait(60)
+    finally:
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    out = node.output()
+    assert node.proc.returncode == 1 and 'Traceback' not in out, out[-3000:]
+    assert f"cannot start: parameter '{name}': {float(value)!r} is outside the supported range" in out, out
+
+
+def test_unknown_scene_name_lists_packaged_scenes(tmp_path):
+    node = _start(tmp_path, next_domain_id(), 'hinj', '-p', 'scene:=hinj')
+    try:
+        node.proc.wait(60)
+    finally:
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    out = node.output()
+    assert node.proc.returncode == 1 and 'Traceback' not in out, out[-3000:]
+    assert ("cannot start: parameter 'scene': 'hinj' is no packaged scene (did you mean "
+            "'hinge'? packaged: default, free_pair, hinge") in out, out
+
+
+def test_live_absurd_publish_rate_refused_node_lives(hinge):
+    hinge.restart()
+    for value in (5e-300, 1e-300, 1e300):
+        result = hinge.set_parameter('publish_rate', value)
+        assert not result.successful and 'outside the supported range' in result.reason, result
+    hinge.call('step')
+    hinge.probe.wait_for(lambda: hinge.states, 10.0, 'a state after ~/step', hinge.node)
+    assert hinge.node.alive()

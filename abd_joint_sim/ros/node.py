@@ -8,6 +8,7 @@ overlap with a step and the buffer needs no lock.
 """
 from __future__ import annotations
 
+import difflib
 import math
 import signal
 import sys
@@ -18,6 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 import rclpy
+from rclpy.clock import Clock as RclpyClock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
@@ -28,8 +30,9 @@ from std_srvs.srv import Trigger
 
 from . import convert
 from .commands import Applied, CommandBuffer
-from .params import (check_live_value, coerce, config_from_values, default_scene_path,
-                     NODE_NAME, PARAMS, PARAMS_BY_NAME)
+from .params import (check_live_value, coerce, config_from_values,
+                     conflicting_parameter_sources, default_scene_path, NODE_NAME, PARAMS,
+                     PARAMS_BY_NAME, undeclared_parameters)
 from .recording import (add_node_topics, bag_custom_data, parameter_event_msg,
                         PublishSchedule, RECORDED_PARAMETERS, record_applied,
                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
@@ -60,6 +63,7 @@ class SimNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         # Parameters -> config (read once; live ones re-applied by the post-set callback).
         self.config = config_from_values(self._declare_parameters())
+        self._check_parameter_sources(kwargs)
 
         # Scene and world. Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene, World
@@ -127,10 +131,19 @@ class SimNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         # Timers: stepping (period from dt and the real-time factor) and diagnostics (wall).
+        # Both run on the steady clock: on the node's clock they would follow /clock under
+        # use_sim_time, which only moves when this node steps, so it would never step.
+        self._wall_clock = RclpyClock(clock_type=ClockType.STEADY_TIME)
         self.step_timer = None
         self._make_step_timer()
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD,
-                                                   self._on_diagnostics_timer)
+                                                   self._on_diagnostics_timer,
+                                                   clock=self._wall_clock)
+        if self.get_parameter('use_sim_time').value:
+            self.get_logger().info(
+                'use_sim_time is true: this node is the /clock source, so it ignores '
+                'use_sim_time for its own pacing and steps on wall time (steady clock) x '
+                'real_time_factor; the stamps it publishes are simulated time as always')
 
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
@@ -157,6 +170,31 @@ class SimNode(Node):
             param = self.declare_parameter(spec.name, default, descriptor)
             values[spec.name] = param.value
         return values
+
+    def _check_parameter_sources(self, kwargs: dict) -> None:
+        """Warn about parameters given at start that this node does not have (a typo such
+        as real_time_factr would otherwise be ignored without a word), and about a
+        parameter given more than once with different values (e.g. `-p record:=bag` and a
+        --params-file with `record: ""`: only one of them is in effect)."""
+        overrides = getattr(self, '_parameter_overrides', None) or {}
+        for name in undeclared_parameters(overrides):
+            close = difflib.get_close_matches(name, list(PARAMS_BY_NAME), n=1)
+            hint = f' (did you mean {close[0]!r}?)' if close else ''
+            self.get_logger().warn(
+                f'parameter {name!r} is not a parameter of this node and is ignored{hint}; '
+                f'its parameters: {", ".join(PARAMS_BY_NAME)} (README "Parameters")')
+        argv = list(kwargs.get('cli_args') or [])
+        if kwargs.get('use_global_arguments', True):
+            argv = list(sys.argv[1:]) + argv
+        for name, sources in conflicting_parameter_sources(argv, NODE_NAME).items():
+            if name not in PARAMS_BY_NAME:
+                continue
+            value = getattr(self.config, name)
+            effect = (' -> recording is OFF' if name == 'record' and not value else '')
+            self.get_logger().warn(
+                f'parameter {name!r} is given more than once with different values: '
+                f'{"; ".join(f"{src}: {val!r}" for src, val in sources)}; in effect: '
+                f'{self.get_parameter(name).value!r}{effect}')
 
     def _vet_parameters(self, params) -> SetParametersResult:
         for p in params:
@@ -195,7 +233,7 @@ class SimNode(Node):
         rtf = self.config.real_time_factor
         period = 0.0 if rtf == 0.0 else min(max(self.world.dt / rtf, 0.001), 0.05)
         self._reanchor()
-        self.step_timer = self.create_timer(period, self._on_step_timer)
+        self.step_timer = self.create_timer(period, self._on_step_timer, clock=self._wall_clock)
 
     def _reanchor(self) -> None:
         self._anchor_wall = time.monotonic()
@@ -284,7 +322,9 @@ class SimNode(Node):
             if value != 0.0 and not self.world.torque_enabled(joint):
                 if joint not in self._warned_disabled:
                     self._warned_disabled.add(joint)
-                    self.get_logger().warn(
+                    # Throttled too: a sender toggling the enable would re-arm it each time.
+                    self._warn_throttled(
+                        ('disabled', joint),
                         f'joint {joint!r}: torque {value:g} N m stored but the torque is '
                         f'disabled; publish true on '
                         f'{TOPIC_ENABLE_JOINT.format(joint=joint)} to apply it')
@@ -396,21 +436,24 @@ class SimNode(Node):
         self._throttle[key] = (now, 0)
         self.get_logger().warn(text)
 
-    def _report(self, rejections, clamps) -> None:
+    def _report(self, form: str, rejections, clamps) -> None:
+        """Throttled per command form (array, joint torque, enable), joint and reason: the
+        first rejection of each kind of command shows at once, whatever came before."""
         for r in rejections:
             kind = r.reason.split(' ')[0]
-            self._warn_throttled(('reject', r.joint, kind), str(r))
+            self._warn_throttled(('reject', form, r.joint, kind), f'{form} command: {r}'
+                                 if form == 'array' and r.joint is not None else str(r))
         for c in clamps:
-            self._warn_throttled(('clamp', c.joint, c.applied > 0), str(c))
+            self._warn_throttled(('clamp', form, c.joint, c.applied > 0), str(c))
 
     def _on_torque_array(self, msg: Float64MultiArray) -> None:
-        self._report(*self.commands.command_array(convert.array_values(msg)))
+        self._report('array', *self.commands.command_array(convert.array_values(msg)))
 
     def _on_torque_joint(self, joint: str, msg: Float64) -> None:
-        self._report(*self.commands.command_torque(joint, msg.data))
+        self._report('joint', *self.commands.command_torque(joint, msg.data))
 
     def _on_enable_joint(self, joint: str, msg: Bool) -> None:
-        self._report(self.commands.command_enable(joint, msg.data), [])
+        self._report('enable', self.commands.command_enable(joint, msg.data), [])
 
     def _on_enable_all(self, msg: Bool) -> None:
         self.commands.command_enable_all(msg.data)

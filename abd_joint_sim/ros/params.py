@@ -281,3 +281,86 @@ def check_live_value(name: str, value: Any, n_joints: Optional[int] = None) -> O
         return (f'effort_limits needs {n_joints} values (one per joint of `joints`) or none, '
                 f'got {len(value)}')
     return None
+
+
+# -- parameters given at start that the node does not use ------------------------------
+FOREIGN_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})
+"""Parameters rclpy itself declares on every node (not ours, not typos)."""
+
+
+def undeclared_parameters(overrides: Sequence[str]) -> list[str]:
+    """Names among the start-up overrides (``-p``, ``--params-file``, launch) that are no
+    parameter of the node: typos such as ``real_time_factr``, reported by the node with a
+    warning and otherwise ignored (README "Parameters": a shared params file may carry
+    parameters for other nodes, so this is not a refusal)."""
+    return sorted(n for n in overrides if n not in PARAMS_BY_NAME
+                  and n not in FOREIGN_PARAMETERS and not n.startswith('qos_overrides.'))
+
+
+def _ros_args(argv: Sequence[str]) -> list[str]:
+    """The arguments inside ``--ros-args ... [--]`` sections of a command line."""
+    out, inside = [], False
+    for arg in argv:
+        if arg == '--ros-args':
+            inside = True
+        elif arg == '--' and inside:
+            inside = False
+        elif inside:
+            out.append(arg)
+    return out
+
+
+def _file_parameters(path: str, node_name: str) -> dict[str, Any]:
+    """Parameters a ROS params file gives `node_name` (sections ``node_name``,
+    ``/node_name``, ``/**``, ``**``; nested namespaces by their last name)."""
+    import yaml
+    try:
+        with open(path, encoding='utf-8') as f:
+            data = yaml.safe_load(f.read(1 << 20))
+    except (OSError, ValueError, yaml.YAMLError):
+        return {}           # rcl reports an unreadable file itself
+    found: dict[str, Any] = {}
+
+    def walk(d, last):
+        if not isinstance(d, dict):
+            return
+        for key, value in d.items():
+            if key == 'ros__parameters' and isinstance(value, dict):
+                if last.lstrip('/') in (node_name, '**', '*'):
+                    found.update(value)
+            else:
+                walk(value, str(key).rstrip('/').split('/')[-1] or str(key))
+    walk(data, '')
+    return found
+
+
+def conflicting_parameter_sources(argv: Sequence[str], node_name: str = NODE_NAME
+                                  ) -> dict[str, list[tuple[str, Any]]]:
+    """name -> [(source, value), ...] for every parameter the command line gives more than
+    once with different values (``-p name:=v`` and ``--params-file`` files, in order).
+    Which one rcl puts in effect is read back from the node; this only finds the clash."""
+    import yaml
+    args = _ros_args(argv)
+    given: dict[str, list[tuple[str, Any]]] = {}
+    i = 0
+    while i < len(args):
+        arg = args[i]
+        if arg in ('-p', '--param') and i + 1 < len(args):
+            name, sep, text = args[i + 1].partition(':=')
+            if sep:
+                node, colon, pname = name.rpartition(':')
+                if not colon or node.lstrip('/') in (node_name, '**', '*'):
+                    try:
+                        value = yaml.safe_load(text)
+                    except yaml.YAMLError:
+                        value = text
+                    given.setdefault(pname, []).append((f'-p {args[i + 1]}', value))
+            i += 2
+        elif arg == '--params-file' and i + 1 < len(args):
+            for name, value in _file_parameters(args[i + 1], node_name).items():
+                given.setdefault(name, []).append((f'--params-file {args[i + 1]}', value))
+            i += 2
+        else:
+            i += 1
+    return {n: s for n, s in given.items()
+            if len({repr(v if v is not None else '') for _, v in s}) > 1}
