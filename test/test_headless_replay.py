@@ -475,3 +475,60 @@ def test_live_node_bag_replays(tmp_path):
     again_counts.pop('/diagnostics', None)
     meta_counts.pop('/diagnostics', None)
     assert again_counts == meta_counts
+
+
+def test_parameter_change_just_before_reset_replays(tmp_path):
+    """Issue 14 item 7, as reported: node on hinge, paused, recording, publish_rate 0;
+    ~/step x5; command_timeout := 0.1; ~/reset; 50 N m; ~/step x30; SIGINT. The change is
+    logged at the first segment's last time and stays in force after the reset (the
+    torque times out 0.1 s after it took effect); replay_check must agree (exit 0)."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64
+    from std_srvs.srv import Trigger
+    domain = next_domain_id()
+    bag = tmp_path / 'reset_param'
+    node = NodeProcess.sim_node(tmp_path, domain, {
+        'scene': 'hinge', 'start_paused': True, 'publish_rate': 0.0, 'record': str(bag)})
+    probe = Probe(domain)
+    try:
+        n = probe.node
+        torque = n.create_publisher(Float64, '/joint_torque/hinge', 10)
+        probe.wait_matched_subscriber(torque, log=node)
+        srv = {s: n.create_client(Trigger, f'/abd_joint_sim/{s}') for s in ('step', 'reset')}
+        set_params = n.create_client(SetParameters, '/abd_joint_sim/set_parameters')
+
+        def call(name, times=1):
+            for _ in range(times):
+                assert probe.call(srv[name], Trigger.Request(), log=node).success
+
+        call('step', 5)
+        req = SetParameters.Request(parameters=[
+            Parameter('command_timeout', value=0.1).to_parameter_msg()])
+        assert probe.call(set_params, req, log=node).results[0].successful
+        call('reset')
+        torque.publish(Float64(data=50.0))
+        probe.spin_for(0.5)
+        call('step', 30)
+        assert node.stop(signal.SIGINT) == 0, node.output()[-3000:]
+    finally:
+        probe.close()
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    effort = {t: e for seg in _segments_effort(bag) for t, e in seg}
+    assert effort[100_000_000] == 50.0 and effort[110_000_000] == 0.0, effort  # timed out
+    res = _cli('replay_check', bag)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert 'not applied' not in res.stdout and 'OK: replay reproduces' in res.stdout, res.stdout
+
+
+def _segments_effort(bag: Path) -> list:
+    """[(stamp ns, effort of joint 0), ...] per segment (a new one at each stamp reset)."""
+    segs: list = []
+    last = None
+    for stamp, _names, _pos, _vel, eff in _states(bag):
+        if last is None or stamp <= last:
+            segs.append([])
+        segs[-1].append((stamp, eff[0]))
+        last = stamp
+    return segs[1:] if len(segs) > 1 else segs

@@ -152,6 +152,12 @@ class HeadlessSim:
                 if not getattr(report, 'converged', True):
                     self.not_converged += 1
                 observer.on_state(self, k, False)
+            # A live parameter change logged at the segment's last time (set, then ~/reset
+            # or the end before another step) took effect in the node at once and stays in
+            # force across the reset: apply it here too. Commands cannot be in this
+            # position (the node logs them only as a step boundary applies them).
+            while pending and pending[0].kind == 'parameter' and pending[0].t_ns <= self.time_ns:
+                self._queue(pending.popleft())
             self.unapplied.extend(pending)
 
 
