@@ -25,7 +25,7 @@ from typing import Any
 from mcap.writer import CompressionType, IndexType, Writer
 from rclpy.serialization import serialize_message
 
-from . import metadata as md
+from . import cdr, metadata as md
 from .msgdef import (full_type_name, message_class, message_definition, MessageTypeError,
                      type_description_hash)
 
@@ -266,7 +266,7 @@ class BagWriter:
                            f'{entry.record.msg_type}, got {type(msg).__module__}.'
                            f'{type(msg).__name__}')
         try:
-            data = serialize_message(msg)
+            data = cdr.trimmed(serialize_message(msg), msg)   # the stream, not rmw's slack
         except Exception as exc:  # rclpy raises TypeError/ValueError/RuntimeError variants
             raise BagError(f"bag '{self.path}': topic '{topic}': cannot serialise: {exc}") \
                 from None

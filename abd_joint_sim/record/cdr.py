@@ -1,0 +1,123 @@
+"""The exact length of a message's CDR stream, to drop the slack ``serialize_message`` leaves.
+
+``rclpy.serialization.serialize_message`` (``rmw_serialize`` of rmw_fastrtps) returns a
+buffer as long as its *size estimate*, and the estimate aligns the (absent) elements of an
+empty sequence of 8-byte values: a ``JointState`` with no joints is serialised in 32 bytes
+of stream plus 8 bytes of slack, a ``ParameterEvent`` with one changed double in 112 plus 8.
+The slack is not part of the stream (what travels on DDS, and what ``ros2 bag record``
+stores, is the stream itself, padded to at most a multiple of 4), and readers that check
+the length, such as ``rosbags`` ("CDR message size mismatch", which allows at most 3 bytes
+of padding), refuse it. The CDR rules (OMG CDR, XCDR1 plain little endian as ROS 2 uses,
+alignment counted from the end of the 4-byte encapsulation header):
+
+* a primitive of size n is aligned to n (1, 2, 4, 8);
+* a string is a uint32 length (including the NUL) then the bytes and the NUL;
+* a sequence is a uint32 count then its elements; an empty sequence has no elements, so
+  nothing is aligned for them (the Fast-CDR fix eProsima/Fast-CDR#6 made this explicit);
+* a fixed array is its elements, a nested message its fields in order.
+
+:func:`trimmed` cuts the slack, keeping the stream padded to a multiple of 4 bytes (as a
+DDS payload is). Every recorded message is checked against ``rosbags`` (an independent CDR
+implementation) and ``mcap_ros2`` in the tests.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+HEADER = 4
+"""Bytes of the encapsulation header before the CDR stream."""
+
+_PRIMITIVE = {
+    'boolean': 1, 'octet': 1, 'char': 1, 'uint8': 1, 'int8': 1,
+    'int16': 2, 'uint16': 2, 'wchar': 2,
+    'int32': 4, 'uint32': 4, 'float': 4,
+    'int64': 8, 'uint64': 8, 'double': 8,
+}
+
+_plans: dict[type, list] = {}
+
+# Field kinds of a compiled plan (one tuple per field: attribute, kind, size, class).
+_PRIM, _STR, _MSG, _PRIM_SEQ, _STR_SEQ, _MSG_SEQ = range(6)
+
+
+def _align(pos: int, n: int) -> int:
+    return pos + (-pos) % n
+
+
+def _class_of(t) -> type:
+    module = importlib.import_module('.'.join(t.namespaces))
+    return getattr(module, t.name)
+
+
+def _plan(cls: type) -> list:
+    """[(attribute, kind, element size, nested class, counted), ...] of a message class,
+    compiled once from its rosidl types (counted: a sequence, with its uint32 count)."""
+    plan = _plans.get(cls)
+    if plan is not None:
+        return plan
+    from rosidl_parser import definition as d
+    plan = []
+    for attr, t in zip(cls.__slots__, cls.SLOT_TYPES):
+        counted = isinstance(t, (d.UnboundedSequence, d.BoundedSequence))
+        if counted or isinstance(t, d.Array):
+            vt = t.value_type
+            if isinstance(vt, d.BasicType):
+                plan.append((attr, _PRIM_SEQ, _PRIMITIVE[vt.typename], None, counted))
+            elif isinstance(vt, (d.UnboundedString, d.BoundedString)):
+                plan.append((attr, _STR_SEQ, 4, None, counted))
+            elif isinstance(vt, d.NamespacedType):
+                plan.append((attr, _MSG_SEQ, 0, _class_of(vt), counted))
+            else:
+                raise TypeError(f'no CDR size rule for {vt!r}')
+        elif isinstance(t, d.BasicType):
+            plan.append((attr, _PRIM, _PRIMITIVE[t.typename], None, False))
+        elif isinstance(t, (d.UnboundedString, d.BoundedString)):
+            plan.append((attr, _STR, 4, None, False))
+        elif isinstance(t, d.NamespacedType):
+            plan.append((attr, _MSG, 0, _class_of(t), False))
+        else:
+            raise TypeError(f'no CDR size rule for {t!r}')
+    _plans[cls] = plan
+    return plan
+
+
+def message_end(msg: Any, pos: int = 0) -> int:
+    """Position (from the start of the stream) after `msg` serialised from `pos`."""
+    for attr, kind, n, sub, counted in _plan(type(msg)):
+        value = getattr(msg, attr)
+        if kind == _PRIM:
+            pos += (-pos) % n + n
+        elif kind == _STR:
+            pos += (-pos) % 4 + 5 + len(value.encode('utf-8'))
+        elif kind == _MSG:
+            pos = message_end(value, pos)
+        else:
+            if counted:
+                pos += (-pos) % 4 + 4
+            if len(value) == 0:
+                continue            # no elements: nothing aligned for them
+            if kind == _PRIM_SEQ:
+                pos += (-pos) % n + n * len(value)
+            elif kind == _STR_SEQ:
+                for item in value:
+                    pos += (-pos) % 4 + 5 + len(item.encode('utf-8'))
+            else:
+                for item in value:
+                    pos = message_end(item, pos)
+    return pos
+
+
+def stream_length(msg: Any) -> int:
+    """Bytes of the CDR stream of `msg` (without the encapsulation header)."""
+    return message_end(msg, 0)
+
+
+def trimmed(data: bytes, msg: Any) -> bytes:
+    """`data` (``serialize_message(msg)``) without the slack beyond the stream padded to 4
+    bytes; unchanged if it has none, or if `msg` holds a type without a size rule here."""
+    try:
+        end = HEADER + _align(stream_length(msg), 4)
+    except (TypeError, AttributeError, ImportError, KeyError):
+        return data
+    return data[:end] if len(data) > end else data
