@@ -1,22 +1,52 @@
 # Sourced by the scripts: creates/updates .venv with the pinned wheels, and sets the
-# environment every ROS process here needs. Idempotent and quiet when nothing changed.
-# Usage: source scripts/env.sh [requirements file]
-set -e
+# environment every ROS process here needs. Idempotent and quiet when nothing changed; says
+# what it installs before it does, with pip's own progress.
+# Usage: source scripts/env.sh [requirements*.txt]   (default: requirements-test.txt)
+# Returns non-zero (and leaves the venv marked out of date) if the installation fails.
+# The caller's shell options are left alone (no set -e: it would end an interactive shell).
 ABD_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 ABD_VENV="${ABD_VENV:-$ABD_ROOT/.venv}"
-_req="${1:-$ABD_ROOT/requirements-test.txt}"
-if [ ! -x "$ABD_VENV/bin/python" ]; then
-  python3 -m venv "$ABD_VENV"
+# A sourced file sees the caller's positional parameters when given none of its own, so
+# `source scripts/env.sh` inside `test.sh -k foo` would see "-k": take $1 only when it names
+# a requirements file, else the default (ABD_REQUIREMENTS overrides both).
+_abd_req="$ABD_ROOT/requirements-test.txt"
+case "$(basename -- "${1:-}")" in
+  requirements*.txt) [ -f "$1" ] && _abd_req="$1" ;;
+esac
+_abd_req="${ABD_REQUIREMENTS:-$_abd_req}"
+_abd_ok=1
+if [ ! -f "$_abd_req" ]; then
+  echo "[env] requirements file not found: $_abd_req" >&2
+  _abd_ok=0
+elif [ ! -x "$ABD_VENV/bin/python" ]; then
+  echo "[env] creating the virtual environment $ABD_VENV" >&2
+  python3 -m venv "$ABD_VENV" || { echo "[env] python3 -m venv failed" >&2; _abd_ok=0; }
 fi
-# Reinstall only when the requirements changed (hash stamp in the venv).
-_stamp="$ABD_VENV/.req-$(cat "$ABD_ROOT"/requirements*.txt | sha1sum | cut -c1-12)-$(basename "$_req")"
-if [ ! -f "$_stamp" ]; then
-  "$ABD_VENV/bin/python" -m pip install --disable-pip-version-check -q -r "$_req"
-  touch "$_stamp"
+if [ "$_abd_ok" = 1 ]; then
+  # Reinstall only when the requirements changed (hash stamp in the venv, written only
+  # after pip succeeded).
+  _abd_stamp="$ABD_VENV/.req-$(cat "$ABD_ROOT"/requirements*.txt | sha1sum | cut -c1-12)-$(basename "$_abd_req")"
+  if [ ! -f "$_abd_stamp" ]; then
+    echo "[env] installing the pinned wheels of $(basename "$_abd_req") into $ABD_VENV" \
+         "(rclpy and the ROS 2 Jazzy messages, numpy, numba, mcap, ...; about 1-2 min the" \
+         "first time, seconds from pip's cache):" >&2
+    if "$ABD_VENV/bin/python" -m pip install --disable-pip-version-check -r "$_abd_req" >&2
+    then
+      touch "$_abd_stamp"
+      echo "[env] installed" >&2
+    else
+      echo "[env] pip install -r $_abd_req failed (see above); the venv stays marked out" \
+           "of date, so the next source of scripts/env.sh tries again" >&2
+      _abd_ok=0
+    fi
+  fi
 fi
 # No DDS traffic may leave loopback (shared/spec/ROS.md).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
-export PATH="$ABD_VENV/bin:$PATH"
-export AMENT_PREFIX_PATH="$ABD_VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
-set +e
+case ":$PATH:" in *":$ABD_VENV/bin:"*) ;; *) export PATH="$ABD_VENV/bin:$PATH" ;; esac
+case ":${AMENT_PREFIX_PATH:-}:" in
+  *":$ABD_VENV:"*) ;;
+  *) export AMENT_PREFIX_PATH="$ABD_VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}" ;;
+esac
+[ "$_abd_ok" = 1 ]

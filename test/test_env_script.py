@@ -1,0 +1,78 @@
+"""scripts/env.sh (issue 14 items 1 and 14), against a stand-in venv whose `python` records
+how it was called and exits as told: no real installation, so it runs in milliseconds."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import subprocess
+
+from conftest import REPO
+
+STUB = """#!/bin/sh
+echo "STUB $*" >> "$ABD_STUB_LOG"
+echo "pip output: Collecting ..."
+exit ${ABD_STUB_STATUS:-0}
+"""
+
+
+def _venv(tmp_path: Path) -> Path:
+    venv = tmp_path / 'venv'
+    (venv / 'bin').mkdir(parents=True)
+    python = venv / 'bin' / 'python'
+    python.write_text(STUB)
+    python.chmod(0o755)
+    return venv
+
+
+def _source(tmp_path: Path, venv: Path, script: str, status: int = 0):
+    env = dict(os.environ, ABD_VENV=str(venv), ABD_STUB_LOG=str(tmp_path / 'calls'),
+               ABD_STUB_STATUS=str(status))
+    env.pop('ABD_REQUIREMENTS', None)
+    return subprocess.run(['bash', '-c', script], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=60)
+
+
+def _calls(tmp_path: Path) -> list[str]:
+    log = tmp_path / 'calls'
+    return log.read_text().splitlines() if log.exists() else []
+
+
+def test_says_what_it_installs_first_and_ignores_the_callers_arguments(tmp_path):
+    venv = _venv(tmp_path)
+    # A script run as `script.sh -k foo` that sources env.sh without arguments.
+    res = _source(tmp_path, venv, 'set -- -k foo; source scripts/env.sh; echo "rc=$?"')
+    assert 'rc=0' in res.stdout, res.stderr
+    calls = _calls(tmp_path)
+    assert calls == [f'STUB -m pip install --disable-pip-version-check -r '
+                     f'{REPO}/requirements-test.txt'], calls
+    err = res.stderr
+    assert err.index('[env] installing the pinned wheels of requirements-test.txt') < \
+        err.index('pip output: Collecting'), err
+    assert list(venv.glob('.req-*'))
+    # Up to date now: silent, no pip.
+    res = _source(tmp_path, venv, 'source scripts/env.sh; echo "rc=$?"')
+    assert 'rc=0' in res.stdout and res.stderr == '' and len(_calls(tmp_path)) == 1
+
+
+def test_failed_pip_is_not_marked_up_to_date_and_returns_nonzero(tmp_path):
+    venv = _venv(tmp_path)
+    script = 'source scripts/env.sh requirements-test.txt; echo "rc=$?"'
+    res = _source(tmp_path, venv, script, status=1)
+    assert 'rc=1' in res.stdout and 'failed' in res.stderr, (res.stdout, res.stderr)
+    assert not list(venv.glob('.req-*'))
+    res = _source(tmp_path, venv, script, status=0)         # tries again, succeeds
+    assert 'rc=0' in res.stdout and len(_calls(tmp_path)) == 2
+    assert list(venv.glob('.req-*'))
+
+
+def test_callers_shell_options_and_environment(tmp_path):
+    venv = _venv(tmp_path)
+    res = _source(tmp_path, venv, 'set -e; source scripts/env.sh; echo "opts=$-"; '
+                                  'echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE"; '
+                                  'source scripts/env.sh; echo "$PATH" | tr ":" "\\n" | '
+                                  f'grep -c "^{venv}/bin$"')
+    out = res.stdout.splitlines()
+    assert 'e' in out[0].split('=')[1], out          # set -e kept
+    assert out[1] == 'range=LOCALHOST' and out[2] == '1', out   # PATH entry added once
+    res = _source(tmp_path, venv, 'source scripts/env.sh requirements-nope.txt; echo "rc=$?"')
+    assert 'rc=0' in res.stdout      # not an existing file: the default is used
