@@ -84,6 +84,8 @@ def check_agreement():
     for name, make in (('MuJoCo', make_mujoco), ('PyBullet', make_pybullet)):
         engine = make(3, tau=0.01)
         if engine is None:
+            print(f'{name} not installed: not compared, not timed (its columns show –; '
+                  'pip install -r requirements-bench.txt)')
             continue
         step, angles = engine
         for _ in range(200):
