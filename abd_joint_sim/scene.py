@@ -590,10 +590,12 @@ class _Parser:
                 self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper}')
             init = d.get('init_angle', 0.0)
             if isinstance(init, (int, float)) and not isinstance(init, bool) and \
-                    not limit.lower <= init <= limit.upper:
+                    limit.upper > limit.lower and not limit.lower <= init <= limit.upper:
                 # The limit energy grows as the cube of the distance outside the range over
                 # its width: a start far outside is a huge kick at the first step, not a
                 # mechanism anyone meant (the backends fail or fling the body differently).
+                # A zero-width limit is a lock (s|x - l|^3, no width to divide by) that pulls
+                # the joint to its angle from wherever it starts: allowed.
                 self.fail(f'{where}.init_angle', f'{init!r} rad is outside the joint\'s limit '
                                                  f'[{limit.lower:g}, {limit.upper:g}]; start inside it')
         return JointSpec(name=name, parent=d['parent'], child=d['child'], p0=p0, p1=p1,

@@ -264,3 +264,19 @@ def test_unknown_packaged_scene_lists_them_and_suggests():
         resolve_scene('zzzz')
     with pytest.raises(SceneError):
         config_from_values({'scene': 'hinj'})
+
+
+def test_parameter_source_conflicts_and_undeclared_names(tmp_path):
+    from abd_joint_sim.ros.params import conflicting_parameter_sources, undeclared_parameters
+    f = tmp_path / 'p.yaml'
+    f.write_text('/**:\n  ros__parameters: {record: "", use_sim_time: true}\n'
+                 'other_node:\n  ros__parameters: {publish_rate: 1.0}\n'
+                 'abd_joint_sim:\n  ros__parameters: {publish_rate: 50.0}\n')
+    argv = ['node', '--ros-args', '-p', 'record:=bag', '-p', 'publish_rate:=50.0',
+            '--params-file', str(f), '-p', 'abd_joint_sim:scene:=hinge', '-p', 'x:frame_id:=f',
+            '--', '-p', 'record:=ignored']
+    got = conflicting_parameter_sources(argv, 'abd_joint_sim')
+    assert got == {'record': [('-p record:=bag', 'bag'), (f'--params-file {f}', '')]}, got
+    assert conflicting_parameter_sources(['node', '-p', 'a:=1', '-p', 'a:=2']) == {}
+    assert undeclared_parameters(['real_time_factr', 'use_sim_time', 'scene',
+                                  'qos_overrides./clock.publisher.depth']) == ['real_time_factr']

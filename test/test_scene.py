@@ -282,6 +282,12 @@ def test_yaml11_number_forms_are_not_numbers(tmp_path, literal):
     assert f": dt: must be a number, got '{literal}'" in msg, msg
 
 
+def test_zero_width_limit_is_a_lock_any_init_angle():
+    d = hinge_dict()
+    d['joints'][0].update(init_angle=0.0, limit={'lower': 0.1, 'upper': 0.1})
+    assert Scene.from_dict(d).joints[0].limit.lower == 0.1
+
+
 def test_leading_zero_is_decimal_as_in_yaml12():
     from abd_joint_sim.scene import load_yaml
     assert load_yaml('a: 010\nb: -007.5\nc: 1e3') == {'a': 10, 'b': -7.5, 'c': 1000.0}

@@ -186,7 +186,7 @@ class SimNode(Node):
         argv = list(kwargs.get('cli_args') or [])
         if kwargs.get('use_global_arguments', True):
             argv = list(sys.argv[1:]) + argv
-        for name, sources in conflicting_parameter_sources(argv, NODE_NAME).items():
+        for name, sources in conflicting_parameter_sources(argv, self.get_name()).items():
             if name not in PARAMS_BY_NAME:
                 continue
             value = getattr(self.config, name)

@@ -214,6 +214,8 @@ def scene_from_text(text: str, source: str):
         data = load_yaml(text)
     except yaml.YAMLError as exc:
         raise SceneError(f'{source}: not valid YAML: {getattr(exc, "problem", exc)}') from None
+    except (RecursionError, ValueError) as exc:     # as read_yaml_file: one line, not a trace
+        raise SceneError(f'{source}: not valid YAML: {exc or "nested too deeply"}') from None
     return Scene.from_dict(data, source=source, source_text=text)
 
 
