@@ -382,9 +382,11 @@ class _Parser:
             lo, hi, unit = RANGES[bound]
             unit = f' {unit}' if unit else ''
             if positive and not lo <= value <= hi:
-                self.fail(where, f'{value!r} is outside the supported range {lo:g} to {hi:g}{unit}')
+                self.fail(where, f'{value!r} is outside the supported range '
+                                 f'{lo:g} to {hi:g}{unit}')
             if not positive and abs(value) > hi:
-                self.fail(where, f'{value!r} is outside the supported range: |value| <= {hi:g}{unit}')
+                self.fail(where, f'{value!r} is outside the supported range: '
+                                 f'|value| <= {hi:g}{unit}')
         return value
 
     def integer(self, where, value, minimum, maximum=None):
@@ -456,7 +458,8 @@ class _Parser:
             if key in d:
                 kw[key] = self.number(f'newton.{key}', d[key], positive=True,
                                       bound=None if key == 'max_step_rotation' else 'tolerance')
-        for key, minimum, maximum in (('max_iterations', 1, MAX_ITERATIONS), ('line_search_max', 1, 64),
+        for key, minimum, maximum in (('max_iterations', 1, MAX_ITERATIONS),
+                                      ('line_search_max', 1, 64),
                                       ('max_substep_depth', 0, MAX_SUBSTEP_DEPTH)):
             if key in d:
                 kw[key] = self.integer(f'newton.{key}', d[key], minimum, maximum)
@@ -497,8 +500,9 @@ class _Parser:
                 shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
             else:
                 c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
-                shape = ShapeSpec('cylinder', (self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
-                                               self.number(f'{w}.length', c['length'], positive=True, bound='length')))
+                shape = ShapeSpec('cylinder', (
+                    self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
+                    self.number(f'{w}.length', c['length'], positive=True, bound='length')))
         return BodySpec(
             name=name, shape=shape, density=density,
             kappa=self.number(f'{where}.kappa', d.get('kappa', 1.0e8), positive=True, bound='kappa'),
@@ -539,7 +543,8 @@ class _Parser:
         if eig[0] <= 0 or eig[0] + eig[1] <= eig[2] * (1 + 1e-12):
             self.fail(f'{where}.inertia', 'is not a physical inertia: principal moments '
                                           f'{eig.round(12).tolist()} must be > 0 and each <= the sum of the other two')
-        volume = self.number(f'{where}.volume', d['volume'], positive=True, bound='volume') if 'volume' in d else 0.0
+        volume = (self.number(f'{where}.volume', d['volume'], positive=True, bound='volume')
+                  if 'volume' in d else 0.0)
         return ShapeSpec('inertial', mass=mass, com=com, inertia=inertia, volume=volume)
 
     def joint(self, where, value, body_names):
@@ -584,8 +589,10 @@ class _Parser:
         if d.get('limit') is not None:
             w = f'{where}.limit'
             t = self.mapping(w, d['limit'], ('lower', 'upper', 'strength'), ('lower', 'upper'))
-            limit = LimitSpec(self.number(f'{w}.lower', t['lower'], bound='angle'), self.number(f'{w}.upper', t['upper'], bound='angle'),
-                              self.number(f'{w}.strength', t.get('strength', 1.0), positive=True, bound='strength'))
+            limit = LimitSpec(self.number(f'{w}.lower', t['lower'], bound='angle'),
+                              self.number(f'{w}.upper', t['upper'], bound='angle'),
+                              self.number(f'{w}.strength', t.get('strength', 1.0), positive=True,
+                                          bound='strength'))
             if limit.lower > limit.upper:
                 self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper}')
             init = d.get('init_angle', 0.0)

@@ -62,8 +62,9 @@ class SimNode(Node):
     def __init__(self, **kwargs: Any):
         super().__init__(NODE_NAME, **kwargs)
         # Parameters -> config (read once; live ones re-applied by the post-set callback).
-        self.config = config_from_values(self._declare_parameters())
-        self._check_parameter_sources(kwargs)
+        values = self._declare_parameters()
+        self._check_parameter_sources(kwargs)       # before a bad value ends the start
+        self.config = config_from_values(values)
 
         # Scene and world. Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene, World
@@ -189,12 +190,12 @@ class SimNode(Node):
         for name, sources in conflicting_parameter_sources(argv, self.get_name()).items():
             if name not in PARAMS_BY_NAME:
                 continue
-            value = getattr(self.config, name)
+            value = self.get_parameter(name).value
             effect = (' -> recording is OFF' if name == 'record' and not value else '')
             self.get_logger().warn(
                 f'parameter {name!r} is given more than once with different values: '
                 f'{"; ".join(f"{src}: {val!r}" for src, val in sources)}; in effect: '
-                f'{self.get_parameter(name).value!r}{effect}')
+                f'{value!r}{effect}')
 
     def _vet_parameters(self, params) -> SetParametersResult:
         for p in params:
