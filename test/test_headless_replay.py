@@ -517,6 +517,20 @@ def test_parameter_change_just_before_reset_replays(tmp_path):
             node.stop(signal.SIGKILL)
     effort = {t: e for seg in _segments_effort(bag) for t, e in seg}
     assert effort[100_000_000] == 50.0 and effort[110_000_000] == 0.0, effort  # timed out
+    # The node's own bag, /parameter_events included, decodes in both independent readers.
+    from mcap_ros2.reader import read_ros2_messages
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import get_typestore, Stores
+    counts: dict[str, int] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _t, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+    assert counts.get('/parameter_events') == 1, counts
+    seen: dict[str, int] = {}
+    for m in read_ros2_messages(str(next(bag.glob('*.mcap')))):
+        seen[m.channel.topic] = seen.get(m.channel.topic, 0) + 1
+    assert seen == counts
     res = _cli('replay_check', bag)
     assert res.returncode == 0, res.stdout + res.stderr
     assert 'not applied' not in res.stdout and 'OK: replay reproduces' in res.stdout, res.stdout
