@@ -493,3 +493,42 @@ def test_live_absurd_publish_rate_refused_node_lives(hinge):
     hinge.call('step')
     hinge.probe.wait_for(lambda: hinge.states, 10.0, 'a state after ~/step', hinge.node)
     assert hinge.node.alive()
+
+
+def test_recorded_bytes_are_what_dds_delivers_for_empty_sequences(tmp_path):
+    """Issue 14 item 12, who is right: a scene without joints publishes JointState with
+    empty float64[] sequences. What DDS delivers (and so what `ros2 bag record` stores) is
+    the CDR stream, 36 bytes here; rclpy's serialize_message returns 8 more. The node's bag
+    must hold the DDS length, and rosbags must decode it."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import JointState
+    scene = tmp_path / 'lone.yaml'
+    scene.write_text('name: lone\ndt: 0.01\nbodies:\n'
+                     '  - {name: cube, box: [0.2, 0.2, 0.2], density: 1000.0}\n')
+    bag = tmp_path / 'lone_bag'
+    domain = next_domain_id()
+    node = NodeProcess.sim_node(tmp_path, domain, {'scene': str(scene), 'record': str(bag)})
+    probe = Probe(domain)
+    raw: list[bytes] = []
+    try:
+        probe.node.create_subscription(JointState, '/joint_states', raw.append, 10, raw=True)
+        probe.wait_for(lambda: len(raw) >= 3, 30.0, 'raw joint states', node)
+        assert node.stop(signal.SIGINT) == 0, node.output()[-3000:]
+    finally:
+        probe.close()
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    msg = deserialize_message(raw[0], JointState)
+    assert list(msg.name) == [] and list(msg.position) == []
+    assert len(serialize_message(msg)) == len(raw[0]) + 8      # rclpy's slack exists
+    from mcap.reader import make_reader
+    with open(next(bag.glob('*.mcap')), 'rb') as f:
+        reader = make_reader(f)
+        lengths = {len(m.data) for _s, ch, m in reader.iter_messages()
+                   if ch.topic == '/joint_states'}
+    assert lengths == {len(raw[0])}, (lengths, len(raw[0]))
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import get_typestore, Stores
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        n = sum(1 for c, _t, data in reader.messages() if reader.deserialize(data, c.msgtype))
+    assert n > 3
