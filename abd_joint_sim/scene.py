@@ -8,6 +8,7 @@ The format is documented in README.md ("Scene format").
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,17 +21,21 @@ from .errors import SceneError
 INTEGRATORS = ('bdf1', 'bdf2')
 
 
-MAX_YAML_BYTES = 1 << 20
-"""Largest scene/schedule file read [bytes] (the packaged scenes are ~2 KB)."""
+MAX_YAML_BYTES = 8 << 20
+"""Largest scene file read [bytes] (the packaged scenes are ~2 KB; a generated scene of
+20 000 bodies and joints ~7 MB). Schedules pass their own bound (tools/schedule.py)."""
 MAX_YAML_NODES = 100_000
-"""Largest document, counted with every alias expanded (a billion-laughs file is ~1 KB of
-text and ~1e9 nodes expanded: refused before anything walks it)."""
+ALIAS_EXPANSION = 10
+"""A document may hold at most max(MAX_YAML_NODES, ALIAS_EXPANSION x its own nodes) values
+once every alias is expanded: reuse through aliases is fine, a billion-laughs file (~1 KB
+of text, ~100 nodes, 1e9 or more expanded) is refused before anything walks it."""
 MAX_YAML_DEPTH = 64
 """Deepest nesting of lists/mappings (a scene needs 4-5)."""
 
 
 class YAMLLimitError(yaml.YAMLError):
-    """A YAML document beyond MAX_YAML_NODES / MAX_YAML_DEPTH, or a recursive alias."""
+    """A YAML document too large once aliases are expanded, nested deeper than
+    MAX_YAML_DEPTH, or with a recursive alias."""
 
     def __init__(self, problem: str, mark=None):
         super().__init__(problem)
@@ -46,8 +51,8 @@ class _Loader(yaml.SafeLoader):
       ``true``/``false`` only (YAML 1.1 also took ``yes``/``no``/``on``/``off``).
     * A key given twice in one mapping is an error (YAML says keys are unique; PyYAML keeps
       the last one silently).
-    * Nesting deeper than MAX_YAML_DEPTH, more than MAX_YAML_NODES nodes with aliases
-      expanded, and an alias inside its own anchor are errors, raised before the data is
+    * Nesting deeper than MAX_YAML_DEPTH, more values with aliases expanded than
+      `_expanded_size` allows, and an alias inside its own anchor are errors, raised before the data is
       constructed (so an alias bomb costs microseconds, not gigabytes).
     """
 
@@ -90,9 +95,25 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+def _distinct_nodes(root) -> int:
+    seen, stack = set(), [root]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            stack.extend(n for pair in node.value for n in pair)
+    return len(seen)
+
+
 def _expanded_size(root) -> int:
     """Nodes of the document with every alias expanded (memoised over the shared nodes);
-    YAMLLimitError beyond MAX_YAML_NODES or for a node that contains itself."""
+    YAMLLimitError beyond the bound of ALIAS_EXPANSION or for a node that contains itself."""
+    distinct = _distinct_nodes(root)
+    limit = max(MAX_YAML_NODES, ALIAS_EXPANSION * distinct)
     sizes: dict[int, int] = {}
     active: set[int] = set()
     # Iterative post-order walk: the depth is already bounded, but keep Python's stack out.
@@ -108,10 +129,10 @@ def _expanded_size(root) -> int:
         if done:
             active.discard(key)
             sizes[key] = size = 1 + sum(sizes[id(c)] for c in children)
-            if size > MAX_YAML_NODES:
+            if size > limit:
                 raise YAMLLimitError(
-                    f'more than {MAX_YAML_NODES} values once aliases (*name) are expanded; '
-                    'a scene is far smaller (an alias bomb?)', node.start_mark)
+                    f'more than {limit} values once aliases (*name) are expanded, from '
+                    f'{distinct} in the text (an alias bomb?)', node.start_mark)
             continue
         if key in sizes:
             continue
@@ -145,18 +166,20 @@ def load_yaml(text: str):
     return yaml.load(text, Loader=_Loader)
 
 
-def read_yaml_file(path, error: type[Exception], what: str):
+def read_yaml_file(path, error: type[Exception], what: str, max_bytes: int = MAX_YAML_BYTES):
     """(text, data) of a YAML file; unreadable, too large, not UTF-8 or invalid YAML
     (including `_Loader`'s limits) raises `error` with a one-line message naming the file
     (and the line and column where that is known)."""
     path = Path(path)
     try:
         with open(path, 'rb') as f:
-            raw = f.read(MAX_YAML_BYTES + 1)
+            # Ask for no more than the file holds: read(n) allocates n bytes up front.
+            size = os.fstat(f.fileno()).st_size
+            raw = f.read((min(size, max_bytes) if size else max_bytes) + 1)
     except OSError as exc:
         raise error(f'{path}: cannot read {what}: {exc.strerror or exc}') from None
-    if len(raw) > MAX_YAML_BYTES:
-        raise error(f'{path}: {what} larger than {MAX_YAML_BYTES} bytes; not read')
+    if len(raw) > max_bytes:
+        raise error(f'{path}: {what} larger than {max_bytes} bytes; not read')
     try:
         text = raw.decode('utf-8')
     except UnicodeDecodeError as exc:

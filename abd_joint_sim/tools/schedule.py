@@ -45,6 +45,9 @@ SCHEDULE_PARAMETERS = ('time_step', 'publish_rate', 'command_timeout', 'effort_l
 DEFAULT_TAIL = 1.0
 """Seconds simulated after the last event when no duration is given."""
 
+MAX_SCHEDULE_BYTES = 64 << 20
+"""Largest schedule file read [bytes] (~1.5 million events of one torque each)."""
+
 MAX_TIME = 1e6
 """[s] Latest event time and longest duration (11.6 simulated days; at the smallest dt
 that is 1e12 steps, far beyond any run, and well inside int64 nanoseconds)."""
@@ -219,7 +222,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
 def load_schedule(path: str | Path) -> Plan:
     """Read and validate a schedule YAML file (:class:`ScheduleError` on any problem)."""
     from abd_joint_sim.scene import read_yaml_file   # YAML 1.2 floats (1e3), as scene files
-    _, data = read_yaml_file(path, ScheduleError, 'schedule')
+    _, data = read_yaml_file(path, ScheduleError, 'schedule', max_bytes=MAX_SCHEDULE_BYTES)
     return parse_schedule(data, str(path))
 
 
