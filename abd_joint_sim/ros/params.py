@@ -313,11 +313,10 @@ def _ros_args(argv: Sequence[str]) -> list[str]:
 def _file_parameters(path: str, node_name: str) -> dict[str, Any]:
     """Parameters a ROS params file gives `node_name` (sections ``node_name``,
     ``/node_name``, ``/**``, ``**``; nested namespaces by their last name)."""
-    import yaml
+    from abd_joint_sim.scene import read_yaml_file      # bounded: no alias bomb here either
     try:
-        with open(path, encoding='utf-8') as f:
-            data = yaml.safe_load(f.read(1 << 20))
-    except (OSError, ValueError, yaml.YAMLError):
+        _, data = read_yaml_file(path, ValueError, 'params file')
+    except (ValueError, RecursionError):
         return {}           # rcl reports an unreadable file itself
     found: dict[str, Any] = {}
 
