@@ -28,8 +28,8 @@ if [ "$_abd_ok" = 1 ]; then
   _abd_stamp="$ABD_VENV/.req-$(cat "$ABD_ROOT"/requirements*.txt | sha1sum | cut -c1-12)-$(basename "$_abd_req")"
   if [ ! -f "$_abd_stamp" ]; then
     echo "[env] installing the pinned wheels of $(basename "$_abd_req") into $ABD_VENV" \
-         "(rclpy and the ROS 2 Jazzy messages, numpy, numba, mcap, ...; about 1-2 min the" \
-         "first time, seconds from pip's cache):" >&2
+         "(rclpy and the ROS 2 Jazzy messages, numpy, scipy, numba, mcap, ...; 20 s to 2 min" \
+         "the first time; pip's progress follows):" >&2
     if "$ABD_VENV/bin/python" -m pip install --disable-pip-version-check -r "$_abd_req" >&2
     then
       touch "$_abd_stamp"
