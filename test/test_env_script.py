@@ -67,12 +67,13 @@ def test_failed_pip_is_not_marked_up_to_date_and_returns_nonzero(tmp_path):
 
 def test_callers_shell_options_and_environment(tmp_path):
     venv = _venv(tmp_path)
-    res = _source(tmp_path, venv, 'set -e; source scripts/env.sh; echo "opts=$-"; '
+    res = _source(tmp_path, venv, 'unset AMENT_PREFIX_PATH; set -euo pipefail; '
+                                  'source scripts/env.sh; echo "opts=$-"; '
                                   'echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE"; '
                                   'source scripts/env.sh; echo "$PATH" | tr ":" "\\n" | '
                                   f'grep -c "^{venv}/bin$"')
     out = res.stdout.splitlines()
-    assert 'e' in out[0].split('=')[1], out          # set -e kept
+    assert {'e', 'u'} <= set(out[0].split('=')[1]), (out, res.stderr)   # options kept
     assert out[1] == 'range=LOCALHOST' and out[2] == '1', out   # PATH entry added once
     res = _source(tmp_path, venv, 'source scripts/env.sh requirements-nope.txt; echo "rc=$?"')
     assert 'rc=0' in res.stdout      # not an existing file: the default is used
