@@ -146,6 +146,7 @@ class SimNode(Node):
                 'use_sim_time for its own pacing and steps on wall time (steady clock) x '
                 'real_time_factor; the stamps it publishes are simulated time as always')
 
+        self._warn_undeclared_parameters()          # all parameters are declared by now
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
         self._publish_state(force=True)
@@ -172,18 +173,24 @@ class SimNode(Node):
             values[spec.name] = param.value
         return values
 
-    def _check_parameter_sources(self, kwargs: dict) -> None:
-        """Warn about parameters given at start that this node does not have (a typo such
-        as real_time_factr would otherwise be ignored without a word), and about a
-        parameter given more than once with different values (e.g. `-p record:=bag` and a
-        --params-file with `record: ""`: only one of them is in effect)."""
+    def _warn_undeclared_parameters(self) -> None:
+        """Warn about parameters given at start that this node does not have: a typo such
+        as real_time_factr would otherwise be ignored without a word (a warning, not a
+        refusal: README "Parameters")."""
         overrides = getattr(self, '_parameter_overrides', None) or {}
-        for name in undeclared_parameters(overrides):
-            close = difflib.get_close_matches(name, list(PARAMS_BY_NAME), n=1)
+        names = [n for n in undeclared_parameters(overrides) if not self.has_parameter(n)]
+        declared = sorted(getattr(self, '_parameters', None) or PARAMS_BY_NAME)
+        for name in names:
+            close = difflib.get_close_matches(name, declared, n=1)
             hint = f' (did you mean {close[0]!r}?)' if close else ''
             self.get_logger().warn(
                 f'parameter {name!r} is not a parameter of this node and is ignored{hint}; '
                 f'its parameters: {", ".join(PARAMS_BY_NAME)} (README "Parameters")')
+
+    def _check_parameter_sources(self, kwargs: dict) -> None:
+        """Warn about a parameter given more than once with different values (e.g. `-p
+        record:=bag` and a --params-file with `record: ""`: only one of them is in
+        effect)."""
         argv = list(kwargs.get('cli_args') or [])
         if kwargs.get('use_global_arguments', True):
             argv = list(sys.argv[1:]) + argv
