@@ -26,13 +26,14 @@ recording on failure, the headless recorder's count messages.
 """
 from __future__ import annotations
 
+import os
 from typing import Any, Callable, Iterable, Mapping, Optional
 
 import yaml
 
 from . import convert
 from .commands import Applied
-from .params import NODE_NAME, SimConfig
+from .params import NODE_NAME, packaged_scenes_dir, SimConfig
 
 TOPIC_JOINT_STATES = 'joint_states'
 TOPIC_CLOCK = '/clock'
@@ -56,9 +57,28 @@ def resolve_root(topic: str) -> str:
     return topic if topic.startswith('/') else '/' + topic
 
 
+def portable_scene_path(path: str) -> str:
+    """The scene as a bag stores it, free of the recording machine's directories: the bare
+    name of a packaged scene (``default``, what the ``scene`` parameter accepts to pick it
+    again), else the file's base name. The scene itself is stored whole beside it."""
+    if not path:
+        return ''
+    scenes = os.path.realpath(packaged_scenes_dir())
+    full = os.path.realpath(path)
+    name = os.path.basename(full)
+    if os.path.dirname(full) == scenes and name.endswith('.yaml'):
+        return name[:-len('.yaml')]
+    return name
+
+
 def parameters_yaml(config: SimConfig) -> str:
-    """The effective parameters as the node stores them (a ros2 params file)."""
-    return yaml.safe_dump({NODE_NAME: {'ros__parameters': config.as_dict()}}, sort_keys=False)
+    """The effective parameters as the node stores them (a ros2 params file); the paths
+    ``scene`` and ``record`` as base names (:func:`portable_scene_path`)."""
+    values = config.as_dict()
+    values['scene'] = portable_scene_path(values.get('scene', ''))
+    values['record'] = os.path.basename(os.path.normpath(values['record'])) \
+        if values.get('record') else ''
+    return yaml.safe_dump({NODE_NAME: {'ros__parameters': values}}, sort_keys=False)
 
 
 def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: float,
@@ -67,7 +87,7 @@ def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: flo
     """(custom_data, attachments) of a bag: scene, effective parameters, dt, array order."""
     params_text = parameters_yaml(config)
     custom = {
-        'abd_joint_sim.scene_path': scene_path,
+        'abd_joint_sim.scene_path': portable_scene_path(scene_path),
         'abd_joint_sim.scene_yaml': scene_text,
         'abd_joint_sim.parameters_yaml': params_text,
         'abd_joint_sim.time_step': repr(float(dt)),
