@@ -20,6 +20,8 @@ re-creates exactly what the node published.
   replay can honour e.g. a live change of ``command_timeout``.
 * :func:`bag_custom_data` and :func:`add_node_topics`: the bag's custom data, attachments and
   topic list.
+* :func:`markers_due`: the body markers (``ros/markers.py``) at ``marker_rate`` Hz of
+  simulated time on their own grid, at most once per step, and at start and reset.
 
 Plain functions over a ``write(topic, stamp_ns, msg)`` callable: the node's writes stop the
 recording on failure, the headless recorder's count messages.
@@ -33,6 +35,7 @@ import yaml
 
 from . import convert
 from .commands import Applied
+from .markers import MARKER_TYPE, TOPIC_MARKERS
 from .params import NODE_NAME, packaged_scenes_dir, SimConfig
 
 TOPIC_JOINT_STATES = 'joint_states'
@@ -98,8 +101,10 @@ def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: flo
     return custom, attachments
 
 
-def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str]) -> None:
-    """Register every topic the node records on `writer` (a ``BagWriter``)."""
+def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
+                    markers: bool = False) -> None:
+    """Register every topic the node records on `writer` (a ``BagWriter``); `markers`: the
+    body markers too (``marker_rate`` > 0)."""
     writer.add_topic(resolve(TOPIC_JOINT_STATES), 'sensor_msgs/msg/JointState', qos='reliable')
     writer.add_topic(resolve(TOPIC_CLOCK), 'rosgraph_msgs/msg/Clock', qos='best_effort')
     writer.add_topic(resolve(TOPIC_DIAGNOSTICS), 'diagnostic_msgs/msg/DiagnosticArray',
@@ -114,6 +119,15 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str]) -> N
                          'std_msgs/msg/Float64', qos='reliable')
         writer.add_topic(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), 'std_msgs/msg/Bool',
                          qos='reliable')
+    if markers:
+        writer.add_topic(resolve(TOPIC_MARKERS), MARKER_TYPE, qos='reliable')
+
+
+def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
+                force: bool = False) -> bool:
+    """True if the body markers are due at `t_ns` (``marker_rate`` Hz on the grid
+    ``k / rate``, and at start and reset); never for rate 0 (markers off)."""
+    return rate > 0.0 and schedule.due(t_ns, rate, force)
 
 
 def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
