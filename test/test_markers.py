@@ -282,3 +282,49 @@ def test_markers_node(tmp_path):
     for t in truth:
         assert [(_pos(a).tolist(), a.ns) for a in recorded[t].markers] == \
             [(_pos(b).tolist(), b.ns) for b in live[t].markers]
+
+
+def test_markers_node_running_on_the_grid(tmp_path):
+    """sim_node running as fast as possible (batched steps) records markers exactly at the
+    first step at or after each k / marker_rate, posed as a World stepped on its own (the
+    scene's initial torque drives the hinge, so no command timing is involved)."""
+    from visualization_msgs.msg import MarkerArray
+    from abd_joint_sim import World
+    from abd_joint_sim.record import read_messages
+    text = open(resolve_scene('hinge')).read().replace('torque: 0.0', 'torque: 100.0')
+    assert 'torque: 100.0' in text
+    scene_file = tmp_path / 'spin.yaml'
+    scene_file.write_text(text)
+    domain = next_domain_id()
+    bag = tmp_path / 'spin'
+    rate, dt = 25.0, 0.002
+    node = NodeProcess.sim_node(tmp_path, domain, {
+        'scene': str(scene_file), 'real_time_factor': 0.0, 'time_step': dt,
+        'record': str(bag), 'marker_rate': rate})
+    probe = Probe(domain)
+    got: list = []
+    try:
+        probe.node.create_subscription(MarkerArray, '/markers', got.append, 100)
+        probe.wait_for(lambda: any(m.markers[0].header.stamp.sec >= 2 for m in got), 60.0,
+                       'markers of t >= 2 s', node)
+        assert node.stop(signal.SIGINT) == 0, node.output()[-3000:]
+    finally:
+        probe.close()
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    recorded = [(t, m) for topic, _, t, m in read_messages(bag) if topic == '/markers']
+    assert len(recorded) > 2 * rate
+    step_ns = round(dt * 1e9)
+    expected = [-(-(-(-k * 10 ** 9 // round(rate))) // step_ns) * step_ns
+                for k in range(len(recorded))]
+    assert [t for t, _ in recorded] == expected
+    world = World(Scene.from_yaml(scene_file), dt=dt)
+    for t, msg in recorded:
+        while round(world.time * 1e9) < t:
+            world.step()
+        assert round(world.time * 1e9) == t
+        for m in msg.markers:
+            p, A = world.body_pose(m.ns.split('/')[1])
+            np.testing.assert_allclose(_pos(m), p, atol=1e-9)
+            np.testing.assert_allclose(_rot(m), polar(A)[0], atol=1e-7)
+    assert np.linalg.norm(_pos(recorded[-1][1].markers[1]) - [0.6, 0, 0]) > 0.1

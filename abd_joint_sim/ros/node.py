@@ -273,9 +273,10 @@ class SimNode(Node):
         all the same, since none is pending (and the executor only delivers new ones between
         timer rounds). Stops before any step that would sub-step, warn or fail, which
         _step_once then takes. Returns the number of steps taken (0: none)."""
-        if self.markers is not None:
+        if self.markers is not None and (self.recorder is not None
+                                         or self.marker_pub.get_subscription_count() > 0):
             # End the batch on the step the markers are due at: only then does the world
-            # hold the poses they show.
+            # hold the poses they show (not needed while nobody gets markers).
             dt_ns = max(1, convert.seconds_to_ns(self.world.dt))
             ahead = self.marker_schedule.next_ns - convert.seconds_to_ns(self.world.time)
             max_steps = min(max_steps, max(1, -(-ahead // dt_ns)))
