@@ -54,6 +54,15 @@ def nearest_rotation(A: np.ndarray) -> np.ndarray:
     return U @ np.diag([1.0, 1.0, d]) @ Vt
 
 
+def nearest_rotations(A: np.ndarray) -> np.ndarray:
+    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3), in one SVD call."""
+    U, _, Vt = np.linalg.svd(np.asarray(A, dtype=float))
+    d = np.where(np.linalg.det(U @ Vt) < 0.0, -1.0, 1.0)
+    U = U.copy()
+    U[:, :, 2] *= d[:, None]
+    return U @ Vt
+
+
 def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
     """URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
     from abd_joint_sim.model import rpy_matrix
@@ -140,6 +149,8 @@ class MarkerBuilder:
                 a = R0.T @ (np.asarray(joint.p0, dtype=float) - p0)
                 b = R0.T @ (np.asarray(joint.p1, dtype=float) - p0)
                 self.axes.append((j, joint.name, joint.parent, a, b))
+        self._index = {name: k for k, name in enumerate(self.body_names)}
+        self._msg: Optional[Any] = None
 
     def _body_parts(self, body: Any, colour) -> list[_Part]:
         M = self.Marker
@@ -181,47 +192,65 @@ class MarkerBuilder:
         sides, axes = equal_inertia_box(s.mass, s.inertia)
         return [_Part(body.name, 0, M.CUBE, sides, colour, s.com, axes)]
 
-    def build(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[Any]:
-        """The MarkerArray at `stamp_ns` with body poses from `pose(name) -> (p, A)`
-        (``World.body_pose``); None if a pose is not finite (nothing to draw honestly)."""
+    def _template(self) -> Any:
+        """The MarkerArray with every field that does not change (built once: an rclpy
+        message costs tens of µs to construct, more than refilling its pose)."""
+        from geometry_msgs.msg import Point
         from visualization_msgs.msg import MarkerArray
-        from abd_joint_sim.ros.convert import ns_to_time_msg
-        poses = {}
-        for name in self.body_names:
-            p, A = pose(name)
-            p, A = np.asarray(p, dtype=float), np.asarray(A, dtype=float)
-            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(A))):
-                return None
-            poses[name] = (p, A, nearest_rotation(A))
-        stamp = ns_to_time_msg(stamp_ns)
         out = MarkerArray()
         for part in self.parts:
-            p, A, R = poses[part.body]
-            m = self._marker(stamp, f'bodies/{part.body}', part.index, part.kind)
-            self._set_pose(m, A @ part.t + p, R @ part.R)
+            m = self._marker(f'bodies/{part.body}', part.index, part.kind)
             m.scale.x, m.scale.y, m.scale.z = part.scale
             m.color.r, m.color.g, m.color.b, m.color.a = part.colour
             if part.mesh_uri:
                 m.mesh_resource = part.mesh_uri
             out.markers.append(m)
-        for j, _name, parent, a, b in self.axes:
-            from geometry_msgs.msg import Point
-            p, A, _ = poses[parent]
-            m = self._marker(stamp, 'joint_axes', j, self.Marker.ARROW)
+        for j, _name, _parent, a, b in self.axes:
+            m = self._marker('joint_axes', j, self.Marker.ARROW)
             m.pose.orientation.w = 1.0
-            start, end = A @ a + p, A @ b + p
-            m.points = [Point(x=float(start[0]), y=float(start[1]), z=float(start[2])),
-                        Point(x=float(end[0]), y=float(end[1]), z=float(end[2]))]
-            length = float(np.linalg.norm(end - start))
+            m.points = [Point(), Point()]
+            length = float(np.linalg.norm(b - a))
             # shaft diameter, head diameter, head length (ARROW given by two points)
             m.scale.x, m.scale.y, m.scale.z = 0.02 * length, 0.05 * length, 0.1 * length
             m.color.r, m.color.g, m.color.b, m.color.a = AXIS_COLOUR
             out.markers.append(m)
         return out
 
-    def _marker(self, stamp, ns: str, mid: int, kind: int):
+    def build(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[Any]:
+        """The MarkerArray at `stamp_ns` with body poses from `pose(name) -> (p, A)`
+        (``World.body_pose``); None if a pose is not finite (nothing to draw honestly).
+
+        The same message object is refilled by every call (as sim_node does with its
+        JointState): publish or serialise it before the next call.
+        """
+        ps, As = [], []
+        for name in self.body_names:
+            p, A = pose(name)
+            ps.append(p)
+            As.append(A)
+        P = np.asarray(ps, dtype=float)
+        A = np.asarray(As, dtype=float)
+        if not (np.all(np.isfinite(P)) and np.all(np.isfinite(A))):
+            return None
+        R = nearest_rotations(A)
+        index = self._index
+        if self._msg is None:
+            self._msg = self._template()
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        markers = self._msg.markers
+        for m, part in zip(markers, self.parts):
+            k = index[part.body]
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+            self._set_pose(m, A[k] @ part.t + P[k], R[k] @ part.R)
+        for m, (_j, _name, parent, a, b) in zip(markers[len(self.parts):], self.axes):
+            k = index[parent]
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+            for point, x in zip(m.points, (A[k] @ a + P[k], A[k] @ b + P[k])):
+                point.x, point.y, point.z = float(x[0]), float(x[1]), float(x[2])
+        return self._msg
+
+    def _marker(self, ns: str, mid: int, kind: int):
         m = self.Marker()
-        m.header.stamp = stamp
         m.header.frame_id = self.frame_id
         m.ns, m.id, m.type, m.action = ns, int(mid), int(kind), self.Marker.ADD
         return m
