@@ -594,14 +594,23 @@ class SimNode(Node):
         self._close_recorder()
 
 
-def _raise_keyboard_interrupt(signum, frame):
-    raise KeyboardInterrupt
+def _shutdown_on_signal(signum, frame):
+    """SIGINT/SIGTERM: shut the ROS context down; spin() then returns between callbacks.
+
+    Not KeyboardInterrupt (rclpy's own handler chains to Python's, which raises it): Python
+    runs a signal handler between any two bytecodes, so an exception could land inside a
+    bag write and leave the MCAP writer half updated (e.g. its statistics counting a
+    message its chunk never got). Repeated signals while the bag is being closed are
+    ignored for the same reason; SIGKILL still ends a hung node.
+    """
+    rclpy.try_shutdown()
 
 
 def main(args: Optional[list[str]] = None) -> int:
     rclpy.init(args=args)
-    # SIGTERM (kill, systemd, launch) ends the node like Ctrl-C, so the bag is finalised.
-    signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    # Ctrl-C and SIGTERM (kill, systemd, launch) end the node cleanly: the bag is finalised.
+    signal.signal(signal.SIGINT, _shutdown_on_signal)
+    signal.signal(signal.SIGTERM, _shutdown_on_signal)
     node = None
     status = 0
     try:
