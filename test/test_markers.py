@@ -340,3 +340,16 @@ def test_markers_node_running_on_the_grid(tmp_path):
             np.testing.assert_allclose(_pos(m), p, atol=1e-9)
             np.testing.assert_allclose(_rot(m), polar(A)[0], atol=1e-7)
     assert np.linalg.norm(_pos(recorded[-1][1].markers[1]) - [0.6, 0, 0]) > 0.1
+
+
+def test_marker_parameters_are_checked():
+    from abd_joint_sim.ros.params import coerce
+    with pytest.raises(ValueError, match="'marker_frame_id': empty"):
+        config_from_values({'marker_frame_id': ' '})
+    with pytest.raises(ValueError, match="'marker_rate'"):
+        coerce('marker_rate', -1.0)
+    with pytest.raises(ValueError, match="'marker_joint_axes'"):
+        coerce('marker_joint_axes', 'yes')
+    cfg = config_from_values({'marker_rate': 10})
+    assert cfg.marker_rate == 10.0 and cfg.marker_frame_id == 'world'
+    assert not cfg.marker_joint_axes

@@ -209,9 +209,17 @@ _COERCE = {
     'frame_id': _as_str,
     'backend': lambda n, v: _as_choice(n, v, ('auto', 'numpy', 'numba')),
     'marker_rate': _as_nonneg,
-    'marker_frame_id': _as_str,
+    'marker_frame_id': lambda n, v: _as_frame(n, v),
     'marker_joint_axes': _as_bool,
 }
+
+
+def _as_frame(name: str, value: Any) -> str:
+    value = _as_str(name, value).strip()
+    if not value:
+        raise ValueError(f'parameter {name!r}: empty; markers need a frame to be drawn in '
+                         "(e.g. 'world')")
+    return value
 
 
 def _as_choice(name: str, value: Any, choices: tuple) -> str:
