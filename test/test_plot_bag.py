@@ -94,3 +94,25 @@ def test_bad_times_are_refused(tmp_path, capsys):
         plot_bag.main([str(tmp_path), '--out', str(tmp_path / 'o'), '--times', '0,abc'])
     assert exc.value.code == 2
     assert "'0,abc' is not a comma-separated list" in capsys.readouterr().err
+
+
+def test_reset_starts_a_new_segment(tmp_path):
+    """A ~/reset (simulated time back to 0) is drawn after the first segment, not over it."""
+    from abd_joint_sim.tools.schedule import Plan
+    plan = parse_schedule(SCHEDULE)
+    first = plan.segments[0]
+    second = parse_schedule({'duration': 0.5, 'events': [
+        {'t': 0.1, 'torque': {'shoulder': -1.0}}]}).segments[0]
+    scene_path = resolve_scene('default')
+    scene = Scene.from_yaml(scene_path)
+    sim = HeadlessSim(scene, config_from_values({'scene': 'default'}))
+    rec = BagRecorder(str(tmp_path / 'reset'), sim, scene_path, scene.source_text)
+    try:
+        sim.run(Plan([first, second]), rec)
+    finally:
+        rec.close()
+    run = plot_bag.read_run(tmp_path / 'reset')
+    assert run.resets == [pytest.approx(1.2)]
+    assert run.t == sorted(run.t) and run.t[-1] == pytest.approx(1.7)
+    assert sorted({round(t, 6) for t, _ in run.commands}) == [0.0, 0.6, 1.3]
+    assert plot_bag.main([str(tmp_path / 'reset'), '--out', str(tmp_path / 'o'), '-q']) == 0

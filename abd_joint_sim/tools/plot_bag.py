@@ -55,14 +55,38 @@ class Run:
         self.markers: list[tuple[float, Any]] = []      # (t, MarkerArray)
 
 
+def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
+    """Topics worth deserialising (joint states, markers, commands), from the MCAP summary:
+    /clock alone is a message per step. None = all (no summary to tell)."""
+    from mcap.reader import make_reader
+    from abd_joint_sim.record.read import mcap_file
+    try:
+        with open(mcap_file(bag), 'rb') as handle:
+            summary = make_reader(handle).get_summary()
+    except Exception:  # noqa: BLE001 - read_messages below reports what is wrong
+        return None
+    if summary is None:
+        return None
+    wanted = []
+    for channel in summary.channels.values():
+        schema = summary.schemas.get(channel.schema_id)
+        name = schema.name if schema is not None else ''
+        if name in ('sensor_msgs/msg/JointState', 'visualization_msgs/msg/MarkerArray') or \
+                (name in _COMMAND_TYPES and 'joint_torque' in channel.topic):
+            wanted.append(channel.topic)
+    return wanted
+
+
 def read_run(bag: str | os.PathLike[str]) -> Run:
-    """Read joint states, commands and markers of `bag` (raises PlotError)."""
-    from abd_joint_sim.record import BagError, read_messages
+    """Read joint states, commands and markers of `bag` (raises PlotError), in the order
+    they were written: log times restart at 0 after a reset, so log-time order would
+    interleave the segments."""
+    from abd_joint_sim.tools.bagrun import _iter_file_order, BagInputError
     run = Run()
     offset = 0.0          # simulated time of earlier segments
     last = -1
     try:
-        for topic, msg_type, log_ns, msg in read_messages(bag):
+        for topic, msg_type, log_ns, msg in _iter_file_order(bag, _wanted_topics(bag)):
             if log_ns < last:   # a reset: sim time restarted from 0
                 offset += last * 1e-9
                 run.resets.append(offset)
@@ -81,7 +105,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
                 run.markers.append((t, msg))
             elif msg_type in _COMMAND_TYPES and 'joint_torque' in topic:
                 run.commands.append((t, topic))
-    except BagError as exc:
+    except BagInputError as exc:
         raise PlotError(str(exc)) from None
     if not run.t:
         raise PlotError(f'{bag}: no sensor_msgs/msg/JointState messages to plot')
