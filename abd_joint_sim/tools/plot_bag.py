@@ -52,7 +52,9 @@ class Run:
         self.effort: list[list[float]] = []
         self.commands: list[tuple[float, str]] = []     # (t, topic)
         self.resets: list[float] = []
+        self.reset_index: list[int] = []   # index into t of the first state after a reset
         self.markers: list[tuple[float, Any]] = []      # (t, MarkerArray)
+        self.marker_segment: list[int] = []             # segment (0, 1, ...) of each
 
 
 def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
@@ -90,6 +92,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
             if log_ns < last:   # a reset: sim time restarted from 0
                 offset += last * 1e-9
                 run.resets.append(offset)
+                run.reset_index.append(len(run.t))
             last = log_ns
             t = offset + log_ns * 1e-9
             if msg_type == 'sensor_msgs/msg/JointState':
@@ -103,6 +106,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
                 run.effort.append(list(msg.effort))
             elif msg_type == 'visualization_msgs/msg/MarkerArray':
                 run.markers.append((t, msg))
+                run.marker_segment.append(len(run.resets))
             elif msg_type in _COMMAND_TYPES and 'joint_torque' in topic:
                 run.commands.append((t, topic))
     except BagInputError as exc:
@@ -123,12 +127,15 @@ def _pyplot():
 
 
 def plot_joints(plt, run: Run, path: Path, title: str) -> None:
-    t = np.array(run.t)
+    # A NaN row before each reset breaks the lines there instead of joining the segments.
+    cut = run.reset_index
+    t = np.insert(np.array(run.t), cut, np.nan)
     rows = (('angle [rad]', run.position), ('velocity [rad/s]', run.velocity),
             ('effort [N m]', run.effort))
     fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, constrained_layout=True)
     for ax, (label, values) in zip(axes, rows):
-        data = np.array(values, dtype=float).reshape(len(t), -1)
+        data = np.array(values, dtype=float).reshape(len(run.t), -1)
+        data = np.insert(data, cut, np.nan, axis=0)
         for k, name in enumerate(run.joint_names):
             if k < data.shape[1]:
                 ax.plot(t, data[:, k], lw=1.6, label=name)
@@ -253,9 +260,12 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
     for ax, k in zip(axes.ravel(), chosen):
         t, arr = run.markers[k]
         drawn.append(t)
-        # Faint trail: where each moving body's marker has been up to t.
+        # Faint trail: where each moving body's marker has been up to t (in its segment).
         trails: dict = {}
-        for _, earlier in run.markers[:k + 1]:
+        segment = run.marker_segment[k]
+        for (_, earlier), seg in zip(run.markers[:k + 1], run.marker_segment):
+            if seg != segment:
+                continue
             for m in earlier.markers:
                 if m.ns.startswith('bodies/'):
                     trails.setdefault((m.ns, m.id), []).append(
