@@ -353,3 +353,20 @@ def test_marker_parameters_are_checked():
     cfg = config_from_values({'marker_rate': 10})
     assert cfg.marker_rate == 10.0 and cfg.marker_frame_id == 'world'
     assert not cfg.marker_joint_axes
+
+
+def test_run_headless_schedule_sets_marker_parameters(tmp_path):
+    """A schedule's parameters reach the recorder: 10 Hz, frame 'odom', joint axes."""
+    import yaml
+    from abd_joint_sim.record import read_messages
+    from abd_joint_sim.tools.run_headless import main
+    schedule = tmp_path / 's.yaml'
+    schedule.write_text(yaml.safe_dump({'duration': 0.5, 'parameters': {
+        'marker_rate': 10.0, 'marker_frame_id': 'odom', 'marker_joint_axes': True},
+        'events': [{'t': 0.0, 'torque': {'hinge': 100.0}}]}))
+    assert main(['--schedule', str(schedule), '--scene', 'hinge', '--out',
+                 str(tmp_path / 'b'), '-q']) == 0
+    arrays = [(t, m) for topic, _, t, m in read_messages(tmp_path / 'b') if topic == '/markers']
+    assert [t for t, _ in arrays] == [k * 100_000_000 for k in range(6)]
+    assert all(mk.header.frame_id == 'odom' for _, m in arrays for mk in m.markers)
+    assert [mk.ns for mk in arrays[0][1].markers] == ['bodies/base', 'bodies/arm', 'joint_axes']
