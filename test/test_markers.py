@@ -187,7 +187,18 @@ def test_recorded_markers_follow_the_bodies(tmp_path):
             seen.append(t)
             bodies = [m for m in msg.markers if m.ns.startswith('bodies/')]
             assert [m.ns for m in bodies] == [f'bodies/{b}' for b in scene.body_names]
-            assert len([m for m in msg.markers if m.ns == 'joint_axes']) == 2
+            axes = [m for m in msg.markers if m.ns == 'joint_axes']
+            assert [m.id for m in axes] == [0, 1]
+            # The arrow (drawn from the parent) lies on the axis as the child carries it too:
+            # the joint keeps both bodies' copies of P0 and P1 together.
+            for m, joint in zip(axes, scene.joints):
+                child = next(b for b in scene.bodies if b.name == joint.child)
+                R0 = Rotation.from_euler('xyz', child.rpy).as_matrix()
+                p, A = truth[t][joint.child]
+                for point, P in zip(m.points, (joint.p0, joint.p1)):
+                    via_child = A @ (R0.T @ (np.array(P) - child.position)) + p
+                    np.testing.assert_allclose([point.x, point.y, point.z], via_child,
+                                               atol=1e-5)
             for m in bodies:
                 stamp = m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec
                 assert stamp == t and m.header.frame_id == 'world' and m.id == 0
@@ -370,3 +381,14 @@ def test_run_headless_schedule_sets_marker_parameters(tmp_path):
     assert [t for t, _ in arrays] == [k * 100_000_000 for k in range(6)]
     assert all(mk.header.frame_id == 'odom' for _, m in arrays for mk in m.markers)
     assert [mk.ns for mk in arrays[0][1].markers] == ['bodies/base', 'bodies/arm', 'joint_axes']
+
+
+def test_non_finite_pose_gives_no_markers():
+    scene = Scene.from_yaml(resolve_scene('hinge'))
+    builder = MarkerBuilder(scene)
+    good = {b.name: (np.array(b.position, float), np.eye(3)) for b in scene.bodies}
+    assert builder.build(0, lambda n: good[n]) is not None
+    bad = dict(good, arm=(np.array([np.nan, 0.0, 0.0]), np.eye(3)))
+    assert builder.build(1, lambda n: bad[n]) is None
+    inf = dict(good, arm=(np.zeros(3), np.full((3, 3), np.inf)))
+    assert builder.build(2, lambda n: inf[n]) is None
