@@ -49,9 +49,7 @@ AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 def nearest_rotation(A: np.ndarray) -> np.ndarray:
     """The rotation nearest to A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ from
     the SVD A = U S Vᵀ."""
-    U, _, Vt = np.linalg.svd(np.asarray(A, dtype=float))
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
+    return nearest_rotations(np.asarray(A, dtype=float)[None])[0]
 
 
 def nearest_rotations(A: np.ndarray) -> np.ndarray:
