@@ -31,6 +31,7 @@ setup(
             'run_headless = abd_joint_sim.tools.run_headless:main',
             'replay_check = abd_joint_sim.tools.replay_check:main',
             'bag_recover = abd_joint_sim.ros.bag_recover:main',
+            'plot_bag = abd_joint_sim.tools.plot_bag:main',
         ],
     },
 )

@@ -168,3 +168,113 @@ def each_backend(request, monkeypatch):
             pytest.skip('numba backend not compiled here (python -m abd_joint_sim.fast --warm-up)')
     monkeypatch.setenv('ABD_BACKEND', request.param)
     return request.param
+
+
+# ------------------------------------------------------------------ MCAP validation ----
+# Every MCAP file the tests leave under pytest's temporary directory is checked by the
+# official MCAP reader (@mcap/core, TypeScript; test/mcap_validator/validate.mjs): framing,
+# chunk, attachment, summary and data-section CRCs, indexes against the data. The pinned
+# package is installed from its package-lock.json by `npm ci` the first time it is needed.
+# Tests that leave a deliberately unfinished bag (a simulated crash or full disk) say so
+# with @pytest.mark.broken_bags; their files are exempt. Opt out (e.g. no node.js on a
+# development machine) with ABD_SKIP_MCAP_VALIDATION=1; CI never sets it.
+MCAP_VALIDATOR = REPO / 'test' / 'mcap_validator'
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+_checked: dict[Path, tuple[int, int]] = {}
+_exempt: set[Path] = set()
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        'markers', 'broken_bags: the test leaves unfinished or damaged MCAP files on purpose '
+        '(they are not validated)')
+
+
+def _install_validator() -> str:
+    """Path of node.js, with the validator's pinned packages installed (npm ci)."""
+    import shutil
+    node, npm = shutil.which('node'), shutil.which('npm')
+    if node is None or npm is None:
+        raise RuntimeError('node.js/npm not found: the MCAP validator (test/mcap_validator) '
+                           'needs them (or set ABD_SKIP_MCAP_VALIDATION=1 to skip it)')
+    lock = MCAP_VALIDATOR / 'package-lock.json'
+    installed = MCAP_VALIDATOR / 'node_modules' / '.package-lock.json'
+    if not installed.is_file() or installed.stat().st_mtime < lock.stat().st_mtime:
+        # --ignore-scripts: no package install script is needed to read MCAP.
+        result = subprocess.run([npm, 'ci', '--no-audit', '--no-fund', '--ignore-scripts'],
+                                cwd=MCAP_VALIDATOR, capture_output=True, text=True,
+                                timeout=600, stdin=subprocess.DEVNULL)
+        if result.returncode != 0:
+            raise RuntimeError(f'npm ci in {MCAP_VALIDATOR} failed:\n{result.stderr[-2000:]}')
+    return node
+
+
+_node_path: list[str] = []
+
+
+def validate_mcap(files) -> list[dict]:
+    """Run the @mcap/core validator on `files`; one result dict per file
+    ({'file', 'ok', 'errors', 'messages', ...})."""
+    import json
+    files = [str(f) for f in files]
+    if not files:
+        return []
+    if not _node_path:
+        _node_path.append(_install_validator())
+    result = subprocess.run([_node_path[0], str(MCAP_VALIDATOR / 'validate.mjs'), *files],
+                            capture_output=True, text=True, timeout=300,
+                            stdin=subprocess.DEVNULL)
+    out = [json.loads(line) for line in result.stdout.splitlines() if line.startswith('{')]
+    if len(out) != len(files):
+        raise RuntimeError(f'MCAP validator gave {len(out)} results for {len(files)} files:\n'
+                           f'{result.stdout[-2000:]}\n{result.stderr[-2000:]}')
+    return out
+
+
+def _unchecked_bags(root: Path, finished_only: bool) -> list[Path]:
+    found = []
+    for path in sorted(root.rglob('*.mcap')):
+        if path in _exempt or any(parent in _exempt for parent in path.parents):
+            continue
+        stat = path.stat()
+        key = (stat.st_size, stat.st_mtime_ns)
+        if _checked.get(path) == key:
+            continue
+        if finished_only:   # a node of a module fixture may still be recording into it
+            with open(path, 'rb') as handle:
+                handle.seek(max(stat.st_size - len(_MCAP_MAGIC), 0))
+                if handle.read() != _MCAP_MAGIC:
+                    continue
+        found.append(path)
+    return found
+
+
+def _check_bags(root: Path, finished_only: bool) -> None:
+    files = _unchecked_bags(root, finished_only)
+    bad = []
+    for result in validate_mcap(files):
+        path = Path(result['file'])
+        stat = path.stat()
+        _checked[path] = (stat.st_size, stat.st_mtime_ns)
+        if not result['ok']:
+            bad.append(f"{path}: {'; '.join(result['errors'])}")
+    if bad:
+        pytest.fail('MCAP validator (@mcap/core) rejects:\n' + '\n'.join(bad), pytrace=False)
+
+
+@pytest.fixture(scope='session')
+def _bag_root(tmp_path_factory):
+    root = tmp_path_factory.getbasetemp()
+    yield root
+    if os.environ.get('ABD_SKIP_MCAP_VALIDATION') != '1':
+        _check_bags(root, finished_only=False)     # also bags no test saw finished
+
+
+@pytest.fixture(autouse=True)
+def _validate_bags(request, _bag_root):
+    """After each test: every finished MCAP file not checked yet passes @mcap/core."""
+    if request.node.get_closest_marker('broken_bags') and 'tmp_path' in request.fixturenames:
+        _exempt.add(Path(request.getfixturevalue('tmp_path')))
+    yield
+    if os.environ.get('ABD_SKIP_MCAP_VALIDATION') != '1':
+        _check_bags(_bag_root, finished_only=True)

@@ -43,6 +43,7 @@ def test_install_layout(install):
                 'scenes/default.yaml', 'scenes/hinge.yaml'):
         assert (share / rel).is_file(), rel
     assert os.access(prefix / 'lib' / PKG / 'sim_node', os.X_OK)
+    assert os.access(prefix / 'lib' / PKG / 'plot_bag', os.X_OK)
     assert (_site_packages(prefix) / PKG / 'scenes' / 'default.yaml').is_file()
     assert (_site_packages(prefix) / PKG / 'ros' / 'node.py').is_file()
     py_compile.compile(str(share / 'launch' / 'sim.launch.py'), doraise=True)

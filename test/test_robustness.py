@@ -361,7 +361,8 @@ def test_live_parameter_change_is_recorded_and_replayed(tmp_path):
     stripped = tmp_path / 'without_event'
     with BagWriter(stripped, custom_data=read_custom_data(bag)) as w:
         from abd_joint_sim.ros.recording import add_node_topics, resolve_root
-        add_node_topics(w, resolve_root, ['hinge'])
+        add_node_topics(w, resolve_root, ['hinge'],
+                        markers=any(topic == '/markers' for topic, *_ in msgs))
         for topic, _, t, m in msgs:
             if topic != '/parameter_events':
                 w.write(topic, t, m)

@@ -107,7 +107,8 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
     chunks, good_end, complete, reason = 0, 0, False, 'end of file'
     record_custom: dict[str, str] | None = None
     try:
-        writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD)
+        writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
+                        enable_data_crcs=True)
         copier = _Copier(writer, summary)
         with open(file, 'rb') as handle:
             records = StreamReader(handle, emit_chunks=True, validate_crcs=True).records

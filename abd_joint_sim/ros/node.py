@@ -30,10 +30,11 @@ from std_srvs.srv import Trigger
 
 from . import convert
 from .commands import Applied, CommandBuffer
+from .markers import MarkerBuilder, TOPIC_MARKERS
 from .params import (check_live_value, coerce, config_from_values,
                      conflicting_parameter_sources, default_scene_path, NODE_NAME, PARAMS,
                      PARAMS_BY_NAME, undeclared_parameters)
-from .recording import (add_node_topics, bag_custom_data, parameter_event_msg,
+from .recording import (add_node_topics, bag_custom_data, markers_due, parameter_event_msg,
                         PublishSchedule, RECORDED_PARAMETERS, record_applied,
                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
                         TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY,
@@ -100,6 +101,16 @@ class SimNode(Node):
         zeros = [0.0] * len(self.joint_names)
         self._joint_state = convert.joint_state_msg(0, self.joint_names, zeros, zeros, zeros)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
+        # the run is recorded.
+        self.markers = None
+        self.marker_pub = None
+        self.marker_schedule = PublishSchedule()
+        if self.config.marker_rate > 0.0:
+            from visualization_msgs.msg import MarkerArray
+            self.markers = MarkerBuilder(self.scene, self.config.marker_frame_id,
+                                         self.config.marker_joint_axes)
+            self.marker_pub = self.create_publisher(MarkerArray, TOPIC_MARKERS, JOINT_STATE_QOS)
 
         # Subscriptions: only actuated joints get command topics.
         self.command_subs = [
@@ -308,6 +319,13 @@ class SimNode(Node):
         all the same, since none is pending (and the executor only delivers new ones between
         timer rounds). Stops before any step that would sub-step, warn or fail, which
         _step_once then takes. Returns the number of steps taken (0: none)."""
+        if self.markers is not None and (self.recorder is not None
+                                         or self.marker_pub.get_subscription_count() > 0):
+            # End the batch on the step the markers are due at: only then does the world
+            # hold the poses they show (not needed while nobody gets markers).
+            dt_ns = max(1, convert.seconds_to_ns(self.world.dt))
+            ahead = self.marker_schedule.next_ns - convert.seconds_to_ns(self.world.time)
+            max_steps = min(max_steps, max(1, -(-ahead // dt_ns)))
         if max_steps < 2 or not self.commands.idle:
             return 0
         count, times, angles, velocities = self.world.step_clean(max_steps)
@@ -370,6 +388,8 @@ class SimNode(Node):
         self.clock_pub.publish(clock)
         if self.recorder is not None:
             self._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
+        if self.markers is not None and (position is None or t == self.world.time):
+            self._publish_markers(t_ns, force)
         if not self.publish_schedule.due(t_ns, self.config.publish_rate, force):
             return
         w = self.world
@@ -388,6 +408,18 @@ class SimNode(Node):
         convert.fill_joint_state(msg, t_ns, position, velocity, effort, self.config.frame_id)
         self.joint_state_pub.publish(msg)
         self._record(self._abs(TOPIC_JOINT_STATES), t_ns, msg)
+
+    def _publish_markers(self, t_ns: int, force: bool) -> None:
+        """The body markers when due (markers_due), from the world's current poses."""
+        if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
+            return
+        if self.recorder is None and self.marker_pub.get_subscription_count() == 0:
+            return
+        msg = self.markers.build(t_ns, self.world.body_pose)
+        if msg is None:       # a non-finite pose: the joint-state guard reports the fault
+            return
+        self.marker_pub.publish(msg)
+        self._record(self._abs(TOPIC_MARKERS), t_ns, msg)
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
@@ -519,7 +551,7 @@ class SimNode(Node):
                 self.world.dt, self.commands.order)
             writer = BagWriter(path, custom_data=custom, attachments=attachments)
             writer.open()
-            add_node_topics(writer, self._abs, self.actuated)
+            add_node_topics(writer, self._abs, self.actuated, markers=self.markers is not None)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
             self.recording_error = str(exc)
@@ -613,14 +645,23 @@ class SimNode(Node):
         self._close_recorder()
 
 
-def _raise_keyboard_interrupt(signum, frame):
-    raise KeyboardInterrupt
+def _shutdown_on_signal(signum, frame):
+    """SIGINT/SIGTERM: shut the ROS context down; spin() then returns between callbacks.
+
+    Not KeyboardInterrupt (rclpy's own handler chains to Python's, which raises it): Python
+    runs a signal handler between any two bytecodes, so an exception could land inside a
+    bag write and leave the MCAP writer half updated (e.g. its statistics counting a
+    message its chunk never got). Repeated signals while the bag is being closed are
+    ignored for the same reason; SIGKILL still ends a hung node.
+    """
+    rclpy.try_shutdown()
 
 
 def main(args: Optional[list[str]] = None) -> int:
     rclpy.init(args=args)
-    # SIGTERM (kill, systemd, launch) ends the node like Ctrl-C, so the bag is finalised.
-    signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    # Ctrl-C and SIGTERM (kill, systemd, launch) end the node cleanly: the bag is finalised.
+    signal.signal(signal.SIGINT, _shutdown_on_signal)
+    signal.signal(signal.SIGTERM, _shutdown_on_signal)
     node = None
     status = 0
     try:

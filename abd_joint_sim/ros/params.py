@@ -61,6 +61,13 @@ PARAMS: tuple[ParamSpec, ...] = (
               'Physics backend: numpy (reference), numba (compiled, same results), or auto = '
               'numba when its kernels are compiled for this install (python -m '
               'abd_joint_sim.fast --warm-up), else numpy.', True),
+    ParamSpec('marker_rate', 30.0,
+              'Rate of the body markers on `markers` (visualization_msgs/MarkerArray) [Hz of '
+              'simulated time], never more than one per step; recorded too. 0 = off.', True),
+    ParamSpec('marker_frame_id', 'world',
+              'header.frame_id of the markers: the fixed frame to set in RViz.', True),
+    ParamSpec('marker_joint_axes', False,
+              'Also draw each joint axis as an arrow marker (namespace joint_axes).', True),
 )
 
 PARAMS_BY_NAME = {p.name: p for p in PARAMS}
@@ -84,6 +91,9 @@ class SimConfig:
     record: str = ''
     frame_id: str = ''
     backend: str = 'auto'
+    marker_rate: float = 30.0
+    marker_frame_id: str = 'world'
+    marker_joint_axes: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         return {p.name: getattr(self, p.name) for p in PARAMS}
@@ -242,7 +252,18 @@ _COERCE = {
     'record': _as_str,
     'frame_id': _as_str,
     'backend': lambda n, v: _as_choice(n, v, ('auto', 'numpy', 'numba')),
+    'marker_rate': _as_nonneg,
+    'marker_frame_id': lambda n, v: _as_frame(n, v),
+    'marker_joint_axes': _as_bool,
 }
+
+
+def _as_frame(name: str, value: Any) -> str:
+    value = _as_str(name, value).strip()
+    if not value:
+        raise ValueError(f'parameter {name!r}: empty; markers need a frame to be drawn in '
+                         "(e.g. 'world')")
+    return value
 
 
 def _as_choice(name: str, value: Any, choices: tuple) -> str:

@@ -20,19 +20,23 @@ re-creates exactly what the node published.
   replay can honour e.g. a live change of ``command_timeout``.
 * :func:`bag_custom_data` and :func:`add_node_topics`: the bag's custom data, attachments and
   topic list.
+* :func:`markers_due`: the body markers (``ros/markers.py``) at ``marker_rate`` Hz of
+  simulated time on their own grid, at most once per step, and at start and reset.
 
 Plain functions over a ``write(topic, stamp_ns, msg)`` callable: the node's writes stop the
 recording on failure, the headless recorder's count messages.
 """
 from __future__ import annotations
 
+import os
 from typing import Any, Callable, Iterable, Mapping, Optional
 
 import yaml
 
 from . import convert
 from .commands import Applied
-from .params import NODE_NAME, SimConfig
+from .markers import MARKER_TYPE, TOPIC_MARKERS
+from .params import NODE_NAME, packaged_scenes_dir, SimConfig
 
 TOPIC_JOINT_STATES = 'joint_states'
 TOPIC_CLOCK = '/clock'
@@ -56,9 +60,28 @@ def resolve_root(topic: str) -> str:
     return topic if topic.startswith('/') else '/' + topic
 
 
+def portable_scene_path(path: str) -> str:
+    """The scene as a bag stores it, free of the recording machine's directories: the bare
+    name of a packaged scene (``default``, what the ``scene`` parameter accepts to pick it
+    again), else the file's base name. The scene itself is stored whole beside it."""
+    if not path:
+        return ''
+    scenes = os.path.realpath(packaged_scenes_dir())
+    full = os.path.realpath(path)
+    name = os.path.basename(full)
+    if os.path.dirname(full) == scenes and name.endswith('.yaml'):
+        return name[:-len('.yaml')]
+    return name
+
+
 def parameters_yaml(config: SimConfig) -> str:
-    """The effective parameters as the node stores them (a ros2 params file)."""
-    return yaml.safe_dump({NODE_NAME: {'ros__parameters': config.as_dict()}}, sort_keys=False)
+    """The effective parameters as the node stores them (a ros2 params file); the paths
+    ``scene`` and ``record`` as base names (:func:`portable_scene_path`)."""
+    values = config.as_dict()
+    values['scene'] = portable_scene_path(values.get('scene', ''))
+    values['record'] = os.path.basename(os.path.normpath(values['record'])) \
+        if values.get('record') else ''
+    return yaml.safe_dump({NODE_NAME: {'ros__parameters': values}}, sort_keys=False)
 
 
 def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: float,
@@ -67,7 +90,7 @@ def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: flo
     """(custom_data, attachments) of a bag: scene, effective parameters, dt, array order."""
     params_text = parameters_yaml(config)
     custom = {
-        'abd_joint_sim.scene_path': scene_path,
+        'abd_joint_sim.scene_path': portable_scene_path(scene_path),
         'abd_joint_sim.scene_yaml': scene_text,
         'abd_joint_sim.parameters_yaml': params_text,
         'abd_joint_sim.time_step': repr(float(dt)),
@@ -78,8 +101,10 @@ def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: flo
     return custom, attachments
 
 
-def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str]) -> None:
-    """Register every topic the node records on `writer` (a ``BagWriter``)."""
+def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
+                    markers: bool = False) -> None:
+    """Register every topic the node records on `writer` (a ``BagWriter``); `markers`: the
+    body markers too (``marker_rate`` > 0)."""
     writer.add_topic(resolve(TOPIC_JOINT_STATES), 'sensor_msgs/msg/JointState', qos='reliable')
     writer.add_topic(resolve(TOPIC_CLOCK), 'rosgraph_msgs/msg/Clock', qos='best_effort')
     writer.add_topic(resolve(TOPIC_DIAGNOSTICS), 'diagnostic_msgs/msg/DiagnosticArray',
@@ -94,6 +119,15 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str]) -> N
                          'std_msgs/msg/Float64', qos='reliable')
         writer.add_topic(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), 'std_msgs/msg/Bool',
                          qos='reliable')
+    if markers:
+        writer.add_topic(resolve(TOPIC_MARKERS), MARKER_TYPE, qos='reliable')
+
+
+def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
+                force: bool = False) -> bool:
+    """True if the body markers are due at `t_ns` (``marker_rate`` Hz on the grid
+    ``k / rate``, and at start and reset); never for rate 0 (markers off)."""
+    return rate > 0.0 and schedule.due(t_ns, rate, force)
 
 
 def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:

@@ -71,8 +71,9 @@ class RecordedRun:
         return sum(len(seg.commands) for seg in self.plan.segments)
 
 
-def _iter_file_order(path: str | os.PathLike[str]):
-    """(topic, type, log_time, message) in the order the recorder wrote them."""
+def _iter_file_order(path: str | os.PathLike[str], topics: Optional[list[str]] = None):
+    """(topic, type, log_time, message) in the order the recorder wrote them (only
+    `topics`, when given)."""
     from mcap.reader import make_reader
     from rclpy.serialization import deserialize_message
     from abd_joint_sim.record.read import mcap_file
@@ -99,7 +100,8 @@ def _iter_file_order(path: str | os.PathLike[str]):
                                 'run abd_joint_sim.record.recover() on the bag')
         classes: dict[str, Any] = {}
         try:
-            for schema, channel, message in reader.iter_messages(log_time_order=False):
+            for schema, channel, message in reader.iter_messages(topics=topics,
+                                                                 log_time_order=False):
                 if schema is None:
                     continue
                 cls = classes.get(schema.name)

@@ -39,7 +39,8 @@ from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns
 from abd_joint_sim.ros.params import coerce
 
 SCHEDULE_PARAMETERS = ('time_step', 'publish_rate', 'command_timeout', 'effort_limits',
-                       'joints', 'frame_id')
+                       'joints', 'frame_id', 'marker_rate', 'marker_frame_id',
+                       'marker_joint_axes')
 """sim_node parameters a schedule may set (the rest do not apply to a headless run)."""
 
 DEFAULT_TAIL = 1.0

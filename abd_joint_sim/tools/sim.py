@@ -22,7 +22,8 @@ from typing import Any, Optional, Protocol
 from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.commands import Applied, CommandBuffer
 from abd_joint_sim.ros.params import coerce, NODE_NAME, SimConfig
-from abd_joint_sim.ros.recording import (add_node_topics, bag_custom_data,
+from abd_joint_sim.ros.markers import MarkerBuilder, TOPIC_MARKERS
+from abd_joint_sim.ros.recording import (add_node_topics, bag_custom_data, markers_due,
                                          parameter_event_msg,
                                          PublishSchedule, record_applied, resolve_root,
                                          TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_JOINT_STATES,
@@ -172,8 +173,14 @@ class BagRecorder:
                                               sim.commands.order, extra_custom)
         self.writer = BagWriter(path, custom_data=custom, attachments=attachments)
         self.writer.open()
+        self.markers = None
+        self.marker_schedule = PublishSchedule()
         try:
-            add_node_topics(self.writer, resolve_root, sim.actuated)
+            if sim.config.marker_rate > 0.0:
+                self.markers = MarkerBuilder(sim.scene, sim.config.marker_frame_id,
+                                             sim.config.marker_joint_axes)
+            add_node_topics(self.writer, resolve_root, sim.actuated,
+                            markers=self.markers is not None)
         except BaseException:
             self.writer.close()
             raise
@@ -194,6 +201,12 @@ class BagRecorder:
         self._write(TOPIC_CLOCK, t_ns, convert.clock_msg(t_ns))
         if force:           # start or reset: the node's diagnostics restart too
             self._next_diag_ns = t_ns + DIAGNOSTICS_PERIOD_NS
+        # As sim_node: markers (when due), then /joint_states (when due).
+        if self.markers is not None and markers_due(self.marker_schedule, t_ns,
+                                                    sim.config.marker_rate, force):
+            markers = self.markers.build(t_ns, world.body_pose)
+            if markers is not None:
+                self._write(resolve_root(TOPIC_MARKERS), t_ns, markers)
         if sim.publish_schedule.due(t_ns, sim.config.publish_rate, force):
             self._write(resolve_root(TOPIC_JOINT_STATES), t_ns, convert.joint_state_msg(
                 t_ns, self.joint_names, world.joint_angles(), world.joint_velocities(),

@@ -1,0 +1,260 @@
+"""The bodies as ``visualization_msgs/msg/MarkerArray``, for RViz and Foxglove (live and in the
+bag). Used by sim_node and by the headless recorder (``tools/sim.py``), so both publish and
+record the same markers.
+
+What is drawn, per body, in scene order:
+
+* its ``BodySpec.visuals`` (URDF ``<visual>``), one marker per visual: box -> ``CUBE``,
+  sphere -> ``SPHERE``, cylinder -> ``CYLINDER`` (axis along z, as in URDF), mesh ->
+  ``MESH_RESOURCE`` with the visual's URI and scale;
+* else its own shape (box, sphere, cylinder of the scene);
+* else (an ``inertial:`` body without visuals) the box of equal inertia: with the principal
+  moments I1, I2, I3 of the inertia about the COM and the mass m, a box of sides
+  a_i = sqrt(6 (I_j + I_k - I_i) / m) has the same inertia; it is centred at the COM and
+  aligned with the principal axes.
+
+Pose. A body's state is affine, x = A x̄ + p, and A is not exactly a rotation. A marker is
+posed by the rotation nearest to A (in the Frobenius norm, with det +1): with the SVD
+A = U S Vᵀ, R = U diag(1, 1, det(U Vᵀ)) Vᵀ (the orthogonal polar factor of A, its sign
+fixed so R is proper). A visual with origin (t, R_v) in the body frame sits at
+position A t + p (where that body point really is) with orientation R R_v.
+
+Optional joint axes: one ``ARROW`` per joint from the joint's first to its second point
+(``p0``, ``p1`` of the scene), carried by the parent body (x = A x̄ + p).
+
+Ids and namespaces are stable for a scene: namespace ``bodies/<body>`` with id = the
+visual's index in that body; namespace ``joint_axes`` with id = the joint's index. Every
+array carries every marker in full (action ADD, lifetime 0 = until replaced, frame_locked
+false): ADD and MODIFY are the same value in visualization_msgs, a "pose only" update does
+not exist, and so each message replaces the previous one in RViz and Foxglove alike
+(docs/bag-format.md has the size this costs).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Optional, Sequence
+
+import numpy as np
+
+TOPIC_MARKERS = 'markers'
+MARKER_TYPE = 'visualization_msgs/msg/MarkerArray'
+
+# Colours of bodies without an rgba of their own (fixed bodies grey), RGBA in [0, 1].
+PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 1.0),
+           (0.80, 0.25, 0.30, 1.0), (0.55, 0.40, 0.75, 1.0), (0.55, 0.35, 0.25, 1.0))
+FIXED_COLOUR = (0.55, 0.55, 0.55, 1.0)
+AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
+
+
+def nearest_rotation(A: np.ndarray) -> np.ndarray:
+    """The rotation nearest to A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ from
+    the SVD A = U S Vᵀ."""
+    return nearest_rotations(np.asarray(A, dtype=float)[None])[0]
+
+
+def nearest_rotations(A: np.ndarray) -> np.ndarray:
+    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3), in one SVD call."""
+    U, _, Vt = np.linalg.svd(np.asarray(A, dtype=float))
+    d = np.where(np.linalg.det(U @ Vt) < 0.0, -1.0, 1.0)
+    U = U.copy()
+    U[:, :, 2] *= d[:, None]
+    return U @ Vt
+
+
+def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
+    """URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    from abd_joint_sim.model import rpy_matrix
+    return rpy_matrix(tuple(float(v) for v in rpy))
+
+
+def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
+    w, x, y, z is computed first, so no division by a small number)."""
+    R = np.asarray(R, dtype=float)
+    t = R[0, 0] + R[1, 1] + R[2, 2]
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        s = 2.0 * math.sqrt(1.0 + t)
+        w, x, y, z = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, \
+            (R[1, 0] - R[0, 1]) / s
+    elif k == 1:
+        s = 2.0 * math.sqrt(max(1.0 + R[0, 0] - R[1, 1] - R[2, 2], 1e-300))
+        w, x, y, z = (R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, \
+            (R[0, 2] + R[2, 0]) / s
+    elif k == 2:
+        s = 2.0 * math.sqrt(max(1.0 + R[1, 1] - R[0, 0] - R[2, 2], 1e-300))
+        w, x, y, z = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, \
+            (R[1, 2] + R[2, 1]) / s
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + R[2, 2] - R[0, 0] - R[1, 1], 1e-300))
+        w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, \
+            (R[1, 2] + R[2, 1]) / s, 0.25 * s
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    return float(x), float(y), float(z), float(w)
+
+
+def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """(sides (3,), axes (3,3) with det +1) of the box with the inertia `inertia` (3x3 about
+    the COM, row-major) and mass `mass`: a_i = sqrt(6 (I_j + I_k - I_i) / m)."""
+    I = np.asarray(inertia, dtype=float).reshape(3, 3)
+    moments, axes = np.linalg.eigh(0.5 * (I + I.T))
+    if np.linalg.det(axes) < 0.0:
+        axes[:, 2] = -axes[:, 2]
+    total = moments.sum()
+    # Physical inertias obey the triangle inequality; clip what rounding leaves below 0.
+    sides = np.sqrt(np.maximum(6.0 * (total - 2.0 * moments) / max(mass, 1e-300), 1e-12))
+    return sides, axes
+
+
+class _Part:
+    """One marker of a body: type, scale, colour, mesh URI, origin in the body frame."""
+
+    def __init__(self, body: str, index: int, kind: int, scale, colour, origin_t, origin_R,
+                 mesh_uri: str = ''):
+        self.body, self.index, self.kind = body, index, kind
+        self.scale = tuple(float(v) for v in scale)
+        self.colour = tuple(float(v) for v in colour)
+        self.t = np.asarray(origin_t, dtype=float)
+        self.R = np.asarray(origin_R, dtype=float)
+        self.mesh_uri = mesh_uri
+
+
+class MarkerBuilder:
+    """Builds the MarkerArray of a scene's bodies from their current poses.
+
+    :param scene: the ``Scene`` (bodies, their shapes and visuals, the joints).
+    :param frame_id: ``header.frame_id`` of every marker (the frame of the world positions).
+    :param joint_axes: also draw each joint's axis as an arrow.
+    """
+
+    def __init__(self, scene: Any, frame_id: str = 'world', joint_axes: bool = False):
+        from visualization_msgs.msg import Marker
+        self.Marker = Marker
+        self.frame_id = frame_id
+        self.body_names = [b.name for b in scene.bodies]
+        self.parts: list[_Part] = []
+        for k, body in enumerate(scene.bodies):
+            colour = FIXED_COLOUR if body.fixed else PALETTE[k % len(PALETTE)]
+            self.parts.extend(self._body_parts(body, colour))
+        self.axes: list[tuple[int, str, str, np.ndarray, np.ndarray]] = []
+        if joint_axes:
+            bodies = {b.name: b for b in scene.bodies}
+            for j, joint in enumerate(scene.joints):
+                parent = bodies[joint.parent]
+                R0 = rpy_to_matrix(parent.rpy)
+                p0 = np.asarray(parent.position, dtype=float)
+                a = R0.T @ (np.asarray(joint.p0, dtype=float) - p0)
+                b = R0.T @ (np.asarray(joint.p1, dtype=float) - p0)
+                self.axes.append((j, joint.name, joint.parent, a, b))
+        self._index = {name: k for k, name in enumerate(self.body_names)}
+        self._msg: Optional[Any] = None
+
+    def _body_parts(self, body: Any, colour) -> list[_Part]:
+        M = self.Marker
+        eye = np.eye(3)
+        visuals = tuple(getattr(body, 'visuals', ()) or ())
+        if visuals:
+            parts = []
+            for i, v in enumerate(visuals):
+                rgba = v.rgba if v.rgba is not None else colour
+                R_v = rpy_to_matrix(v.origin_rpy)
+                size = tuple(float(s) for s in v.size)
+                if v.kind == 'box':
+                    parts.append(_Part(body.name, i, M.CUBE, size, rgba, v.origin_xyz, R_v))
+                elif v.kind == 'sphere':
+                    parts.append(_Part(body.name, i, M.SPHERE, (2 * size[0],) * 3, rgba,
+                                       v.origin_xyz, R_v))
+                elif v.kind == 'cylinder':
+                    r, length = size
+                    parts.append(_Part(body.name, i, M.CYLINDER, (2 * r, 2 * r, length), rgba,
+                                       v.origin_xyz, R_v))
+                elif v.kind == 'mesh':
+                    scale = size if len(size) == 3 else (1.0, 1.0, 1.0)
+                    parts.append(_Part(body.name, i, M.MESH_RESOURCE, scale, rgba,
+                                       v.origin_xyz, R_v, mesh_uri=v.mesh_uri))
+                else:
+                    raise ValueError(f"body {body.name!r}: visual {i} has unknown kind "
+                                     f"{v.kind!r} (box, sphere, cylinder or mesh)")
+            return parts
+        s = body.shape
+        if s.kind == 'box':
+            return [_Part(body.name, 0, M.CUBE, s.size, colour, (0, 0, 0), eye)]
+        if s.kind == 'sphere':
+            return [_Part(body.name, 0, M.SPHERE, (2 * s.size[0],) * 3, colour, (0, 0, 0),
+                          eye)]
+        if s.kind == 'cylinder':
+            r, length = s.size
+            return [_Part(body.name, 0, M.CYLINDER, (2 * r, 2 * r, length), colour,
+                          (0, 0, 0), eye)]
+        sides, axes = equal_inertia_box(s.mass, s.inertia)
+        return [_Part(body.name, 0, M.CUBE, sides, colour, s.com, axes)]
+
+    def _template(self) -> Any:
+        """The MarkerArray with every field that does not change (built once: an rclpy
+        message costs tens of µs to construct, more than refilling its pose)."""
+        from geometry_msgs.msg import Point
+        from visualization_msgs.msg import MarkerArray
+        out = MarkerArray()
+        for part in self.parts:
+            m = self._marker(f'bodies/{part.body}', part.index, part.kind)
+            m.scale.x, m.scale.y, m.scale.z = part.scale
+            m.color.r, m.color.g, m.color.b, m.color.a = part.colour
+            if part.mesh_uri:
+                m.mesh_resource = part.mesh_uri
+            out.markers.append(m)
+        for j, _name, _parent, a, b in self.axes:
+            m = self._marker('joint_axes', j, self.Marker.ARROW)
+            m.pose.orientation.w = 1.0
+            m.points = [Point(), Point()]
+            length = float(np.linalg.norm(b - a))
+            # shaft diameter, head diameter, head length (ARROW given by two points)
+            m.scale.x, m.scale.y, m.scale.z = 0.02 * length, 0.05 * length, 0.1 * length
+            m.color.r, m.color.g, m.color.b, m.color.a = AXIS_COLOUR
+            out.markers.append(m)
+        return out
+
+    def build(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[Any]:
+        """The MarkerArray at `stamp_ns` with body poses from `pose(name) -> (p, A)`
+        (``World.body_pose``); None if a pose is not finite (nothing to draw honestly).
+
+        The same message object is refilled by every call (as sim_node does with its
+        JointState): publish or serialise it before the next call.
+        """
+        ps, As = [], []
+        for name in self.body_names:
+            p, A = pose(name)
+            ps.append(p)
+            As.append(A)
+        P = np.asarray(ps, dtype=float)
+        A = np.asarray(As, dtype=float)
+        if not (np.all(np.isfinite(P)) and np.all(np.isfinite(A))):
+            return None
+        R = nearest_rotations(A)
+        index = self._index
+        if self._msg is None:
+            self._msg = self._template()
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        markers = self._msg.markers
+        for m, part in zip(markers, self.parts):
+            k = index[part.body]
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+            self._set_pose(m, A[k] @ part.t + P[k], R[k] @ part.R)
+        for m, (_j, _name, parent, a, b) in zip(markers[len(self.parts):], self.axes):
+            k = index[parent]
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+            for point, x in zip(m.points, (A[k] @ a + P[k], A[k] @ b + P[k])):
+                point.x, point.y, point.z = float(x[0]), float(x[1]), float(x[2])
+        return self._msg
+
+    def _marker(self, ns: str, mid: int, kind: int):
+        m = self.Marker()
+        m.header.frame_id = self.frame_id
+        m.ns, m.id, m.type, m.action = ns, int(mid), int(kind), self.Marker.ADD
+        return m
+
+    @staticmethod
+    def _set_pose(m, position, R) -> None:
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in position)
+        o = m.pose.orientation
+        o.x, o.y, o.z, o.w = quaternion(R)

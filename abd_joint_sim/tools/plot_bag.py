@@ -1,0 +1,375 @@
+"""plot_bag: pictures of a recorded run (PNG), for people to look at.
+
+    python -m abd_joint_sim.tools.plot_bag BAG --out DIR [--times 0,0.5,1] [--view xy]
+
+writes
+
+* ``DIR/joints.png``: joint angle, velocity and effort against simulated time (from
+  ``/joint_states``), one line per joint, with a dotted vertical line wherever a recorded
+  command took effect (torque, array or enable topics; the log time of a command is the
+  step boundary it was applied at), and a dashed one at each reset (simulated time going
+  back to 0 starts a new segment, drawn after the previous one);
+* ``DIR/poses.png``: a strip of the bodies at chosen times, drawn from the recorded
+  ``markers`` (docs/bag-format.md): each box, cylinder or sphere projected on a plane
+  (boxes and cylinders as the convex hull of their projected outline, spheres as
+  circles, meshes as a cross at their origin), joint-axis arrows as lines, and a thin
+  line for the path each body's marker took up to that time. Without markers
+  in the bag (recorded with ``marker_rate`` 0) only joints.png is written.
+
+The view plane (``--view xy|xz|yz``) defaults to the one in which the bodies move most.
+matplotlib is optional (requirements-study.txt); without it the command says so in one line
+and exits with status 2, as it does for a bag it cannot read.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+import sys
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+PROG = 'plot_bag'
+_COMMAND_TYPES = ('std_msgs/msg/Float64', 'std_msgs/msg/Float64MultiArray',
+                  'std_msgs/msg/Bool')
+_AXES = {'x': 0, 'y': 1, 'z': 2}
+
+
+class PlotError(RuntimeError):
+    """The bag cannot be plotted; the message says why (one line)."""
+
+
+class Run:
+    """What the pictures need from a bag, in simulated time (segments laid end to end)."""
+
+    def __init__(self) -> None:
+        self.joint_names: list[str] = []
+        self.t: list[float] = []           # s, continuous across resets
+        self.position: list[list[float]] = []
+        self.velocity: list[list[float]] = []
+        self.effort: list[list[float]] = []
+        self.commands: list[tuple[float, str]] = []     # (t, topic)
+        self.resets: list[float] = []
+        self.reset_index: list[int] = []   # index into t of the first state after a reset
+        self.markers: list[tuple[float, Any]] = []      # (t, MarkerArray)
+        self.marker_segment: list[int] = []             # segment (0, 1, ...) of each
+
+
+def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
+    """Topics worth deserialising (joint states, markers, commands), from the MCAP summary:
+    /clock alone is a message per step. None = all (no summary to tell)."""
+    from mcap.reader import make_reader
+    from abd_joint_sim.record.read import mcap_file
+    try:
+        with open(mcap_file(bag), 'rb') as handle:
+            summary = make_reader(handle).get_summary()
+    except Exception:  # noqa: BLE001 - read_messages below reports what is wrong
+        return None
+    if summary is None:
+        return None
+    wanted = []
+    for channel in summary.channels.values():
+        schema = summary.schemas.get(channel.schema_id)
+        name = schema.name if schema is not None else ''
+        if name in ('sensor_msgs/msg/JointState', 'visualization_msgs/msg/MarkerArray') or \
+                (name in _COMMAND_TYPES and 'joint_torque' in channel.topic):
+            wanted.append(channel.topic)
+    return wanted
+
+
+def read_run(bag: str | os.PathLike[str]) -> Run:
+    """Read joint states, commands and markers of `bag` (raises PlotError), in the order
+    they were written: log times restart at 0 after a reset, so log-time order would
+    interleave the segments."""
+    from abd_joint_sim.tools.bagrun import _iter_file_order, BagInputError
+    run = Run()
+    offset = 0.0          # simulated time of earlier segments
+    last = -1
+    try:
+        for topic, msg_type, log_ns, msg in _iter_file_order(bag, _wanted_topics(bag)):
+            if log_ns < last:   # a reset: sim time restarted from 0
+                offset += last * 1e-9
+                run.resets.append(offset)
+                run.reset_index.append(len(run.t))
+            last = log_ns
+            t = offset + log_ns * 1e-9
+            if msg_type == 'sensor_msgs/msg/JointState':
+                if not run.joint_names:
+                    run.joint_names = list(msg.name)
+                if list(msg.name) != run.joint_names:
+                    raise PlotError(f'{bag}: {topic} changes its joint names at t = {t:g} s')
+                run.t.append(t)
+                run.position.append(list(msg.position))
+                run.velocity.append(list(msg.velocity))
+                run.effort.append(list(msg.effort))
+            elif msg_type == 'visualization_msgs/msg/MarkerArray':
+                run.markers.append((t, msg))
+                run.marker_segment.append(len(run.resets))
+            elif msg_type in _COMMAND_TYPES and 'joint_torque' in topic:
+                run.commands.append((t, topic))
+    except BagInputError as exc:
+        raise PlotError(str(exc)) from None
+    if not run.t:
+        raise PlotError(f'{bag}: no sensor_msgs/msg/JointState messages to plot')
+    return run
+
+
+def _pyplot():
+    try:
+        import matplotlib
+    except ImportError:
+        return None
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_joints(plt, run: Run, path: Path, title: str) -> None:
+    # A NaN row before each reset breaks the lines there instead of joining the segments.
+    cut = run.reset_index
+    t = np.insert(np.array(run.t), cut, np.nan)
+    rows = (('angle [rad]', run.position), ('velocity [rad/s]', run.velocity),
+            ('effort [N m]', run.effort))
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, constrained_layout=True)
+    for ax, (label, values) in zip(axes, rows):
+        data = np.array(values, dtype=float).reshape(len(run.t), -1)
+        data = np.insert(data, cut, np.nan, axis=0)
+        for k, name in enumerate(run.joint_names):
+            if k < data.shape[1]:
+                ax.plot(t, data[:, k], lw=1.6, label=name)
+        for tc in sorted({round(tc, 9) for tc, _ in run.commands}):
+            ax.axvline(tc, color='0.45', ls=':', lw=1.0)
+        for tr in run.resets:
+            ax.axvline(tr, color='k', ls='--', lw=1.2)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc='best', fontsize=9, ncol=max(1, len(run.joint_names) // 4 + 1))
+    axes[-1].set_xlabel('simulated time [s]')
+    notes = 'dotted: a command took effect' + ('; dashed: reset' if run.resets else '')
+    axes[0].set_title(f'{title}\n{notes}', fontsize=11)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _quat_matrix(o) -> np.ndarray:
+    x, y, z, w = o.x, o.y, o.z, o.w
+    n = math.sqrt(x * x + y * y + z * z + w * w) or 1.0
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _outline(marker) -> Optional[np.ndarray]:
+    """Points (N,3) in the marker frame whose projection's convex hull is its silhouette."""
+    from visualization_msgs.msg import Marker
+    s = np.array([marker.scale.x, marker.scale.y, marker.scale.z]) / 2.0
+    if marker.type == Marker.CUBE:
+        local = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)]) * s
+    elif marker.type == Marker.CYLINDER:
+        a = np.linspace(0.0, 2 * math.pi, 24, endpoint=False)
+        ring = np.stack([np.cos(a) * s[0], np.sin(a) * s[1], np.zeros_like(a)], axis=1)
+        local = np.concatenate([ring + [0, 0, s[2]], ring - [0, 0, s[2]]])
+    else:
+        return None
+    p = marker.pose.position
+    return local @ _quat_matrix(marker.pose.orientation).T + [p.x, p.y, p.z]
+
+
+def _hull(points: np.ndarray) -> np.ndarray:
+    """Convex hull (Andrew's monotone chain) of 2-D points, counter-clockwise."""
+    pts = sorted(set(map(tuple, np.round(points, 12))))
+    if len(pts) < 3:
+        return np.array(pts)
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list = []
+    upper: list = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def choose_view(run: Run) -> str:
+    """The plane ('xy', 'xz', 'yz') normal to the axis the marker positions vary least
+    along: the plane the bodies move in."""
+    pos = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
+                    for _, arr in run.markers for m in arr.markers
+                    if m.ns.startswith('bodies/')])
+    if len(pos) == 0:
+        return 'xy'
+    spread = pos.max(axis=0) - pos.min(axis=0)
+    # Ties (e.g. nothing moved) prefer the top view.
+    drop = int(np.argmin(spread + np.array([2e-9, 1e-9, 0.0])))
+    return {0: 'yz', 1: 'xz', 2: 'xy'}[drop]
+
+
+def pick_times(run: Run, times: Optional[Sequence[float]], count: int = 5) -> list[int]:
+    """Indices into run.markers nearest to `times` (default: `count` evenly spaced)."""
+    stamps = np.array([t for t, _ in run.markers])
+    if times is None:
+        times = np.linspace(stamps[0], stamps[-1], min(count, len(stamps)))
+    out = []
+    for t in times:
+        k = int(np.argmin(np.abs(stamps - t)))
+        if k not in out:
+            out.append(k)
+    return sorted(out)
+
+
+def plot_poses(plt, run: Run, path: Path, title: str, view: str,
+               times: Optional[Sequence[float]]) -> list[float]:
+    """The strip of body poses; returns the times drawn."""
+    from matplotlib.patches import Circle, Polygon
+    from visualization_msgs.msg import Marker
+    i, j = _AXES[view[0]], _AXES[view[1]]
+    chosen = pick_times(run, times)
+    all_pts = []
+    for _, arr in run.markers:
+        for m in arr.markers:
+            pts = _outline(m)
+            if pts is not None:
+                all_pts.append(pts[:, [i, j]])
+            p = m.pose.position
+            all_pts.append(np.array([[p.x, p.y, p.z]])[:, [i, j]])
+    all_pts = np.concatenate(all_pts)
+    lo, hi = all_pts.min(axis=0), all_pts.max(axis=0)
+    pad = 0.05 * max(hi - lo) + 1e-3
+    n = len(chosen)
+    cols = min(n, 4)                    # rows of at most 4 panels stay readable
+    rows = -(-n // cols)
+    aspect = (hi[1] - lo[1] + 2 * pad) / (hi[0] - lo[0] + 2 * pad)
+    panel = 3.6
+    fig, axes = plt.subplots(rows, cols, figsize=(panel * cols + 0.4,
+                                                  (min(panel * aspect, 2 * panel) + 1.0) * rows + 0.4),
+                             squeeze=False, constrained_layout=True)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    drawn = []
+    labelled: set = set()
+    for ax, k in zip(axes.ravel(), chosen):
+        t, arr = run.markers[k]
+        drawn.append(t)
+        # Faint trail: where each moving body's marker has been up to t (in its segment).
+        trails: dict = {}
+        segment = run.marker_segment[k]
+        for (_, earlier), seg in zip(run.markers[:k + 1], run.marker_segment):
+            if seg != segment:
+                continue
+            for m in earlier.markers:
+                if m.ns.startswith('bodies/'):
+                    trails.setdefault((m.ns, m.id), []).append(
+                        [m.pose.position.x, m.pose.position.y, m.pose.position.z])
+        for path_pts in trails.values():
+            xy = np.array(path_pts)[:, [i, j]]
+            if np.ptp(xy, axis=0).max() > 1e-6:
+                ax.plot(xy[:, 0], xy[:, 1], color='0.35', lw=0.8, alpha=0.6)
+        for m in arr.markers:
+            colour = (m.color.r, m.color.g, m.color.b, max(m.color.a, 0.3) if m.color.a else 0.8)
+            p = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+            if m.type == Marker.ARROW and len(m.points) == 2:
+                a, b = m.points
+                ax.annotate('', xy=([b.x, b.y, b.z][i], [b.x, b.y, b.z][j]),
+                            xytext=([a.x, a.y, a.z][i], [a.x, a.y, a.z][j]),
+                            arrowprops=dict(arrowstyle='->', color=colour, lw=1.5))
+            elif m.type == Marker.SPHERE:
+                ax.add_patch(Circle((p[i], p[j]), m.scale.x / 2, facecolor=colour,
+                                    edgecolor='k', lw=0.6, alpha=0.85))
+            elif m.type == Marker.MESH_RESOURCE:
+                ax.plot(p[i], p[j], 'x', color=colour, ms=8, mew=2)
+            else:
+                pts = _outline(m)
+                if pts is not None:
+                    name = m.ns.split('/', 1)[-1]
+                    ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
+                                         facecolor=colour, edgecolor='k', lw=0.6,
+                                         alpha=0.85,
+                                         label=None if name in labelled else name))
+                    labelled.add(name)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        ax.set_aspect('equal')
+        ax.grid(alpha=0.3)
+        ax.set_title(f't = {t:.3f} s', fontsize=11)
+        ax.set_xlabel(f'{view[0]} [m]')
+    for row in axes:
+        row[0].set_ylabel(f'{view[1]} [m]')
+    if labelled:
+        axes[0][0].legend(loc='best', fontsize=8, framealpha=0.8)
+    fig.suptitle(f'{title}: bodies seen along {"xyz"[3 - i - j]} (from the recorded markers)',
+                 fontsize=11)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return drawn
+
+
+def _times(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(',') if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a comma-separated list of seconds') \
+            from None
+    if not values or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise argparse.ArgumentTypeError(f'{text!r}: give times >= 0 in seconds, e.g. 0,0.5,1')
+    return values
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description='Turn a recorded abd_joint_sim bag into PNG pictures: joint '
+        'angles, velocities and efforts against simulated time (joints.png) and a strip of '
+        'the bodies at chosen times from the recorded markers (poses.png).')
+    parser.add_argument('bag', help='bag directory (or its .mcap file)')
+    parser.add_argument('--out', required=True, help='directory to write the PNGs into')
+    parser.add_argument('--times', type=_times, default=None,
+                        help='simulated times [s] of the pose strip, comma-separated '
+                        '(default: 5 evenly spaced; the nearest recorded markers are drawn)')
+    parser.add_argument('--view', choices=('xy', 'xz', 'yz'), default=None,
+                        help='projection plane of the pose strip (default: the plane the '
+                        'bodies move in)')
+    parser.add_argument('--title', default=None, help='title (default: the bag name)')
+    parser.add_argument('-q', '--quiet', action='store_true', help='no summary line')
+    args = parser.parse_args(argv)
+    plt = _pyplot()
+    if plt is None:
+        print(f'{PROG}: matplotlib is not installed (it is optional); install it with '
+              '`python -m pip install -r requirements-study.txt`', file=sys.stderr)
+        return 2
+    try:
+        run = read_run(args.bag)
+    except PlotError as exc:
+        print(f'{PROG}: {exc}', file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f'{PROG}: cannot create {out}: {exc.strerror or exc}', file=sys.stderr)
+        return 2
+    title = args.title or Path(os.path.normpath(args.bag)).name
+    written = [out / 'joints.png']
+    plot_joints(plt, run, written[0], title)
+    note = 'no markers in the bag (marker_rate 0): no poses.png'
+    if run.markers:
+        view = args.view or choose_view(run)
+        drawn = plot_poses(plt, run, out / 'poses.png', title, view, args.times)
+        written.append(out / 'poses.png')
+        note = f'poses at t = {", ".join(f"{t:.3f}" for t in drawn)} s ({view} view)'
+    if not args.quiet:
+        print(f'{PROG}: {len(run.t)} joint states, {len(run.commands)} commands, '
+              f'{len(run.markers)} marker arrays -> {", ".join(map(str, written))}; {note}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
