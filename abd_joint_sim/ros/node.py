@@ -33,8 +33,8 @@ from .params import (check_live_value, coerce, config_from_values, default_scene
 from .recording import (add_node_topics, bag_custom_data, parameter_event_msg,
                         PublishSchedule, RECORDED_PARAMETERS, record_applied,
                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
-                        TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY,
-                        TOPIC_TORQUE_JOINT)
+                        TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS,
+                        TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT)
 
 JOINT_STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                              reliability=ReliabilityPolicy.RELIABLE,
@@ -63,13 +63,15 @@ class SimNode(Node):
 
         # Scene and world. Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene, World
-        self.scene = Scene.from_yaml(self.config.scene)
+        self.scene = self._load_scene(Scene)
         self.world = World(self.scene, dt=self.config.time_step or None, backend=self.config.backend)
         self.joint_names = list(self.world.joint_names)
         self.actuated = list(self.world.actuated_joint_names)
         self.commands = CommandBuffer(self.actuated, self.config.joints,
                                       self.config.effort_limits, self.config.command_timeout,
-                                      scene_limits=self._scene_effort_limits())
+                                      scene_limits=self._scene_effort_limits(),
+                                      driven=[j.name for j in self.scene.joints
+                                              if j.driving is not None])
         self.config.joints = list(self.commands.order)
 
         self.paused = bool(self.config.start_paused)
@@ -101,6 +103,8 @@ class SimNode(Node):
             self.create_subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY,
                                      self._on_torque_array, COMMAND_QOS),
             self.create_subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all, COMMAND_QOS),
+            self.create_subscription(JointState, TOPIC_JOINT_COMMANDS,
+                                     self._on_joint_commands, COMMAND_QOS),
         ]
         for joint in self.actuated:
             self.command_subs.append(self.create_subscription(
@@ -135,6 +139,22 @@ class SimNode(Node):
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
         self._publish_state(force=True)
+
+    def _load_scene(self, Scene):
+        """robot_description (URDF text) if set, else the scene file (.urdf or YAML); URDF
+        repairs are logged as warnings, one line each."""
+        import warnings
+        from abd_joint_sim.urdf import UrdfWarning
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', UrdfWarning)   # logged below instead
+            if self.config.robot_description.strip():
+                scene = Scene.from_urdf(self.config.robot_description)
+                self.config.scene = 'robot_description'
+            else:
+                scene = Scene.from_file(self.config.scene)
+        for text in scene.warnings:
+            self.get_logger().warn(text)
+        return scene
 
     def _scene_effort_limits(self) -> dict[str, float]:
         model = getattr(self.world, 'model', None)
@@ -409,6 +429,10 @@ class SimNode(Node):
     def _on_torque_joint(self, joint: str, msg: Float64) -> None:
         self._report(*self.commands.command_torque(joint, msg.data))
 
+    def _on_joint_commands(self, msg: JointState) -> None:
+        self._report(*self.commands.command_joint_state(msg.name, msg.position, msg.velocity,
+                                                        msg.effort))
+
     def _on_enable_joint(self, joint: str, msg: Bool) -> None:
         self._report(self.commands.command_enable(joint, msg.data), [])
 
@@ -465,7 +489,8 @@ class SimNode(Node):
             from abd_joint_sim.record.bag import BagWriter
             custom, attachments = bag_custom_data(
                 self.config, self.config.scene, getattr(self.scene, 'source_text', '') or '',
-                self.world.dt, self.commands.order)
+                self.world.dt, self.commands.order,
+                urdf_text=getattr(self.scene, 'robot_description', '') or '')
             writer = BagWriter(path, custom_data=custom, attachments=attachments)
             writer.open()
             add_node_topics(writer, self._abs, self.actuated)
@@ -546,7 +571,7 @@ class SimNode(Node):
             f'({"every step" if c.publish_rate == 0 else f"{c.publish_rate:g} Hz"}), '
             f'{TOPIC_CLOCK}, {TOPIC_DIAGNOSTICS} | commands {ns}/{TOPIC_TORQUE_ARRAY} '
             f'(order {self.commands.order}), {ns}/joint_torque/<joint>, '
-            f'{ns}/{TOPIC_ENABLE_ALL}[/<joint>] | services ~/pause ~/unpause ~/step ~/reset | '
+            f'{ns}/{TOPIC_ENABLE_ALL}[/<joint>], {ns}/{TOPIC_JOINT_COMMANDS} | services ~/pause ~/unpause ~/step ~/reset | '
             f'real-time factor {rtf} | {"paused" if self.paused else "running"} | '
             f'command timeout {f"{c.command_timeout:g} s" if c.command_timeout else "off"} | '
             f'effort limits {limits} | '
