@@ -168,7 +168,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
                                       f'{last_t:g}; list events in increasing time, one per time')
         last_t = t
         if not {'torque', 'enable', 'joint_command'} & set(event):
-            raise _fail(where, 'has none of torque, enable, joint_command')
+            raise _fail(where, 'has neither torque nor enable (nor joint_command)')
         t_ns = seconds_to_ns(t)
         enable = event.get('enable')
         if 'enable' in event:
