@@ -100,18 +100,20 @@ def test_headless_run_with_joint_commands_records_the_urdf_and_replays(tmp_path)
     assert max(abs(a - b) for a, b in zip(last.q, recorded)) > 1e-3
 
 
-def test_sim_node_from_robot_description(tmp_path):
-    """robot_description (URDF text) is the scene: /joint_states names are the URDF's,
-    initial angles 0, joint_commands efforts act; the bag stores the URDF and replays."""
+@pytest.mark.parametrize('how', ['robot_description', 'scene'])
+def test_sim_node_from_robot_description(tmp_path, how):
+    """robot_description (URDF text) or scene:=demo_arm is the scene: /joint_states names
+    are the URDF's, joint_commands efforts act; the bag stores the URDF and replays."""
     domain = next_domain_id()
     bag = tmp_path / 'bag'
     # As robot_state_publisher gets it from a launch file / params file (a -p value on the
     # command line is parsed as YAML, which XML text rarely survives).
     import yaml
     params = tmp_path / 'params.yaml'
+    source = ({'robot_description': DEMO.read_text()} if how == 'robot_description'
+              else {'scene': 'demo_arm'})
     params.write_text(yaml.safe_dump({'abd_joint_sim': {'ros__parameters': {
-        'robot_description': DEMO.read_text(), 'real_time_factor': 0.0, 'publish_rate': 0.0,
-        'record': str(bag)}}}))
+        **source, 'real_time_factor': 0.0, 'publish_rate': 0.0, 'record': str(bag)}}}))
     (tmp_path / 'log').mkdir()
     node = NodeProcess([sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args',
                         '--params-file', str(params)], ros_env(domain, tmp_path / 'log'),
@@ -141,7 +143,10 @@ def test_sim_node_from_robot_description(tmp_path):
         if node.alive():
             node.stop(signal.SIGKILL)
     out = node.output()
-    assert 'robot_description' in out and 'clamped to 15' in out
+    assert ('scene robot_description' if how == 'robot_description' else 'demo_arm.urdf') in out
+    assert 'clamped to 15' in out
+    from abd_joint_sim.record import read_custom_data
+    assert read_custom_data(str(bag))['abd_joint_sim.urdf'] == DEMO.read_text()
     env = ros_env(domain, tmp_path)
     check = subprocess.run([sys.executable, '-m', 'abd_joint_sim.tools.replay_check', str(bag)],
                            capture_output=True, text=True, env=env, timeout=300)
