@@ -139,3 +139,21 @@ def test_joint_motion_agrees_with_mujoco(rel_path, q0):
     dq = np.linalg.norm(world.joint_angles() - q_ref) / np.linalg.norm(q_ref - start)
     print(f'{rel_path} vs MuJoCo: velocity {dv:.2e}, angle {dq:.2e} (relative)')
     assert dv < 0.01 and dq < 0.01
+
+
+def test_robot_study_reduced(tmp_path):
+    """study/urdf_robot.py --quick: against MuJoCo RK4 at 1e-5, BDF2's lag behind the rigid
+    KUKA shrinks about 4x per halving of dt (second order), and a softer κ lags more."""
+    pytest.importorskip('mujoco', reason='mujoco not installed (requirements-test.txt)')
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                    'study'))
+    import urdf_robot
+    rows = urdf_robot.main(['--quick', '--out', str(tmp_path / 'r')])
+    bdf2 = {r['dt']: r['error'] for r in rows if r['engine'] == 'ours bdf2' and r['kappa'] == 1e8}
+    ratios = [bdf2[2e-3] / bdf2[1e-3], bdf2[1e-3] / bdf2[5e-4]]
+    assert all(3.0 < q < 5.5 for q in ratios), (bdf2, ratios)
+    soft = [r['error'] for r in rows if r['engine'] == 'ours bdf2' and r['kappa'] == 1e6]
+    assert soft and soft[0] > 1.5 * bdf2[5e-4]
+    assert (tmp_path / 'r.md').read_text().count('| ours') == len(
+        [r for r in rows if r['engine'].startswith('ours')])
