@@ -43,6 +43,9 @@ ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints'
 SCENE_OPTIONS = ('dt', 'gravity', 'integrator', 'newton', 'name')
 """Scene options ``from_urdf`` also takes (in a scene YAML they are top-level keys)."""
 JOINT_OVERRIDES = ('strength_ratio', 'external_torque', 'driving', 'limit')
+OVERRIDE_KEYS = {'external_torque': ('torque', 'enabled', 'effort_limit'),
+                 'driving': ('strength_ratio', 'aim_angle', 'passive', 'enabled'),
+                 'limit': ('lower', 'upper', 'strength')}
 MOVABLE = ('revolute', 'continuous')
 UNSUPPORTED = ('prismatic', 'planar', 'floating')
 
@@ -330,10 +333,30 @@ class _Options:
             if bad:
                 self.fail(f'joints.{name}', f'unknown key(s) {", ".join(map(repr, bad))}; '
                                             f'allowed: {", ".join(JOINT_OVERRIDES)}')
+            for key, allowed in OVERRIDE_KEYS.items():
+                sub = over.get(key)
+                if isinstance(sub, dict):
+                    bad = [k for k in sub if k not in allowed]
+                    if bad:
+                        self.fail(f'joints.{name}.{key}', f'unknown key(s) '
+                                  f'{", ".join(map(repr, bad))}; allowed: {", ".join(allowed)}')
+                elif key in over and sub is not None and sub is not False:
+                    self.fail(f'joints.{name}.{key}', f'must be a mapping (or false to '
+                                                      f'remove it), got {sub!r}')
+            if 'strength_ratio' in over:
+                self.positive(f'joints.{name}.strength_ratio', over['strength_ratio'])
+        for key in ('kappa', 'strength_ratio'):
+            if opts.get(key) is not None:
+                self.positive(key, opts[key])
 
     def fail(self, field, msg):
         where = f'{self.where}.{field}' if field else self.where
         raise SceneError(f'{self.source}: {where}: {msg}')
+
+    def positive(self, field, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value) or value <= 0:
+            self.fail(field, f'must be a finite number > 0, got {value!r}')
 
     def mapping(self, field, value):
         if not isinstance(value, dict):
@@ -563,9 +586,13 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 if key == 'driving':
                     base = {'aim_angle': q0}
                 d[key] = {**base, **value}
-            else:
-                raise SceneError(f'{source}: robot.joints.{j.name}.{key}: must be a mapping '
-                                 f'(or false to remove it), got {value!r}')
+        lim = d.get('limit')
+        if isinstance(lim, dict) and 'lower' in lim and 'upper' in lim \
+                and not lim['lower'] <= q0 <= lim['upper']:
+            raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} rad is outside '
+                             f'the joint\'s limit [{lim["lower"]:g}, {lim["upper"]:g}]; the limit '
+                             f'would throw it back at once (widen it with joints: {{{j.name}: '
+                             '{limit: ...}}, or limits: false)')
         scene_joints.append(d)
     data = {'name': robot_name, 'bodies': bodies, 'joints': scene_joints}
     return data, notes

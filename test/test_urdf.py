@@ -275,3 +275,17 @@ def test_packaged_demo_arm_loads_and_runs():
     world.step(20)
     assert np.all(np.isfinite(world.joint_angles()))
     assert Scene.from_file(DEMO).joint_names == scene.joint_names
+
+
+@pytest.mark.parametrize('opts, match', [
+    ({'initial_positions': {'shoulder': 2.0}}, r"initial_positions.shoulder: 2 rad is outside the joint's limit \[-1.5, 1.5\]"),
+    ({'joints': {'shoulder': {'driving': {'aim': 1.0}}}}, r"joints.shoulder.driving: unknown key\(s\) 'aim'"),
+    ({'joints': {'shoulder': {'limit': 3}}}, r'joints.shoulder.limit: must be a mapping'),
+    ({'kappa': -1.0}, r'robot.kappa: must be a finite number > 0'),
+    ({'joints': {'shoulder': {'strength_ratio': 0}}}, r'joints.shoulder.strength_ratio: must be'),
+])
+def test_bad_overrides_name_the_joint_and_field(opts, match):
+    with pytest.raises(SceneError, match=match):
+        Scene.from_urdf(ARM, **opts)
+    # an initial position outside the URDF limit is fine once the limit is off
+    Scene.from_urdf(ARM, initial_positions={'shoulder': 2.0}, limits=False)
