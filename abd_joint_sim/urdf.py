@@ -455,7 +455,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             if what:
                 msg = f'{source}: link {name!r}: {what}'
                 notes.append(msg)
-                warnings.warn(msg, UrdfWarning, stacklevel=3)
+                warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
 
     # Lumped mass properties per body, in the body (= top link) frame.
     def lumped(top):
@@ -496,7 +496,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         msg = (f'{source}: link {top!r} has no mass (nor anything fixed to it): joint '
                f'{j.name!r} is held rigid (merged into {j.parent!r}), it has no dynamics')
         notes.append(msg)
-        warnings.warn(msg, UrdfWarning, stacklevel=3)
+        warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
         opt.lock.append(j.name)
         for name in members.pop(top):
             members[group[j.parent]].append(name)
@@ -602,8 +602,8 @@ def read_urdf_source(source) -> tuple[str, str]:
     """(text, name for messages) of a path or of URDF XML text."""
     if isinstance(source, (bytes, bytearray)):
         source = source.decode('utf-8', errors='replace')
-    if isinstance(source, str) and source.lstrip().startswith('<'):
-        return source, '<robot_description>'
+    if isinstance(source, str) and '<' in source:       # XML text (no path has a '<')
+        return source.lstrip('\ufeff'), '<robot_description>'
     path = Path(os.path.expanduser(str(source)))
     try:
         return path.read_text(), str(path)

@@ -157,3 +157,30 @@ def test_robot_study_reduced(tmp_path):
     assert soft and soft[0] > 1.5 * bdf2[5e-4]
     assert (tmp_path / 'r.md').read_text().count('| ours') == len(
         [r for r in rows if r['engine'].startswith('ours')])
+
+
+@pytest.mark.parametrize('rel_path, lock, joints, warned', [
+    ('xarm/xarm6_robot.urdf', [], 6, ['link2', 'link3']),         # inertias breaking the triangle inequality
+    ('franka_panda/panda.urdf', ['panda_finger_joint1', 'panda_finger_joint2'], 7, []),  # mass="0" link, prismatic fingers
+    ('laikago/laikago.urdf', [], 12, None),                        # quadruped, mesh visuals
+    ('TwoJointRobot_w_fixedJoints.urdf', [], 2, ['link_1', 'link_2']),
+])
+def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned):
+    import warnings
+    from abd_joint_sim.urdf import UrdfWarning
+    path = os.path.join(pybullet_data.getDataPath(), rel_path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(path, lock=lock)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(scene.joint_names) == joints and len(msgs) == len(scene.warnings)
+    if warned is not None:
+        assert [m.split("link '")[1].split("'")[0] for m in msgs] == warned
+    World(scene).step(3)
+
+
+def test_panda_fingers_are_one_clear_error_without_lock():
+    from abd_joint_sim.errors import SceneError
+    path = os.path.join(pybullet_data.getDataPath(), 'franka_panda/panda.urdf')
+    with pytest.raises(SceneError, match=r"joint 'panda_finger_joint1' is prismatic.*lock: \[panda_finger_joint1\]"):
+        Scene.from_urdf(path)
