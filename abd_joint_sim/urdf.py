@@ -38,7 +38,7 @@ FIXED_ROOT_MASS = 1.0                  # kg given to a massless fixed root (it n
 WATER_DENSITY = 1000.0                 # kg/m^3: volume (for kappa) and the sphere repair
 
 ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints', 'kappa',
-                 'strength_ratio', 'limits', 'torque_enabled')
+                 'strength_ratio', 'limits', 'torque_enabled', 'driving')
 """URDF options of ``from_urdf`` and of a ``robot:`` block (besides ``urdf``)."""
 SCENE_OPTIONS = ('dt', 'gravity', 'integrator', 'newton', 'name')
 """Scene options ``from_urdf`` also takes (in a scene YAML they are top-level keys)."""
@@ -348,6 +348,13 @@ class _Options:
         for key in ('kappa', 'strength_ratio'):
             if opts.get(key) is not None:
                 self.positive(key, opts[key])
+        self.driving = opts.get('driving')
+        if self.driving is not None:
+            self.mapping('driving', self.driving)
+            bad = [k for k in self.driving if k not in OVERRIDE_KEYS['driving']]
+            if bad:
+                self.fail('driving', f'unknown key(s) {", ".join(map(repr, bad))}; allowed: '
+                                     f'{", ".join(OVERRIDE_KEYS["driving"])}')
 
     def fail(self, field, msg):
         where = f'{self.where}.{field}' if field else self.where
@@ -572,6 +579,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             d['external_torque'] = et
         if opt.limits and j.type == 'revolute' and j.lower is not None and j.upper > j.lower:
             d['limit'] = {'lower': j.lower, 'upper': j.upper}
+        if opt.driving is not None:         # UID 19 on every moving joint, holding its pose
+            d['driving'] = {'aim_angle': q0, **opt.driving}
         over = opt.overrides.get(j.name, {})
         for key in JOINT_OVERRIDES:
             if key not in over:
@@ -583,7 +592,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 d[key] = value
             elif isinstance(value, dict):
                 base = d.get(key) if isinstance(d.get(key), dict) else {}
-                if key == 'driving':
+                if key == 'driving' and 'driving' not in d:
                     base = {'aim_angle': q0}
                 d[key] = {**base, **value}
         lim = d.get('limit')

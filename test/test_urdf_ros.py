@@ -166,3 +166,22 @@ def test_sim_node_bad_urdf_is_one_line(tmp_path):
     assert node.proc.returncode == 1, out
     assert "cannot start:" in out and "joint 'tool_mount' is prismatic" in out and 'lock: [tool_mount]' in out
     assert 'Traceback' not in out
+
+
+def test_position_commands_drive_the_joints_along_a_trajectory():
+    """joint_commands positions, as a position controller sends them (a smooth trajectory,
+    small steps per cycle), move joints that have driving (robot option `driving:` on all)
+    to the commanded angles; the joint without a command holds its pose."""
+    scene = Scene.from_urdf(str(DEMO), gravity=[0, 0, 0], driving={'enabled': True})
+    assert all(j.driving is not None and j.driving.enabled for j in scene.joints)
+    world = World(scene)
+    buf = buffer_for(scene, world)
+    for k in range(1, 31):
+        rej, _ = buf.command_joint_state(['elbow', 'shoulder_pan'], [0.01 * k, -0.005 * k], [], [])
+        assert rej == []
+        buf.apply(world)
+        world.step(5)
+    world.step(200)
+    q = world.joint_angles()
+    assert q[2] == pytest.approx(0.30, abs=2e-3) and q[0] == pytest.approx(-0.15, abs=2e-3)
+    assert abs(q[1]) < 2e-3
