@@ -166,8 +166,9 @@ class Scene:
         Options: dt (default 1e-3), gravity (default [0, 0, -9.81]), integrator, newton,
         name, fixed_base, initial_positions {joint: rad}, lock [joints], actuated [joints],
         joints {joint: {strength_ratio, external_torque, driving, limit}}, kappa,
-        strength_ratio, limits (bool), torque_enabled (bool). Repairs are warned as
-        `abd_joint_sim.urdf.UrdfWarning` and listed in `Scene.warnings`.
+        strength_ratio, limits (bool), torque_enabled (bool), driving {...} (all joints).
+        Repairs are warned as `abd_joint_sim.urdf.UrdfWarning` and listed in
+        `Scene.warnings`.
         """
         from .urdf import scene_data_from_urdf
         data, name, text, notes = scene_data_from_urdf(source, options)
