@@ -106,8 +106,8 @@ def test_sim_node_from_robot_description(tmp_path, how):
     are the URDF's, joint_commands efforts act; the bag stores the URDF and replays."""
     domain = next_domain_id()
     bag = tmp_path / 'bag'
-    # As robot_state_publisher gets it from a launch file / params file (a -p value on the
-    # command line is parsed as YAML, which XML text rarely survives).
+    # As robot_state_publisher gets it from a launch file or a params file (the command line:
+    # test_robot_description_on_the_command_line).
     import yaml
     params = tmp_path / 'params.yaml'
     source = ({'robot_description': DEMO.read_text()} if how == 'robot_description'
@@ -185,3 +185,41 @@ def test_position_commands_drive_the_joints_along_a_trajectory():
     q = world.joint_angles()
     assert q[2] == pytest.approx(0.30, abs=2e-3) and q[0] == pytest.approx(-0.15, abs=2e-3)
     assert abs(q[1]) < 2e-3
+
+
+def test_robot_description_on_the_command_line(tmp_path):
+    """`-p robot_description:="$(cat robot.urdf)"`, as users start robot_state_publisher:
+    rcl would parse the URDF text as YAML (": " in a comment ends it); the node moves it into
+    a params file first, so any URDF text arrives whole."""
+    from abd_joint_sim.ros.node import _robot_description_to_params_file
+    text = DEMO.read_text().replace('<robot name', '<!-- note: a comment # with YAML trouble -->\n<robot name')
+    args, path = _robot_description_to_params_file(['x', '--ros-args', '-p', 'a:=1', '-p',
+                                                    f'robot_description:={text}', '-p', 'b:=2'])
+    try:
+        assert args == ['x', '--ros-args', '-p', 'a:=1', '--params-file', path, '-p', 'b:=2']
+        import yaml
+        assert yaml.safe_load(Path(path).read_text())['/**']['ros__parameters'][
+            'robot_description'] == text
+    finally:
+        os.unlink(path)
+    domain = next_domain_id()
+    (tmp_path / 'log').mkdir()
+    node = NodeProcess([sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p',
+                        f'robot_description:={text}', '-p', 'start_paused:=true'],
+                       ros_env(domain, tmp_path / 'log'), tmp_path / 'node.log')
+    probe = Probe(domain)
+    try:
+        probe.wait_for(lambda: 'scene robot_description' in node.output() or not node.alive(),
+                       60.0, 'the start line', node)
+        assert node.alive(), node.output()
+        assert "joints ['shoulder_pan', 'shoulder_lift', 'elbow']" in node.output()
+        assert node.stop(signal.SIGINT) == 0
+    finally:
+        probe.close()
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    # and a -p value rcl cannot parse is one line, not a traceback
+    bad = subprocess.run([sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p',
+                          'time_step:=[1: 2'], capture_output=True, text=True, timeout=60,
+                         env=ros_env(domain, tmp_path / 'log'))
+    assert bad.returncode == 2 and 'cannot start' in bad.stderr and 'Traceback' not in bad.stderr

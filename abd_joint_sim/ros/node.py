@@ -9,6 +9,7 @@ overlap with a step and the buffer needs no lock.
 from __future__ import annotations
 
 import math
+import os
 import signal
 import sys
 import time
@@ -591,8 +592,50 @@ def _raise_keyboard_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optional[str]]:
+    """Move ``-p robot_description:=<URDF text>`` into a temporary params file.
+
+    rcl parses every ``-p`` value as YAML, and URDF text rarely survives that (``: `` and
+    `` #`` in comments or attributes end it), so ``-p robot_description:="$(cat r.urdf)"``, as
+    users pass it to robot_state_publisher, would fail before the node starts. The same value,
+    quoted by a YAML writer in a params file at the same place in the arguments, is read as
+    the string it is. Returns (new args, the file to delete after rclpy.init, or None)."""
+    import tempfile
+    import yaml
+    out: list[str] = []
+    path = None
+    i = 0
+    while i < len(args):
+        a = args[i]
+        value = None
+        if a in ('-p', '--param') and i + 1 < len(args) \
+                and args[i + 1].startswith('robot_description:='):
+            value, i = args[i + 1][len('robot_description:='):], i + 2
+        if value is None:
+            out.append(a)
+            i += 1
+            continue
+        with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
+                                         delete=False) as f:
+            yaml.safe_dump({'/**': {'ros__parameters': {'robot_description': value}}}, f)
+            path = f.name
+        out += ['--params-file', path]
+    return out, path
+
+
 def main(args: Optional[list[str]] = None) -> int:
-    rclpy.init(args=args)
+    args, tmp_params = _robot_description_to_params_file(list(sys.argv if args is None else args))
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001 - rcl's argument parser: one line, exit 2
+        first = str(exc).split('\n')[0][:300]
+        print(f'[FATAL] [{NODE_NAME}]: cannot start: the command-line arguments could not be '
+              f'parsed ({first}); -p values are parsed as YAML: give long or structured '
+              'values in a --params-file', file=sys.stderr)
+        return 2
+    finally:
+        if tmp_params:
+            os.unlink(tmp_params)
     # SIGTERM (kill, systemd, launch) ends the node like Ctrl-C, so the bag is finalised.
     signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
     node = None
