@@ -79,6 +79,11 @@ def test_headless_run_with_joint_commands_records_the_urdf_and_replays(tmp_path)
     check = subprocess.run([sys.executable, '-m', 'abd_joint_sim.tools.replay_check', str(bag)],
                            capture_output=True, text=True, env=env, timeout=300)
     assert check.returncode == 0, check.stdout + check.stderr
+    again = subprocess.run([sys.executable, '-m', 'abd_joint_sim.tools.run_headless',
+                            '--from-bag', str(bag), '--out', str(tmp_path / 'bag2')],
+                           capture_output=True, text=True, env=env, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert read_custom_data(str(tmp_path / 'bag2'))['abd_joint_sim.urdf'] == DEMO.read_text()
     # replay must be able to fail: drop the joint_commands message -> deviation
     from abd_joint_sim.tools import bagrun
     run_ = bagrun.load_bag(str(bag))

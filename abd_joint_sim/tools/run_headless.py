@@ -122,6 +122,7 @@ def _run(args) -> int:
         overrides['publish_rate'] = args.publish_rate
 
     # -- scene -----------------------------------------------------------------------------
+    urdf_text = ''
     try:
         if args.scene is not None or args.schedule:
             scene_path = resolve_scene(args.scene or '')
@@ -129,6 +130,7 @@ def _run(args) -> int:
         else:
             scene_path = run.scene_path
             scene = scene_from_text(run.scene_text, f'{args.from_bag}: scene.yaml')
+            urdf_text = run.custom.get('abd_joint_sim.urdf', '')    # kept in the new bag
     except SceneError as exc:
         raise _InputError(str(exc)) from None
     scene_text = getattr(scene, 'source_text', '') or ''
@@ -162,7 +164,7 @@ def _run(args) -> int:
     try:
         recorder = BagRecorder(args.out, sim, scene_path, scene_text, extra_custom={
             'abd_joint_sim.recorded_by': f'run_headless ({provenance})'},
-            urdf_text=getattr(scene, 'robot_description', '') or '')
+            urdf_text=getattr(scene, 'robot_description', '') or urdf_text)
     except BagError as exc:
         raise _InputError(str(exc)) from None
     wall0 = time.monotonic()
