@@ -157,10 +157,17 @@ class _Reader:
             self.fail(f'line {line}, column {col + 1}: not well-formed XML ({what})')
         if root.tag != 'robot':
             self.fail(f'root element is <{root.tag}>, expected <robot>')
-        if any(el.tag.startswith('{') and 'xacro' in el.tag for el in root.iter()) \
-                or '${' in text:
-            self.fail('this is a xacro file: expand it first (xacro robot.urdf.xacro > '
-                      'robot.urdf)')
+        # (comments are not in the tree: a `${...}` in a comment is fine)
+        for el in root.iter():
+            if el.tag.startswith('{') and 'xacro' in el.tag:
+                self.fail(f'<{el.tag.split("}")[1]}> is a xacro element: expand the file first '
+                          '(xacro robot.urdf.xacro > robot.urdf)')
+            for attr, value in el.attrib.items():
+                if '${' in value or '$(' in value:
+                    who = el.get('name')
+                    self.fail(f'<{el.tag}{f" name={who!r}" if who else ""}> {attr}={value!r} is an '
+                              'unexpanded xacro/launch substitution: expand the file first '
+                              '(xacro robot.urdf.xacro > robot.urdf)')
         materials = {}
         for m in root.findall('material'):
             rgba = self.material_rgba(m, materials, f'<material name={m.get("name")!r}>')
@@ -422,6 +429,30 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     def moving(j):
         return j.type in MOVABLE and j.name not in opt.lock
 
+    def effective_limit(j):
+        """(lower, upper) of the UID 670 limit the joint will get, or None."""
+        lim = ({'lower': j.lower, 'upper': j.upper} if opt.limits and j.type == 'revolute'
+               and j.lower is not None and j.upper > j.lower else None)
+        over = opt.overrides.get(j.name, {})
+        if 'limit' in over:
+            lim = None if over['limit'] in (None, False) else {**(lim or {}), **over['limit']}
+        return (lim['lower'], lim['upper']) if lim and 'lower' in lim and 'upper' in lim else None
+
+    # Initial positions: as given, else 0 -- or the nearest bound where 0 is outside the
+    # joint's limit (some descriptions have it so; the limit would throw the joint back).
+    q_init: dict[str, float] = {}
+    for j in joints.values():
+        q = float(opt.initial.get(j.name, 0.0))
+        lim = effective_limit(j) if moving(j) and j.name not in opt.initial else None
+        if lim is not None and not lim[0] <= q <= lim[1]:
+            q = min(max(q, lim[0]), lim[1])
+            msg = (f'{source}: joint {j.name!r}: position 0 is outside its limit '
+                   f'[{lim[0]:g}, {lim[1]:g}]: it starts at {q:g} rad (set initial_positions '
+                   'to choose)')
+            notes.append(msg)
+            warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+        q_init[j.name] = q
+
     # Forward kinematics at the initial positions (world = root link frame).
     world_T: dict[str, np.ndarray] = {roots[0]: np.eye(4)}
     joint_frame: dict[str, np.ndarray] = {}
@@ -433,7 +464,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         for j in reversed(children[name]):
             T = world_T[name] @ j.origin
             joint_frame[j.name] = T
-            q = float(opt.initial.get(j.name, 0.0))
+            q = q_init[j.name]
             M = np.eye(4)
             if j.type in MOVABLE:
                 M[:3, :3] = axis_rotation(j.axis, q)
@@ -566,7 +597,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         F = joint_frame[j.name]
         p0 = F[:3, 3]
         axis = F[:3, :3] @ j.axis
-        q0 = float(opt.initial.get(j.name, 0.0))
+        q0 = q_init[j.name]
         d = {'name': j.name, 'type': 'revolute', 'parent': group[j.parent],
              'child': group[j.child], 'p0': _plain_list(p0), 'p1': _plain_list(p0 + axis),
              'init_angle': q0}

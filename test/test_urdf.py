@@ -229,7 +229,7 @@ def test_massless_links():
     ('<?xml version="1.0"?><!DOCTYPE r [<!ENTITY a "aaaa">]><robot name="x"><link name="a"/></robot>',
      r'DOCTYPE/ENTITY declarations are not accepted'),
     ('<robot name="x" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="a" value="1"/>'
-     '<link name="a"/></robot>', 'xacro file'),
+     '<link name="a"/></robot>', 'is a xacro element'),
     ('<robot name="x"><link name="a"/><link name="b"/></robot>', 'one tree'),
     ('<sdf/>', r'root element is <sdf>'),
 ])
@@ -289,3 +289,28 @@ def test_bad_overrides_name_the_joint_and_field(opts, match):
         Scene.from_urdf(ARM, **opts)
     # an initial position outside the URDF limit is fine once the limit is off
     Scene.from_urdf(ARM, initial_positions={'shoulder': 2.0}, limits=False)
+
+
+def test_zero_outside_the_limit_starts_at_the_nearest_bound_with_a_warning():
+    text = ARM.replace('lower="-1.5" upper="1.5"', 'lower="0.5" upper="1.5"')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(msgs) == 1 and "joint 'shoulder': position 0 is outside its limit [0.5, 1.5]" in msgs[0]
+    world = World(scene)
+    assert world.joint_angles()[0] == pytest.approx(0.5, abs=1e-12)
+    world.step(20)
+    assert world.joint_angles()[0] == pytest.approx(0.5, abs=1e-6)     # at rest, not thrown
+    # no limit, no clamp; an explicit position outside the limit stays an error
+    assert Scene.from_urdf(text, limits=False).joints[0].init_angle == 0.0
+    with pytest.raises(SceneError, match='outside'):
+        Scene.from_urdf(text, initial_positions={'shoulder': 0.0})
+
+
+def test_xacro_substitutions_refused_but_not_in_comments():
+    ok = ARM.replace('<link name="base">', '<!-- ${not_expanded} is fine here -->\n<link name="base">')
+    assert Scene.from_urdf(ok).joint_names == ('shoulder',)
+    bad = ARM.replace('xyz="0 0 0.3"', 'xyz="$(optenv ARM_Z 0 0 0.3)"')
+    with pytest.raises(SceneError, match=r"<origin> xyz='\$\(optenv ARM_Z 0 0 0.3\)' is an unexpanded xacro/launch substitution"):
+        Scene.from_urdf(bad)

@@ -8,6 +8,7 @@ angle error is ~h/T = 0.25 %), ours at 5e-4 with BDF2. Figures per robot: README
 from URDF"; the script at the bottom of docs/urdf.md reproduces them.
 """
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -164,6 +165,8 @@ def test_robot_study_reduced(tmp_path):
     ('franka_panda/panda.urdf', ['panda_finger_joint1', 'panda_finger_joint2'], 7, []),  # mass="0" link, prismatic fingers
     ('laikago/laikago.urdf', [], 12, None),                        # quadruped, mesh visuals
     ('TwoJointRobot_w_fixedJoints.urdf', [], 2, ['link_1', 'link_2']),
+    ('a1/a1.urdf', [], 12, None),                                 # knees: 0 outside the limits
+    ('quadruped/spirit40.urdf', [], 12, []),                      # `${...}` in comments only
 ])
 def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned):
     import warnings
@@ -176,6 +179,8 @@ def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned
     assert len(scene.joint_names) == joints and len(msgs) == len(scene.warnings)
     if warned is not None:
         assert [m.split("link '")[1].split("'")[0] for m in msgs] == warned
+    if rel_path.startswith('a1/'):
+        assert len(msgs) == 4 and all('position 0 is outside its limit' in m for m in msgs)
     World(scene).step(3)
 
 
@@ -184,3 +189,24 @@ def test_panda_fingers_are_one_clear_error_without_lock():
     path = os.path.join(pybullet_data.getDataPath(), 'franka_panda/panda.urdf')
     with pytest.raises(SceneError, match=r"joint 'panda_finger_joint1' is prismatic.*lock: \[panda_finger_joint1\]"):
         Scene.from_urdf(path)
+
+
+@pytest.mark.parametrize('rel_path', ['a1/a1.urdf', 'aliengo/aliengo.urdf',
+                                      'quadruped/spirit40.urdf', 'racecar/racecar.urdf'])
+def test_more_robots_from_mid_range_poses_agree_with_pybullet(rel_path, monkeypatch):
+    """Quadrupeds (fixed trunk) and a car from every limited joint's mid-range (the engines'
+    joint limits are different models: at a bound they differ by design), 0.5 N m torques.
+    a1 and aliengo have knees whose position 0 is outside their limits (loaded with a
+    warning; here the pose is set explicitly)."""
+    import warnings
+    from abd_joint_sim.urdf import UrdfWarning
+    path = os.path.join(pybullet_data.getDataPath(), rel_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', UrdfWarning)
+        scene = Scene.from_urdf(path)
+    q0 = {j.name: 0.5 * (j.limit.lower + j.limit.upper) for j in scene.joints if j.limit}
+    monkeypatch.setattr(sys.modules[__name__], 'torques_for',
+                        lambda n: [((-1) ** k) * 0.5 for k in range(n)])
+    names, dv, dq = compare(rel_path, q0)
+    print(f'{rel_path} (mid-range pose): velocity {dv:.2e}, angle {dq:.2e} (relative)')
+    assert dv < 0.01 and dq < 0.01
