@@ -9,7 +9,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={package_name: ['scenes/*.yaml']},
+    package_data={package_name: ['scenes/*.yaml', 'robots/*.urdf']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         (os.path.join('share', package_name), ['package.xml']),
@@ -17,6 +17,8 @@ setup(
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
         (os.path.join('share', package_name, 'scenes'),
          glob(os.path.join(package_name, 'scenes', '*.yaml'))),
+        (os.path.join('share', package_name, 'robots'),
+         glob(os.path.join(package_name, 'robots', '*.urdf'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -328,6 +328,31 @@ class Scene:
     name: str = ''
     source: str = '<dict>'
     source_text: str = field(default='', repr=False)
+    robot_description: str = field(default='', repr=False)  # URDF XML of a robot scene
+    warnings: tuple = field(default=(), repr=False)          # URDF quirks repaired on load
+
+    @classmethod
+    def from_urdf(cls, source, **options) -> 'Scene':
+        """A robot scene from a URDF path or URDF XML text (docs/urdf.md).
+
+        Options: dt (default 1e-3), gravity (default [0, 0, -9.81]), integrator, newton,
+        name, fixed_base, initial_positions {joint: rad}, lock [joints], actuated [joints],
+        joints {joint: {strength_ratio, external_torque, driving, limit}}, kappa,
+        strength_ratio, limits (bool), torque_enabled (bool), driving {...} (all joints).
+        Repairs are warned as `abd_joint_sim.urdf.UrdfWarning` and listed in
+        `Scene.warnings`.
+        """
+        from .urdf import scene_data_from_urdf
+        data, name, text, notes = scene_data_from_urdf(source, options)
+        scene = cls.from_dict(data, source=name)
+        return _with_robot(scene, text, notes)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> 'Scene':
+        """`from_urdf` for a .urdf file, else `from_yaml`."""
+        if str(path).lower().endswith('.urdf'):
+            return cls.from_urdf(str(path))
+        return cls.from_yaml(path)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> 'Scene':
@@ -342,6 +367,8 @@ class Scene:
         return _Parser(source).scene(data, source_text)
 
     def to_dict(self) -> dict:
+        # A robot scene's source_text is the lowered scene (bodies, joints), complete in
+        # itself: a bag replays it without the URDF file.
         """The scene as plain data (what `from_dict` accepts)."""
         return load_yaml(self.source_text) if self.source_text else {}
 
@@ -352,6 +379,11 @@ class Scene:
     @property
     def joint_names(self) -> tuple:
         return tuple(j.name for j in self.joints)
+
+
+def _with_robot(scene: 'Scene', urdf_text: str, notes) -> 'Scene':
+    import dataclasses
+    return dataclasses.replace(scene, robot_description=urdf_text, warnings=tuple(notes))
 
 
 def _plain(data):
@@ -440,6 +472,9 @@ class _Parser:
     def scene(self, data, source_text):
         if data is None:
             self.fail('', 'empty scene')
+        robot = None
+        if isinstance(data, dict) and 'robot' in data:
+            data, robot = self.robot(data)
         d = self.mapping('', data, ('name', 'description', 'dt', 'gravity', 'integrator',
                                     'newton', 'bodies', 'joints'), required=('dt', 'bodies'))
         dt = self.number('dt', d['dt'], positive=True, bound='dt')
@@ -462,9 +497,41 @@ class _Parser:
         name = d.get('name', '')
         if not isinstance(name, str):
             self.fail('name', f'must be a string, got {name!r}')
+        if robot is not None:       # the lowered scene: replayable without the URDF
+            source_text = yaml.safe_dump(data, sort_keys=False)
         return Scene(dt=dt, gravity=gravity, integrator=integrator, newton=newton,
                      bodies=bodies, joints=joints, name=name, source=self.source,
-                     source_text=source_text)
+                     source_text=source_text,
+                     robot_description=robot[0] if robot else '',
+                     warnings=tuple(robot[1]) if robot else ())
+
+    def robot(self, data):
+        """A `robot:` block (docs/urdf.md): the URDF lowered to bodies and joints, merged
+        with the scene's dt/gravity/integrator/newton (defaults as Scene.from_urdf)."""
+        from . import urdf
+        if 'bodies' in data or 'joints' in data:
+            self.fail('robot', 'a scene with a robot: block takes its bodies and joints from '
+                               'the URDF; remove bodies:/joints:')
+        block = self.mapping('robot', data['robot'], ('urdf',) + urdf.ROBOT_OPTIONS, ('urdf',))
+        options = {k: v for k, v in block.items() if k != 'urdf'}
+        ref = block['urdf']
+        if not isinstance(ref, str) or not ref.strip():
+            self.fail('robot.urdf', f'must be a path (or package://pkg/path), got {ref!r}')
+        base = (os.path.dirname(os.path.abspath(self.source))
+                if self.source and not self.source.startswith('<') else os.getcwd())
+        try:
+            path = urdf.resolve_package_uri(ref, base)
+            text, name = urdf.read_urdf_source(path)
+            lowered, notes = urdf.robot_scene_dict(text, name, options)
+        except SceneError as exc:
+            raise SceneError(f'{self.source}: robot: {exc}') from None
+        out = {k: v for k, v in data.items() if k != 'robot'}
+        out.setdefault('dt', urdf.DEFAULT_DT)
+        out.setdefault('gravity', list(urdf.DEFAULT_GRAVITY))
+        if not out.get('name'):
+            out['name'] = lowered['name']
+        out['bodies'], out['joints'] = lowered['bodies'], lowered['joints']
+        return out, (text, notes)
 
     def unique(self, where, names):
         seen = set()
@@ -495,7 +562,7 @@ class _Parser:
     def body(self, where, value):
         d = self.mapping(where, value, ('name', 'box', 'sphere', 'cylinder', 'inertial', 'density',
                                         'kappa', 'position', 'rpy', 'fixed', 'velocity',
-                                        'angular_velocity'), required=('name',))
+                                        'angular_velocity', 'visuals'), required=('name',))
         name = self.name(f'{where}.name', d['name'])
         shapes = [k for k in ('box', 'sphere', 'cylinder', 'inertial') if k in d]
         if len(shapes) != 1:
@@ -534,7 +601,32 @@ class _Parser:
             fixed=self.boolean(f'{where}.fixed', d.get('fixed', False)),
             velocity=self.vector(f'{where}.velocity', d.get('velocity', [0, 0, 0]), bound='speed'),
             angular_velocity=self.vector(f'{where}.angular_velocity',
-                                         d.get('angular_velocity', [0, 0, 0]), bound='angular_speed'))
+                                         d.get('angular_velocity', [0, 0, 0]), bound='angular_speed'),
+            visuals=self.visuals(f'{where}.visuals', d.get('visuals') or []))
+
+    def visuals(self, where, value):
+        """`visuals:` list of a body: VisualSpec fields (how it looks; no physics)."""
+        if not isinstance(value, list):
+            self.fail(where, f'must be a list, got {value!r}')
+        out = []
+        sizes = {'box': 3, 'sphere': 1, 'cylinder': 2, 'mesh': 3}
+        for k, v in enumerate(value):
+            w = f'{where}[{k}]'
+            v = self.mapping(w, v, tuple(VisualSpec.__dataclass_fields__), ('kind',))
+            kind = v['kind']
+            if kind not in sizes:
+                self.fail(f'{w}.kind', f'must be one of {", ".join(sizes)}, got {kind!r}')
+            size = self.vector(f'{w}.size', v.get('size', [1.0, 1.0, 1.0] if kind == 'mesh'
+                                                   else None), sizes[kind])
+            uri = v.get('mesh_uri', '')
+            if not isinstance(uri, str):
+                self.fail(f'{w}.mesh_uri', f'must be a string, got {uri!r}')
+            rgba = v.get('rgba')
+            out.append(VisualSpec(kind=kind, size=size, mesh_uri=uri,
+                                  origin_xyz=self.vector(f'{w}.origin_xyz', v.get('origin_xyz', [0, 0, 0])),
+                                  origin_rpy=self.vector(f'{w}.origin_rpy', v.get('origin_rpy', [0, 0, 0])),
+                                  rgba=None if rgba is None else self.vector(f'{w}.rgba', rgba, 4)))
+        return tuple(out)
 
     def inertial(self, where, value):
         d = self.mapping(where, value, ('mass', 'com', 'inertia', 'volume'), ('mass', 'inertia'))

@@ -3,7 +3,9 @@ iterations and peak memory for the default scene, the reference hinge, chains of
 1/10/100/1000 links and a branching tree; with MuJoCo and PyBullet installed
 (requirements-bench.txt) the same chains run in them in the same invocation and the table
 gives the ratio (noise on a shared machine mostly cancels). The engines' joint angles are
-compared on a 3-link chain before anything is timed; a mismatch exits 1.
+compared on a 3-link chain before anything is timed; a mismatch exits 1. A real robot
+description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
+same file, and in sim_node (bench/robot_bench.py).
 
     python bench/bench.py [--quick] [--no-peers] [--no-node] [--backend numpy|numba|auto]
 
@@ -133,7 +135,7 @@ def node_overhead(steps, backend):
     return min(node_t), min(world_t), min(batch_t), used
 
 
-def node_end_to_end(seconds, backend, record_dir=None, subscribe=True):
+def node_end_to_end(seconds, backend, record_dir=None, subscribe=True, extra_args=()):
     """sim_node as users run it: its own process, real DDS (loopback only), as fast as
     possible (real_time_factor 0), /clock every step, /joint_states at the default 100 Hz,
     optionally recording, and with `subscribe` a subscriber on both in this process (which
@@ -161,6 +163,7 @@ def node_end_to_end(seconds, backend, record_dir=None, subscribe=True):
         args += ['-p', f'record:={record_dir}']
     if backend != 'default':
         args += ['-p', f'backend:={backend}']
+    args += list(extra_args)
     proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     old_domain = os.environ.get('ROS_DOMAIN_ID')
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
@@ -290,6 +293,16 @@ def main(argv=None):
                              f'{counts["states"]} /joint_states)' if sub else ')'))
                 elif res is not None:
                     print(f'sim_node end to end ({label}): no /diagnostics report received')
+    # URDF robot (issue 11): a real robot description in all three engines, and in sim_node.
+    import robot_bench
+    robot = robot_bench.run(args.quick, args.backend, peers=not args.no_peers)
+    if robot and not args.no_node:
+        res = node_end_to_end(4 if args.quick else 8, args.backend, None, False,
+                              ['-p', f'scene:={robot[0]}'])
+        if res and res[0]:
+            print(f'sim_node end to end, KUKA iiwa URDF (own process, DDS, as fast as possible, '
+                  f'no subscriber, not recording): real-time factor median '
+                  f'{statistics.median(res[0]):.1f} (min {min(res[0]):.1f}, max {max(res[0]):.1f})')
     return 0
 
 

@@ -44,9 +44,12 @@ class Rejection:
     joint: Optional[str]
     value: object
     reason: str
+    topic: str = ''
+    """Set for a whole-message rejection on a topic other than the array command."""
 
     def __str__(self) -> str:
-        who = f'joint {self.joint!r}' if self.joint is not None else 'array command'
+        who = (f'joint {self.joint!r}' if self.joint is not None
+               else f'{self.topic} command' if self.topic else 'array command')
         return f'{who}: {self.value!r} rejected: {self.reason}'
 
 
@@ -77,10 +80,12 @@ class Applied:
     enable_all: Optional[bool] = None
     """The all-joints enable command that took effect, if any."""
     sources: dict[str, str] = field(default_factory=dict)
-    """joint -> 'array' or 'joint': which topic its torque came from."""
+    """joint -> 'array', 'joint' or 'joint_state': which topic its torque came from."""
+    aims: dict[str, float] = field(default_factory=dict)
+    """joint -> UID 19 driving aim [rad] set from a joint_commands position."""
 
     def __bool__(self) -> bool:
-        return bool(self.torques or self.enables or self.timed_out)
+        return bool(self.torques or self.enables or self.timed_out or self.aims)
 
 
 NOTHING_APPLIED = Applied(time=math.nan)
@@ -108,8 +113,10 @@ class CommandBuffer:
 
     def __init__(self, actuated: Sequence[str], order: Sequence[str],
                  effort_limits: Sequence[float] = (), command_timeout: float = 0.0,
-                 scene_limits: Optional[Mapping[str, float]] = None):
+                 scene_limits: Optional[Mapping[str, float]] = None,
+                 driven: Sequence[str] = ()):
         self.actuated = list(actuated)
+        self.driven = list(driven)          # joints with driving (UID 19): position commands
         self._actuated_set = set(self.actuated)
         self.order = list(order) if order else list(self.actuated)
         bad = [j for j in self.order if j not in self._actuated_set]
@@ -128,6 +135,7 @@ class CommandBuffer:
         self._pending_enable: dict[str, bool] = {}
         self._pending_array: Optional[list[float]] = None
         self._pending_enable_all: Optional[bool] = None
+        self._pending_aim: dict[str, float] = {}
         self._last_command_time: dict[str, float] = {}
         self._last_value: dict[str, float] = {}
         self._timed_out: set[str] = set()
@@ -221,9 +229,60 @@ class CommandBuffer:
             self._pending_enable[j] = bool(flag)
         self._pending_enable_all = bool(flag)
 
+    def command_joint_state(self, names: Sequence[str], position: Sequence[float],
+                            velocity: Sequence[float], effort: Sequence[float]
+                            ) -> tuple[list[Rejection], list[Clamp]]:
+        """A sensor_msgs/JointState on ``joint_commands`` (what topic-based ros2_control
+        hardware interfaces publish): name-matched, any subset of joints; ``effort`` ->
+        torque (validated and clamped like the other torque commands), ``position`` -> the
+        driving (UID 19) aim. A length mismatch or a non-finite value rejects the message;
+        ``velocity``, unknown joints, efforts on unactuated joints and positions on joints
+        without driving are refused entry by entry (the rest applies)."""
+        names = [str(n) for n in names]
+        position, velocity, effort = list(position), list(velocity), list(effort)
+        rejections: list[Rejection] = []
+        for field_name, values in (('position', position), ('velocity', velocity),
+                                   ('effort', effort)):
+            if values and len(values) != len(names):
+                return [Rejection(None, values, f'{len(values)} {field_name} values for '
+                                  f'{len(names)} names; give one per name or none',
+                                  'joint_commands')], []
+        for field_name, values in (('position', position), ('effort', effort)):
+            bad = [(n, v) for n, v in zip(names, values) if not math.isfinite(float(v))]
+            if bad:
+                return [Rejection(bad[0][0], bad[0][1], f'{field_name} must be finite; '
+                                  'whole joint_commands message ignored')], []
+        if velocity:
+            rejections.append(Rejection(None, velocity, 'velocity commands are not supported '
+                                        '(use position with driving, or effort); ignored',
+                                        'joint_commands'))
+        if not position and not effort:
+            rejections.append(Rejection(None, names, 'neither position nor effort given',
+                                        'joint_commands'))
+        clamps: list[Clamp] = []
+        for k, joint in enumerate(names):
+            if effort:
+                value = float(effort[k])
+                reason = self._check_joint(joint) or self._check_value(joint, value)
+                if reason is not None:
+                    rejections.append(Rejection(joint, value, f'effort: {reason}'))
+                else:
+                    applied, clamp = self._clamp(joint, value)
+                    self._pending_torque[joint] = (applied, 'joint_state')
+                    if clamp:
+                        clamps.append(clamp)
+            if position:
+                if joint not in self.driven:
+                    rejections.append(Rejection(joint, position[k], 'position: joint has no '
+                                      f'driving (UID 19); joints with driving: '
+                                      f'{self.driven or "none"}'))
+                else:
+                    self._pending_aim[joint] = float(position[k])
+        return rejections, clamps
+
     @property
     def has_pending(self) -> bool:
-        return bool(self._pending_torque or self._pending_enable)
+        return bool(self._pending_torque or self._pending_enable or self._pending_aim)
 
     def clear(self) -> None:
         """Drop pending commands and forget command times (used on reset)."""
@@ -231,6 +290,7 @@ class CommandBuffer:
         self._pending_enable.clear()
         self._pending_array = None
         self._pending_enable_all = None
+        self._pending_aim.clear()
         self._last_command_time.clear()
         self._last_value.clear()
         self._timed_out.clear()
@@ -241,6 +301,7 @@ class CommandBuffer:
         """Nothing pending and no command timeout to run: `apply` would change nothing at
         any boundary until a new command arrives (sim_node then steps in batches)."""
         return not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
+                    or self._pending_aim
                     or self._pending_array is not None or self._pending_enable_all is not None)
 
     def apply(self, world: CommandTarget) -> Applied:
@@ -261,6 +322,10 @@ class CommandBuffer:
             self._last_command_time[joint] = now
             self._last_value[joint] = value
             self._timed_out.discard(joint)
+        for joint, aim in self._pending_aim.items():
+            world.set_drive(joint, aim=aim)
+            out.aims[joint] = aim
+        self._pending_aim.clear()
         self._pending_torque.clear()
         self._pending_enable.clear()
         self._pending_array = None

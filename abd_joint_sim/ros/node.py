@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import signal
 import sys
 import time
@@ -37,8 +38,8 @@ from .params import (check_live_value, coerce, config_from_values,
 from .recording import (add_node_topics, bag_custom_data, markers_due, parameter_event_msg,
                         PublishSchedule, RECORDED_PARAMETERS, record_applied,
                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
-                        TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY,
-                        TOPIC_TORQUE_JOINT)
+                        TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS,
+                        TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT)
 
 JOINT_STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                              reliability=ReliabilityPolicy.RELIABLE,
@@ -69,13 +70,15 @@ class SimNode(Node):
 
         # Scene and world. Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene, World
-        self.scene = Scene.from_yaml(self.config.scene)
+        self.scene = self._load_scene(Scene)
         self.world = World(self.scene, dt=self.config.time_step or None, backend=self.config.backend)
         self.joint_names = list(self.world.joint_names)
         self.actuated = list(self.world.actuated_joint_names)
         self.commands = CommandBuffer(self.actuated, self.config.joints,
                                       self.config.effort_limits, self.config.command_timeout,
-                                      scene_limits=self._scene_effort_limits())
+                                      scene_limits=self._scene_effort_limits(),
+                                      driven=[j.name for j in self.scene.joints
+                                              if j.driving is not None])
         self.config.joints = list(self.commands.order)
 
         self.paused = bool(self.config.start_paused)
@@ -117,6 +120,8 @@ class SimNode(Node):
             self.create_subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY,
                                      self._on_torque_array, COMMAND_QOS),
             self.create_subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all, COMMAND_QOS),
+            self.create_subscription(JointState, TOPIC_JOINT_COMMANDS,
+                                     self._on_joint_commands, COMMAND_QOS),
         ]
         for joint in self.actuated:
             self.command_subs.append(self.create_subscription(
@@ -161,6 +166,22 @@ class SimNode(Node):
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
         self._publish_state(force=True)
+
+    def _load_scene(self, Scene):
+        """robot_description (URDF text) if set, else the scene file (.urdf or YAML); URDF
+        repairs are logged as warnings, one line each."""
+        import warnings
+        from abd_joint_sim.urdf import UrdfWarning
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', UrdfWarning)   # logged below instead
+            if self.config.robot_description.strip():
+                scene = Scene.from_urdf(self.config.robot_description)
+                self.config.scene = 'robot_description'
+            else:
+                scene = Scene.from_file(self.config.scene)
+        for text in scene.warnings:
+            self.get_logger().warn(text)
+        return scene
 
     def _scene_effort_limits(self) -> dict[str, float]:
         model = getattr(self.world, 'model', None)
@@ -492,6 +513,11 @@ class SimNode(Node):
     def _on_torque_joint(self, joint: str, msg: Float64) -> None:
         self._report('joint', *self.commands.command_torque(joint, msg.data))
 
+    def _on_joint_commands(self, msg: JointState) -> None:
+        self._report('joint_commands', *self.commands.command_joint_state(
+            msg.name, msg.position, msg.velocity,
+                                                        msg.effort))
+
     def _on_enable_joint(self, joint: str, msg: Bool) -> None:
         self._report('enable', self.commands.command_enable(joint, msg.data), [])
 
@@ -548,7 +574,8 @@ class SimNode(Node):
             from abd_joint_sim.record.bag import BagWriter
             custom, attachments = bag_custom_data(
                 self.config, self.config.scene, getattr(self.scene, 'source_text', '') or '',
-                self.world.dt, self.commands.order)
+                self.world.dt, self.commands.order,
+                urdf_text=getattr(self.scene, 'robot_description', '') or '')
             writer = BagWriter(path, custom_data=custom, attachments=attachments)
             writer.open()
             add_node_topics(writer, self._abs, self.actuated, markers=self.markers is not None)
@@ -629,7 +656,7 @@ class SimNode(Node):
             f'({"every step" if c.publish_rate == 0 else f"{c.publish_rate:g} Hz"}), '
             f'{TOPIC_CLOCK}, {TOPIC_DIAGNOSTICS} | commands {ns}/{TOPIC_TORQUE_ARRAY} '
             f'(order {self.commands.order}), {ns}/joint_torque/<joint>, '
-            f'{ns}/{TOPIC_ENABLE_ALL}[/<joint>] | services ~/pause ~/unpause ~/step ~/reset | '
+            f'{ns}/{TOPIC_ENABLE_ALL}[/<joint>], {ns}/{TOPIC_JOINT_COMMANDS} | services ~/pause ~/unpause ~/step ~/reset | '
             f'real-time factor {rtf} | {"paused" if self.paused else "running"} | '
             f'command timeout {f"{c.command_timeout:g} s" if c.command_timeout else "off"} | '
             f'effort limits {limits} | '
@@ -657,8 +684,50 @@ def _shutdown_on_signal(signum, frame):
     rclpy.try_shutdown()
 
 
+def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optional[str]]:
+    """Move ``-p robot_description:=<URDF text>`` into a temporary params file.
+
+    rcl parses every ``-p`` value as YAML, and URDF text rarely survives that (``: `` and
+    `` #`` in comments or attributes end it), so ``-p robot_description:="$(cat r.urdf)"``, as
+    users pass it to robot_state_publisher, would fail before the node starts. The same value,
+    quoted by a YAML writer in a params file at the same place in the arguments, is read as
+    the string it is. Returns (new args, the file to delete after rclpy.init, or None)."""
+    import tempfile
+    import yaml
+    out: list[str] = []
+    path = None
+    i = 0
+    while i < len(args):
+        a = args[i]
+        value = None
+        if a in ('-p', '--param') and i + 1 < len(args) \
+                and args[i + 1].startswith('robot_description:='):
+            value, i = args[i + 1][len('robot_description:='):], i + 2
+        if value is None:
+            out.append(a)
+            i += 1
+            continue
+        with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
+                                         delete=False) as f:
+            yaml.safe_dump({'/**': {'ros__parameters': {'robot_description': value}}}, f)
+            path = f.name
+        out += ['--params-file', path]
+    return out, path
+
+
 def main(args: Optional[list[str]] = None) -> int:
-    rclpy.init(args=args)
+    args, tmp_params = _robot_description_to_params_file(list(sys.argv if args is None else args))
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001 - rcl's argument parser: one line, exit 2
+        first = str(exc).split('\n')[0][:300]
+        print(f'[FATAL] [{NODE_NAME}]: cannot start: the command-line arguments could not be '
+              f'parsed ({first}); -p values are parsed as YAML: give long or structured '
+              'values in a --params-file', file=sys.stderr)
+        return 2
+    finally:
+        if tmp_params:
+            os.unlink(tmp_params)
     # Ctrl-C and SIGTERM (kill, systemd, launch) end the node cleanly: the bag is finalised.
     signal.signal(signal.SIGINT, _shutdown_on_signal)
     signal.signal(signal.SIGTERM, _shutdown_on_signal)

@@ -29,9 +29,13 @@ class ParamSpec(NamedTuple):
 
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('scene', '',
-              'Scene YAML file. Empty = the packaged default scene (a fixed base with a '
-              'two-link arm, joints shoulder and elbow); a bare name such as "hinge" picks '
-              'a packaged scene.', True),
+              'Scene YAML file or URDF file (.urdf). Empty = the packaged default scene (a '
+              'fixed base with a two-link arm, joints shoulder and elbow); a bare name such '
+              'as "hinge" or "demo_arm" picks a packaged scene or robot.', True),
+    ParamSpec('robot_description', '',
+              'URDF XML text, as robot_state_publisher takes it. Non-empty = this robot is '
+              'the scene (default options, docs/urdf.md; a scene YAML with a robot: block '
+              'sets options); `scene` is then ignored.', True),
     ParamSpec('time_step', 0.0,
               'Time step h [s]. 0 = the scene\'s dt.', True),
     ParamSpec('real_time_factor', 1.0,
@@ -81,6 +85,7 @@ class SimConfig:
     """Validated parameter values (units as in :data:`PARAMS`)."""
 
     scene: str
+    robot_description: str = ''
     time_step: float = 0.0
     real_time_factor: float = 1.0
     publish_rate: float = 100.0
@@ -123,6 +128,19 @@ def packaged_scenes() -> list[str]:
         return []
 
 
+def packaged_robots_dir() -> str:
+    """Directory of the packaged URDF robots (``robots/`` beside ``scenes/``)."""
+    return os.path.join(os.path.dirname(packaged_scenes_dir()), 'robots')
+
+
+def packaged_robots() -> list[str]:
+    """Names of the packaged URDF robots (a bare `scene` value may name one too)."""
+    try:
+        return sorted(f[:-5] for f in os.listdir(packaged_robots_dir()) if f.endswith('.urdf'))
+    except OSError:
+        return []
+
+
 def resolve_scene(value: str) -> str:
     """Scene parameter -> file path ('' = default scene, bare name = packaged scene).
 
@@ -131,18 +149,21 @@ def resolve_scene(value: str) -> str:
     value = value.strip()
     if not value:
         return default_scene_path()
-    if os.sep not in value and not value.endswith(('.yaml', '.yml')):
-        path = os.path.join(packaged_scenes_dir(), value + '.yaml')
-        if not os.path.isfile(path):
-            import difflib
-            from abd_joint_sim.errors import SceneError
-            names = packaged_scenes()
-            close = difflib.get_close_matches(value, names, n=1)
-            hint = f'did you mean {close[0]!r}? ' if close else ''
-            raise SceneError(
-                f'parameter \'scene\': {value!r} is no packaged scene ({hint}packaged: '
-                f'{", ".join(names) or "none found"}; or give the path of a .yaml file)')
-        return path
+    if os.sep not in value and not value.endswith(('.yaml', '.yml', '.urdf')):
+        robot = os.path.join(packaged_robots_dir(), value + '.urdf')
+        scene = os.path.join(packaged_scenes_dir(), value + '.yaml')
+        if os.path.isfile(scene):
+            return scene
+        if os.path.isfile(robot):
+            return robot
+        import difflib
+        from abd_joint_sim.errors import SceneError
+        names = packaged_scenes() + packaged_robots()
+        close = difflib.get_close_matches(value, names, n=1)
+        hint = f'did you mean {close[0]!r}? ' if close else ''
+        raise SceneError(
+            f'parameter \'scene\': {value!r} is no packaged scene ({hint}packaged: '
+            f'{", ".join(names) or "none found"}; or give the path of a .yaml or .urdf file)')
     return os.path.abspath(os.path.expanduser(value))
 
 
@@ -242,6 +263,7 @@ def _check_limits(limits: list[float]) -> list[float]:
 
 _COERCE = {
     'scene': _as_str,
+    'robot_description': _as_str,
     'time_step': _as_nonneg,
     'real_time_factor': _as_nonneg,
     'publish_rate': _as_nonneg,

@@ -46,6 +46,7 @@ TOPIC_TORQUE_ARRAY = 'joint_torque_commands'
 TOPIC_TORQUE_JOINT = 'joint_torque/{joint}'
 TOPIC_ENABLE_ALL = 'joint_torque_enable'
 TOPIC_ENABLE_JOINT = 'joint_torque_enable/{joint}'
+TOPIC_JOINT_COMMANDS = 'joint_commands'
 
 RECORDED_PARAMETERS = ('real_time_factor', 'publish_rate', 'command_timeout',
                        'effort_limits')
@@ -85,9 +86,11 @@ def parameters_yaml(config: SimConfig) -> str:
 
 
 def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: float,
-                    joints: Iterable[str], extra: Optional[Mapping[str, str]] = None
-                    ) -> tuple[dict[str, str], dict[str, bytes]]:
-    """(custom_data, attachments) of a bag: scene, effective parameters, dt, array order."""
+                    joints: Iterable[str], extra: Optional[Mapping[str, str]] = None,
+                    urdf_text: str = '') -> tuple[dict[str, str], dict[str, bytes]]:
+    """(custom_data, attachments) of a bag: scene, effective parameters, dt, array order;
+    for a URDF robot also the URDF (``abd_joint_sim.urdf``, attachment ``robot.urdf``; the
+    scene YAML is then the lowered scene the run used, which replays without it)."""
     params_text = parameters_yaml(config)
     custom = {
         'abd_joint_sim.scene_path': portable_scene_path(scene_path),
@@ -98,6 +101,9 @@ def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: flo
     }
     custom.update(extra or {})
     attachments = {'scene.yaml': scene_text.encode(), 'parameters.yaml': params_text.encode()}
+    if urdf_text:
+        custom['abd_joint_sim.urdf'] = urdf_text
+        attachments['robot.urdf'] = urdf_text.encode()
     return custom, attachments
 
 
@@ -114,6 +120,8 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
     writer.add_topic(resolve(TOPIC_TORQUE_ARRAY), 'std_msgs/msg/Float64MultiArray',
                      qos='reliable')
     writer.add_topic(resolve(TOPIC_ENABLE_ALL), 'std_msgs/msg/Bool', qos='reliable')
+    writer.add_topic(resolve(TOPIC_JOINT_COMMANDS), 'sensor_msgs/msg/JointState',
+                     qos='reliable')
     for joint in actuated:
         writer.add_topic(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)),
                          'std_msgs/msg/Float64', qos='reliable')
@@ -146,6 +154,25 @@ def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
         if applied.sources.get(joint) == 'joint':
             write(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)), t_ns,
                   convert.float64_msg(value))
+    # joint_commands as applied: one message with the efforts (after clamping), one with
+    # the driving aims; each joint's final value only, so the order among them is free.
+    efforts = {j: v for j, v in applied.torques.items()
+               if applied.sources.get(j) == 'joint_state'}
+    for kind, values in (('effort', efforts), ('position', applied.aims)):
+        if values:
+            write(resolve(TOPIC_JOINT_COMMANDS), t_ns,
+                  joint_command_msg(t_ns, list(values), **{kind: list(values.values())}))
+
+
+def joint_command_msg(t_ns: int, names, position=(), effort=()):
+    """A sensor_msgs/JointState command (``joint_commands``) as recorded."""
+    from sensor_msgs.msg import JointState
+    msg = JointState()
+    msg.header.stamp = convert.ns_to_time_msg(t_ns)
+    msg.name = [str(n) for n in names]
+    msg.position = [float(v) for v in position]
+    msg.effort = [float(v) for v in effort]
+    return msg
 
 
 class PublishSchedule:

@@ -9,7 +9,8 @@ stamps, after every step, and again at t = 0 on reset).
 Topics are recognised by their last components, so a namespaced node's bag works:
 ``.../joint_torque_commands`` (array, in the stored ``joints`` order),
 ``.../joint_torque/<joint>``, ``.../joint_torque_enable/<joint>``,
-``.../joint_torque_enable`` (all joints), ``.../joint_states``, ``/clock``, and
+``.../joint_torque_enable`` (all joints), ``.../joint_commands`` (sensor_msgs/JointState:
+efforts and driving aims as applied), ``.../joint_states``, ``/clock``, and
 ``/parameter_events`` (live parameter changes, applied from their log time on).
 """
 from __future__ import annotations
@@ -31,6 +32,7 @@ _ARRAY = re.compile(r'(?:^|/)joint_torque_commands$')
 _TORQUE = re.compile(r'(?:^|/)joint_torque/([^/]+)$')
 _ENABLE = re.compile(r'(?:^|/)joint_torque_enable/([^/]+)$')
 _ENABLE_ALL = re.compile(r'(?:^|/)joint_torque_enable$')
+_JOINT_COMMANDS = re.compile(r'(?:^|/)joint_commands$')
 _STATES = re.compile(r'(?:^|/)joint_states$')
 _CLOCK = re.compile(r'(?:^|/)clock$')
 _PARAMETERS = re.compile(r'(?:^|/)parameter_events$')
@@ -196,6 +198,10 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
             if changes:
                 segments[-1].commands.append(Command(log_ns, 'parameter', None, changes,
                                                      where))
+        elif _JOINT_COMMANDS.search(topic) and hasattr(msg, 'effort'):
+            segments[-1].commands.append(Command(log_ns, 'joint_state', None, {
+                'name': list(msg.name), 'position': list(msg.position),
+                'velocity': list(msg.velocity), 'effort': list(msg.effort)}, where))
         elif _ENABLE_ALL.search(topic):
             segments[-1].commands.append(Command(log_ns, 'enable_all', None,
                                                  bool(msg.data), where))

@@ -125,13 +125,15 @@ def _run(args) -> int:
         overrides['publish_rate'] = args.publish_rate
 
     # -- scene -----------------------------------------------------------------------------
+    urdf_text = ''
     try:
         if args.scene is not None or args.schedule:
             scene_path = resolve_scene(args.scene or '')
-            scene = Scene.from_yaml(scene_path)
+            scene = Scene.from_file(scene_path)      # .urdf: a robot with default options
         else:
             scene_path = run.scene_path
             scene = scene_from_text(run.scene_text, f'{args.from_bag}: scene.yaml')
+            urdf_text = run.custom.get('abd_joint_sim.urdf', '')    # kept in the new bag
     except SceneError as exc:
         raise _InputError(str(exc)) from None
     scene_text = getattr(scene, 'source_text', '') or ''
@@ -164,7 +166,8 @@ def _run(args) -> int:
     # -- run and record --------------------------------------------------------------------
     try:
         recorder = BagRecorder(args.out, sim, scene_path, scene_text, extra_custom={
-            'abd_joint_sim.recorded_by': f'run_headless ({provenance})'})
+            'abd_joint_sim.recorded_by': f'run_headless ({provenance})'},
+            urdf_text=getattr(scene, 'robot_description', '') or urdf_text)
     except BagError as exc:
         raise _InputError(str(exc)) from None
     wall0 = time.monotonic()
@@ -195,7 +198,8 @@ def _run(args) -> int:
         print(f'{PROG}: {scene.name or scene_path}, dt {sim.world.dt:g} s, {sim.steps} steps to '
               f't = {sim.world.time:.6g} s in {wall:.2f} s wall; recorded '
               f'{c.get("/joint_states", 0)} joint states, '
-              f'{sum(v for k, v in c.items() if "joint_torque" in k)} commands -> {args.out}'
+              f'{sum(v for k, v in c.items() if "joint_torque" in k or k.endswith("joint_commands"))} '
+              f'commands -> {args.out}'
               + (f'; {sim.not_converged} steps not converged' if sim.not_converged else ''))
     return status
 

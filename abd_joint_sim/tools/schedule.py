@@ -18,6 +18,8 @@ A schedule is a list of events, each at a time ``t`` [s] with torque and/or enab
         torque: {shoulder: 2.0}      # per joint [N m] (= joint_torque/<joint>)
       - t: 0.5
         torque: [1.0, -0.5]          # array form, in `joints` order (= joint_torque_commands)
+      - t: 0.8
+        joint_command: {effort: {shoulder: 1.0}, position: {elbow: 0.3}}   # = joint_commands
 
 A bare list is accepted as ``events``. Times must be finite, >= 0 and strictly increasing.
 An event takes effect at the first step boundary at or after ``t`` (as a command sent to
@@ -63,7 +65,8 @@ class Command:
     """One command as sim_node receives it on a topic.
 
     kind: ``'enable'`` (joint, bool), ``'enable_all'`` (bool), ``'array'`` (list of
-    floats in `joints` order) or ``'torque'`` (joint, float).
+    floats in `joints` order), ``'torque'`` (joint, float) or ``'joint_state'`` (a
+    ``joint_commands`` JointState as {name, position, velocity, effort} lists).
     """
 
     t_ns: int
@@ -159,9 +162,10 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
         where = f'{source}: events[{i}]'
         if not isinstance(event, dict):
             raise _fail(where, f'expected a mapping with t and torque/enable, got {event!r}')
-        unknown = sorted(set(map(str, event)) - {'t', 'torque', 'enable'})
+        unknown = sorted(set(map(str, event)) - {'t', 'torque', 'enable', 'joint_command'})
         if unknown:
-            raise _fail(f'{where}.{unknown[0]}', 'unknown key (allowed: t, torque, enable)')
+            raise _fail(f'{where}.{unknown[0]}',
+                        'unknown key (allowed: t, torque, enable, joint_command)')
         if 't' not in event:
             raise _fail(f'{where}.t', 'missing (the time in seconds)')
         t = _number(f'{where}.t', event['t'])
@@ -173,8 +177,8 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
             raise _fail(f'{where}.t', f'{t:g} is not after the previous event\'s t = '
                                       f'{last_t:g}; list events in increasing time, one per time')
         last_t = t
-        if 'torque' not in event and 'enable' not in event:
-            raise _fail(where, 'has neither torque nor enable')
+        if not {'torque', 'enable', 'joint_command'} & set(event):
+            raise _fail(where, 'has neither torque nor enable (nor joint_command)')
         t_ns = seconds_to_ns(t)
         enable = event.get('enable')
         if 'enable' in event:
@@ -205,8 +209,11 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
             else:
                 raise _fail(f'{where}.torque', f'expected {{joint: N m}} or a list in `joints` '
                                                f'order, got {torque!r}')
+        if 'joint_command' in event:
+            commands.append(_joint_command(f'{where}.joint_command', event['joint_command'],
+                                           t_ns))
     # Enables before the array before per-joint torques, within one time (stable sort).
-    rank = {'enable_all': 0, 'enable': 1, 'array': 2, 'torque': 3}
+    rank = {'enable_all': 0, 'enable': 1, 'array': 2, 'torque': 3, 'joint_state': 4}
     commands.sort(key=lambda c: (c.t_ns, rank[c.kind]))
     duration = data.get('duration')
     if duration is not None:
@@ -218,6 +225,33 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
     else:
         end_ns = seconds_to_ns((last_t or 0.0) + DEFAULT_TAIL)
     return Plan([Segment(commands, end_ns)], params, source, duration is not None)
+
+
+def _joint_command(where: str, value: Any, t_ns: int) -> Command:
+    """``joint_command: {effort: {joint: N m}, position: {joint: rad}}`` -> the JointState
+    sim_node would receive on ``joint_commands`` (one message; names = the union)."""
+    if not isinstance(value, dict) or not value:
+        raise _fail(where, f'expected {{effort: {{joint: N m}}, position: {{joint: rad}}}}, '
+                           f'got {value!r}')
+    unknown = sorted(set(map(str, value)) - {'effort', 'position'})
+    if unknown:
+        raise _fail(f'{where}.{unknown[0]}', 'unknown key (allowed: effort, position)')
+    parts = {}
+    for key in ('effort', 'position'):
+        part = value.get(key) or {}
+        if not isinstance(part, dict):
+            raise _fail(f'{where}.{key}', f'expected {{joint: value}}, got {part!r}')
+        parts[key] = {_joint_name(f'{where}.{key}', j): _number(f'{where}.{key}.{j}', v)
+                      for j, v in part.items()}
+    if parts['effort'] and parts['position'] and set(parts['effort']) != set(parts['position']):
+        raise _fail(where, 'effort and position must name the same joints in one message '
+                           '(use two events, or one of them)')
+    names = list(parts['effort'] or parts['position'])
+    return Command(t_ns, 'joint_state', None, {
+        'name': names, 'velocity': [],
+        'effort': [parts['effort'][n] for n in names] if parts['effort'] else [],
+        'position': [parts['position'][n] for n in names] if parts['position'] else []},
+        where)
 
 
 def load_schedule(path: str | Path) -> Plan:

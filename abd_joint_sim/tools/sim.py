@@ -63,7 +63,9 @@ class HeadlessSim:
                         {j: float(v) for j, v in zip(self.actuated, limits)})
         self.commands = CommandBuffer(self.actuated, config.joints,
                                       config.effort_limits if clamp else [],
-                                      config.command_timeout, scene_limits=scene_limits)
+                                      config.command_timeout, scene_limits=scene_limits,
+                                      driven=[j.name for j in getattr(scene, 'joints', ())
+                                              if getattr(j, 'driving', None) is not None])
         config.joints = list(self.commands.order)
         self.steps = 0
         self.not_converged = 0
@@ -104,6 +106,10 @@ class HeadlessSim:
             rejections, clamps = self.commands.command_array(cmd.value)
         elif cmd.kind == 'torque':
             rejections, clamps = self.commands.command_torque(cmd.joint, cmd.value)
+        elif cmd.kind == 'joint_state':
+            v = cmd.value
+            rejections, clamps = self.commands.command_joint_state(
+                v['name'], v.get('position', []), v.get('velocity', []), v.get('effort', []))
         else:
             raise ValueError(f'{cmd.describe()}: unknown command kind {cmd.kind!r}')
         if rejections:
@@ -166,11 +172,11 @@ class BagRecorder:
     """Observer writing sim_node's bag layout through ``abd_joint_sim.record.BagWriter``."""
 
     def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
-                 extra_custom: Optional[dict[str, str]] = None):
+                 extra_custom: Optional[dict[str, str]] = None, urdf_text: str = ''):
         from abd_joint_sim.record import BagWriter
         self.sim = sim
         custom, attachments = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
-                                              sim.commands.order, extra_custom)
+                                              sim.commands.order, extra_custom, urdf_text)
         self.writer = BagWriter(path, custom_data=custom, attachments=attachments)
         self.writer.open()
         self.markers = None

@@ -1,0 +1,684 @@
+"""URDF import: a robot description -> a normal :class:`~abd_joint_sim.scene.Scene`.
+
+``Scene.from_urdf(source, **options)`` (and a scene YAML's ``robot:`` block) end here. The
+URDF is read with the standard library's ``xml.etree.ElementTree`` by our own small reader
+(README "Robots from URDF" says why), lowered to plain scene data (bodies with ``inertial:``
+data, revolute joints with ``p0``/``p1`` on the axis) and validated by the scene parser like
+any scene. Every mapping rule and why: docs/urdf.md.
+
+* Link frame = body frame (``position``/``rpy`` = the link's pose by forward kinematics at
+  ``initial_positions``), so COM, inertia and visuals keep their URDF coordinates.
+* Fixed (and locked) joints merge the child into the parent: masses add, the COM is the
+  mass-weighted mean, inertias add with the parallel-axis theorem
+  ``I = Σ R_k I_k R_kᵀ + m_k (|d_k|² 1 − d_k d_kᵀ)``, ``d_k = c_k − c``.
+* revolute -> UID 18 (+ UID 670 from ``<limit lower upper>``; ``effort`` -> the UID 668
+  effort limit); continuous -> UID 18 without a limit. ``p0`` = joint origin,
+  ``p1 = p0 + axis`` (world, initial pose): a positive URDF position (right-hand rotation of
+  the child about ``<axis>``) is a positive joint angle, and ``init_angle`` = the initial
+  position so the reported angle reads the URDF joint position.
+* Non-physical inertias are repaired with one :class:`UrdfWarning` per link.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+import re
+from typing import Any
+import warnings
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from .errors import SceneError
+
+DEFAULT_DT = 1e-3                      # s, from_urdf / robot: scenes
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)    # m/s^2: a robot description assumes Earth's gravity
+FIXED_ROOT_MASS = 1.0                  # kg given to a massless fixed root (it never moves)
+WATER_DENSITY = 1000.0                 # kg/m^3: volume (for kappa) and the sphere repair
+
+ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints', 'kappa',
+                 'strength_ratio', 'limits', 'torque_enabled', 'driving')
+"""URDF options of ``from_urdf`` and of a ``robot:`` block (besides ``urdf``)."""
+SCENE_OPTIONS = ('dt', 'gravity', 'integrator', 'newton', 'name')
+"""Scene options ``from_urdf`` also takes (in a scene YAML they are top-level keys)."""
+JOINT_OVERRIDES = ('strength_ratio', 'external_torque', 'driving', 'limit')
+OVERRIDE_KEYS = {'external_torque': ('torque', 'enabled', 'effort_limit'),
+                 'driving': ('strength_ratio', 'aim_angle', 'passive', 'enabled'),
+                 'limit': ('lower', 'upper', 'strength')}
+MOVABLE = ('revolute', 'continuous')
+UNSUPPORTED = ('prismatic', 'planar', 'floating')
+
+
+class UrdfWarning(UserWarning):
+    """A URDF quirk that was repaired or ignored (one line naming file and link/joint)."""
+
+
+# ---------------------------------------------------------------------------------------
+# reading
+# ---------------------------------------------------------------------------------------
+class _Link:
+    __slots__ = ('name', 'mass', 'com', 'inertia', 'visuals')
+
+    def __init__(self, name):
+        self.name = name
+        self.mass = 0.0
+        self.com = np.zeros(3)          # in the link frame
+        self.inertia = np.zeros((3, 3))  # about the COM, in the link frame
+        self.visuals = []               # (kind, size, uri, T (4x4) in the link frame, rgba)
+
+
+class _Joint:
+    __slots__ = ('name', 'type', 'parent', 'child', 'origin', 'axis', 'lower', 'upper',
+                 'effort', 'mimic')
+
+    def __init__(self, name, jtype, parent, child, origin, axis):
+        self.name, self.type, self.parent, self.child = name, jtype, parent, child
+        self.origin, self.axis = origin, axis
+        self.lower = self.upper = None
+        self.effort = None
+        self.mimic = None
+
+
+def rpy_matrix(rpy) -> np.ndarray:
+    """URDF convention: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    from .model import rpy_matrix as _rpy
+    return _rpy(rpy)
+
+
+def matrix_rpy(R) -> tuple:
+    """(roll, pitch, yaw) with ``rpy_matrix(rpy) == R`` (pitch in [-pi/2, pi/2])."""
+    R = np.asarray(R, dtype=float)
+    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
+    if math.hypot(R[0, 0], R[1, 0]) > 1e-9:
+        roll = math.atan2(R[2, 1], R[2, 2])
+        yaw = math.atan2(R[1, 0], R[0, 0])
+    else:                                   # gimbal lock: only roll -/+ yaw is defined
+        roll, yaw = 0.0, math.atan2(-R[0, 1], R[1, 1])
+    return (roll, pitch, yaw)
+
+
+def _transform(xyz, rpy) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = rpy_matrix(rpy)
+    T[:3, 3] = xyz
+    return T
+
+
+def axis_rotation(axis, angle) -> np.ndarray:
+    """Right-hand rotation by `angle` about the unit `axis` (Rodrigues)."""
+    k = np.asarray(axis, dtype=float)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+class _Reader:
+    """Reads the elements the simulation needs; errors name the file and the element."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, msg):
+        raise SceneError(f'{self.source}: {msg}')
+
+    def floats(self, elem, attr, n, where, default=None):
+        raw = elem.get(attr) if elem is not None else None
+        if raw is None:
+            if default is None:
+                self.fail(f'{where}: missing attribute {attr!r}')
+            return np.array(default, dtype=float)
+        try:
+            vals = [float(v) for v in raw.split()]
+        except ValueError:
+            self.fail(f'{where}: {attr}={raw!r} is not {n} number(s)')
+        if len(vals) != n or not all(map(math.isfinite, vals)):
+            self.fail(f'{where}: {attr}={raw!r} must be {n} finite number(s)')
+        return np.array(vals)
+
+    def number(self, elem, attr, where, default=None):
+        return float(self.floats(elem, attr, 1, where, None if default is None else [default])[0])
+
+    def origin(self, parent, where):
+        o = parent.find('origin')
+        return _transform(self.floats(o, 'xyz', 3, f'{where} <origin>', [0, 0, 0]),
+                          self.floats(o, 'rpy', 3, f'{where} <origin>', [0, 0, 0]))
+
+    def parse(self, text: str):
+        # No DTD at all: entity declarations are the XML-bomb vector (billion laughs,
+        # external entities), and no URDF needs one.
+        if re.search(r'<!\s*(DOCTYPE|ENTITY)', text):
+            self.fail('DOCTYPE/ENTITY declarations are not accepted in a URDF (entity '
+                      'expansion is refused); remove the <!DOCTYPE ...> block')
+        try:
+            root = ET.fromstring(text)
+        except ET.ParseError as exc:
+            line, col = getattr(exc, 'position', (0, 0))
+            what = str(exc).split(':')[0]
+            self.fail(f'line {line}, column {col + 1}: not well-formed XML ({what})')
+        if root.tag != 'robot':
+            self.fail(f'root element is <{root.tag}>, expected <robot>')
+        # (comments are not in the tree: a `${...}` in a comment is fine)
+        for el in root.iter():
+            if el.tag.startswith('{') and 'xacro' in el.tag:
+                self.fail(f'<{el.tag.split("}")[1]}> is a xacro element: expand the file first '
+                          '(xacro robot.urdf.xacro > robot.urdf)')
+            for attr, value in el.attrib.items():
+                if '${' in value or '$(' in value:
+                    who = el.get('name')
+                    self.fail(f'<{el.tag}{f" name={who!r}" if who else ""}> {attr}={value!r} is an '
+                              'unexpanded xacro/launch substitution: expand the file first '
+                              '(xacro robot.urdf.xacro > robot.urdf)')
+        materials = {}
+        for m in root.findall('material'):
+            rgba = self.material_rgba(m, materials, f'<material name={m.get("name")!r}>')
+            if m.get('name') and rgba is not None:
+                materials[m.get('name')] = rgba
+        links, joints = {}, {}
+        for el in root.findall('link'):
+            link = self.link(el, materials)
+            if link.name in links:
+                self.fail(f'link {link.name!r} defined twice')
+            links[link.name] = link
+        for el in root.findall('joint'):
+            joint = self.joint(el, links)
+            if joint.name in joints:
+                self.fail(f'joint {joint.name!r} defined twice')
+            joints[joint.name] = joint
+        if not links:
+            self.fail('no <link> in the robot')
+        return root.get('name', ''), links, joints
+
+    def material_rgba(self, m, materials, where):
+        c = m.find('color')
+        if c is not None:
+            return tuple(self.floats(c, 'rgba', 4, f'{where} <color>').tolist())
+        return materials.get(m.get('name'))
+
+    def link(self, el, materials):
+        name = el.get('name')
+        if not name:
+            self.fail('a <link> without a name')
+        link = _Link(name)
+        where = f'link {name!r}'
+        inertial = el.find('inertial')
+        if inertial is not None:
+            mass_el = inertial.find('mass')
+            link.mass = self.number(mass_el, 'value', f'{where} <mass>') if mass_el is not None else 0.0
+            if link.mass < 0.0:
+                self.fail(f'{where}: negative mass {link.mass}')
+            T = self.origin(inertial, f'{where} <inertial>')
+            link.com = T[:3, 3]
+            i = inertial.find('inertia')
+            v = {k: self.number(i, k, f'{where} <inertia>', 0.0)
+                 for k in ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz')}
+            I = np.array([[v['ixx'], v['ixy'], v['ixz']], [v['ixy'], v['iyy'], v['iyz']],
+                          [v['ixz'], v['iyz'], v['izz']]])
+            link.inertia = T[:3, :3] @ I @ T[:3, :3].T    # inertial frame -> link frame
+        for vis in el.findall('visual'):
+            geom = vis.find('geometry')
+            shape = None if geom is None else next(iter(geom), None)
+            if shape is None:
+                continue
+            w = f'{where} <visual><{shape.tag}>'
+            if shape.tag == 'box':
+                kind, size, uri = 'box', tuple(self.floats(shape, 'size', 3, w).tolist()), ''
+            elif shape.tag == 'sphere':
+                kind, size, uri = 'sphere', (self.number(shape, 'radius', w),), ''
+            elif shape.tag == 'cylinder':
+                kind, uri = 'cylinder', ''
+                size = (self.number(shape, 'radius', w), self.number(shape, 'length', w))
+            elif shape.tag == 'mesh':
+                kind, uri = 'mesh', shape.get('filename', '')
+                size = tuple(self.floats(shape, 'scale', 3, w, [1, 1, 1]).tolist())
+            else:
+                continue        # capsule etc.: no effect on the physics, nothing to draw
+            mat = vis.find('material')
+            rgba = None if mat is None else self.material_rgba(mat, materials, f'{where} <material>')
+            link.visuals.append((kind, size, uri, self.origin(vis, f'{where} <visual>'), rgba))
+        return link
+
+    def joint(self, el, links):
+        name, jtype = el.get('name'), el.get('type')
+        if not name:
+            self.fail('a <joint> without a name')
+        where = f'joint {name!r}'
+        if jtype not in MOVABLE + UNSUPPORTED + ('fixed',):
+            self.fail(f'{where}: unknown type {jtype!r}')
+        ends = {}
+        for key in ('parent', 'child'):
+            e = el.find(key)
+            if e is None or not e.get('link'):
+                self.fail(f'{where}: missing <{key} link="..."/>')
+            if e.get('link') not in links:
+                self.fail(f'{where}: {key} link {e.get("link")!r} is not defined')
+            ends[key] = e.get('link')
+        axis = self.floats(el.find('axis'), 'xyz', 3, f'{where} <axis>', [1, 0, 0])
+        j = _Joint(name, jtype, ends['parent'], ends['child'], self.origin(el, where), axis)
+        if jtype in MOVABLE:
+            n = float(np.linalg.norm(axis))
+            if n < 1e-12:
+                self.fail(f'{where}: <axis xyz="0 0 0"> has no direction')
+            j.axis = axis / n
+        lim = el.find('limit')
+        if lim is not None:
+            j.effort = self.number(lim, 'effort', f'{where} <limit>', 0.0)
+            if jtype == 'revolute':
+                j.lower = self.number(lim, 'lower', f'{where} <limit>', 0.0)
+                j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
+        if el.find('mimic') is not None:
+            j.mimic = el.find('mimic').get('joint', '?')
+        return j
+
+
+# ---------------------------------------------------------------------------------------
+# lowering
+# ---------------------------------------------------------------------------------------
+def _check_inertia(source, link) -> tuple[np.ndarray, str]:
+    """(inertia about the COM, '' or what was repaired) of a link with mass > 0.
+
+    Physical: principal moments > 0 obeying the triangle inequality (S = ½ tr(I) 1 − I
+    positive definite). Zero/negative moments -> a solid sphere of water density with the
+    link's mass (I = 2/5 m r²); a broken triangle inequality -> MuJoCo's balanceinertia
+    (every principal moment = their mean)."""
+    I = 0.5 * (link.inertia + link.inertia.T)
+    eig = np.linalg.eigvalsh(I)
+    scale = max(float(np.abs(eig).max()), 1e-300)
+    if eig[0] <= 1e-12 * scale or eig[0] <= 0.0:
+        r = (3.0 * link.mass / WATER_DENSITY / (4.0 * math.pi)) ** (1.0 / 3.0)
+        new = 0.4 * link.mass * r * r
+        return new * np.eye(3), (f'principal moments {_fmt(eig)} are not all > 0: replaced '
+                                 f'by a solid sphere of water density ({new:.4g} kg m^2 each)')
+    if eig[0] + eig[1] <= eig[2] * (1.0 + 1e-9):
+        mean = float(eig.mean())
+        return mean * np.eye(3), (f'principal moments {_fmt(eig)} break the triangle '
+                                  f'inequality: set to their mean {mean:.4g} kg m^2 '
+                                  '(MuJoCo balanceinertia)')
+    return I, ''
+
+
+def _fmt(v):
+    return '[' + ', '.join(f'{x:.4g}' for x in v) + ']'
+
+
+def _plain_list(v):
+    return [float(x) for x in np.asarray(v, dtype=float).ravel()]
+
+
+class _Options:
+    def __init__(self, source, opts, joints, where='robot'):
+        self.source, self.where = source, where
+        unknown = [k for k in opts if k not in ROBOT_OPTIONS]
+        if unknown:
+            self.fail('', f'unknown option(s) {", ".join(map(repr, unknown))}; allowed: '
+                          f'{", ".join(ROBOT_OPTIONS + SCENE_OPTIONS)}')
+        self.fixed_base = opts.get('fixed_base', True)
+        if not isinstance(self.fixed_base, bool):
+            self.fail('fixed_base', f'must be true or false, got {self.fixed_base!r}')
+        self.limits = opts.get('limits', True)
+        if not isinstance(self.limits, bool):
+            self.fail('limits', f'must be true or false, got {self.limits!r}')
+        self.torque_enabled = opts.get('torque_enabled', True)
+        if not isinstance(self.torque_enabled, bool):
+            self.fail('torque_enabled', f'must be true or false, got {self.torque_enabled!r}')
+        self.kappa = opts.get('kappa')
+        self.strength_ratio = opts.get('strength_ratio')
+        self.initial = self.mapping('initial_positions', opts.get('initial_positions') or {})
+        for name, value in self.initial.items():
+            self.known(f'initial_positions', name, joints)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value):
+                self.fail(f'initial_positions.{name}', f'must be a finite number (rad), got {value!r}')
+        self.lock = self.names('lock', opts.get('lock') or [], joints)
+        actuated = opts.get('actuated')
+        self.actuated = None if actuated is None else self.names('actuated', actuated, joints)
+        self.overrides = self.mapping('joints', opts.get('joints') or {})
+        for name, over in self.overrides.items():
+            self.known('joints', name, joints)
+            if not isinstance(over, dict):
+                self.fail(f'joints.{name}', f'must be a mapping of {", ".join(JOINT_OVERRIDES)}')
+            bad = [k for k in over if k not in JOINT_OVERRIDES]
+            if bad:
+                self.fail(f'joints.{name}', f'unknown key(s) {", ".join(map(repr, bad))}; '
+                                            f'allowed: {", ".join(JOINT_OVERRIDES)}')
+            for key, allowed in OVERRIDE_KEYS.items():
+                sub = over.get(key)
+                if isinstance(sub, dict):
+                    bad = [k for k in sub if k not in allowed]
+                    if bad:
+                        self.fail(f'joints.{name}.{key}', f'unknown key(s) '
+                                  f'{", ".join(map(repr, bad))}; allowed: {", ".join(allowed)}')
+                elif key in over and sub is not None and sub is not False:
+                    self.fail(f'joints.{name}.{key}', f'must be a mapping (or false to '
+                                                      f'remove it), got {sub!r}')
+            if 'strength_ratio' in over:
+                self.positive(f'joints.{name}.strength_ratio', over['strength_ratio'])
+        for key in ('kappa', 'strength_ratio'):
+            if opts.get(key) is not None:
+                self.positive(key, opts[key])
+        self.driving = opts.get('driving')
+        if self.driving is not None:
+            self.mapping('driving', self.driving)
+            bad = [k for k in self.driving if k not in OVERRIDE_KEYS['driving']]
+            if bad:
+                self.fail('driving', f'unknown key(s) {", ".join(map(repr, bad))}; allowed: '
+                                     f'{", ".join(OVERRIDE_KEYS["driving"])}')
+
+    def fail(self, field, msg):
+        where = f'{self.where}.{field}' if field else self.where
+        raise SceneError(f'{self.source}: {where}: {msg}')
+
+    def positive(self, field, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value) or value <= 0:
+            self.fail(field, f'must be a finite number > 0, got {value!r}')
+
+    def mapping(self, field, value):
+        if not isinstance(value, dict):
+            self.fail(field, f'must be a mapping, got {value!r}')
+        return value
+
+    def known(self, field, name, joints):
+        if name not in joints:
+            self.fail(field, f'unknown joint {name!r}; joints: {", ".join(joints) or "none"}')
+
+    def names(self, field, value, joints):
+        if isinstance(value, str) or not isinstance(value, (list, tuple)):
+            self.fail(field, f'must be a list of joint names, got {value!r}')
+        for name in value:
+            self.known(field, name, joints)
+        return list(value)
+
+
+def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[str]]:
+    """(scene data without dt/gravity/integrator/newton, warnings) of a URDF text."""
+    robot_name, links, joints = _Reader(source).parse(text)
+    opt = _Options(source, options, joints)
+    notes: list[str] = []
+
+    # Tree: one root, every link the child of at most one joint.
+    child_of: dict[str, _Joint] = {}
+    for j in joints.values():
+        if j.child in child_of:
+            raise SceneError(f'{source}: link {j.child!r} is the child of two joints '
+                             f'({child_of[j.child].name!r}, {j.name!r}); a URDF is a tree')
+        child_of[j.child] = j
+    roots = [n for n in links if n not in child_of]
+    if len(roots) != 1:
+        raise SceneError(f'{source}: the links must form one tree; roots (links that are no '
+                         f'joint\'s child): {roots or "none (a loop)"}')
+    children: dict[str, list[_Joint]] = {n: [] for n in links}
+    for j in joints.values():
+        children[j.parent].append(j)
+
+    # Which joints stay joints.
+    for name in opt.lock:
+        if joints[name].type == 'fixed':
+            raise SceneError(f'{source}: robot.lock: joint {name!r} is fixed already')
+    for j in joints.values():
+        if j.name in opt.lock or j.type == 'fixed':
+            continue
+        if j.type in UNSUPPORTED:
+            raise SceneError(f'{source}: joint {j.name!r} is {j.type}: only revolute and '
+                             f'continuous joints are simulated; `lock: [{j.name}]` holds it '
+                             'rigid (the child link is merged into its parent)')
+        if j.mimic is not None:
+            raise SceneError(f'{source}: joint {j.name!r} ({j.type}) mimics joint {j.mimic!r}: '
+                             f'mimic joints are not simulated; `lock: [{j.name}]` holds it '
+                             'rigid (the child link is merged into its parent)')
+
+    def moving(j):
+        return j.type in MOVABLE and j.name not in opt.lock
+
+    def effective_limit(j):
+        """(lower, upper) of the UID 670 limit the joint will get, or None."""
+        lim = ({'lower': j.lower, 'upper': j.upper} if opt.limits and j.type == 'revolute'
+               and j.lower is not None and j.upper > j.lower else None)
+        over = opt.overrides.get(j.name, {})
+        if 'limit' in over:
+            lim = None if over['limit'] in (None, False) else {**(lim or {}), **over['limit']}
+        return (lim['lower'], lim['upper']) if lim and 'lower' in lim and 'upper' in lim else None
+
+    # Initial positions: as given, else 0 -- or the nearest bound where 0 is outside the
+    # joint's limit (some descriptions have it so; the limit would throw the joint back).
+    q_init: dict[str, float] = {}
+    for j in joints.values():
+        q = float(opt.initial.get(j.name, 0.0))
+        lim = effective_limit(j) if moving(j) and j.name not in opt.initial else None
+        if lim is not None and not lim[0] <= q <= lim[1]:
+            q = min(max(q, lim[0]), lim[1])
+            msg = (f'{source}: joint {j.name!r}: position 0 is outside its limit '
+                   f'[{lim[0]:g}, {lim[1]:g}]: it starts at {q:g} rad (set initial_positions '
+                   'to choose)')
+            notes.append(msg)
+            warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+        q_init[j.name] = q
+
+    # Forward kinematics at the initial positions (world = root link frame).
+    world_T: dict[str, np.ndarray] = {roots[0]: np.eye(4)}
+    joint_frame: dict[str, np.ndarray] = {}
+    order: list[str] = []
+    stack = [roots[0]]
+    while stack:
+        name = stack.pop()
+        order.append(name)
+        for j in reversed(children[name]):
+            T = world_T[name] @ j.origin
+            joint_frame[j.name] = T
+            q = q_init[j.name]
+            M = np.eye(4)
+            if j.type in MOVABLE:
+                M[:3, :3] = axis_rotation(j.axis, q)
+            elif j.type == 'prismatic':
+                M[:3, 3] = j.axis * q
+            world_T[j.child] = T @ M
+            stack.append(j.child)
+    for name in opt.initial:
+        if joints[name].type == 'fixed':
+            raise SceneError(f'{source}: robot.initial_positions.{name}: joint {name!r} is fixed')
+
+    # Groups: a link belongs to the body of its nearest ancestor reached by a moving joint.
+    group: dict[str, str] = {}
+    for name in order:
+        j = child_of.get(name)
+        group[name] = name if j is None or moving(j) else group[j.parent]
+    members: dict[str, list[str]] = {}
+    for name in order:
+        members.setdefault(group[name], []).append(name)
+
+    # Each link's inertia checked (and repaired, one warning per link) once.
+    inertia: dict[str, np.ndarray] = {}
+    for name in order:
+        if links[name].mass > 0.0:
+            inertia[name], what = _check_inertia(source, links[name])
+            if what:
+                msg = f'{source}: link {name!r}: {what}'
+                notes.append(msg)
+                warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+
+    # Lumped mass properties per body, in the body (= top link) frame.
+    def lumped(top):
+        T0 = world_T[top]
+        R0, p0 = T0[:3, :3], T0[:3, 3]
+        parts = []
+        for name in members[top]:
+            link = links[name]
+            if link.mass <= 0.0:
+                continue
+            I = inertia[name]
+            T = world_T[name]
+            R = R0.T @ T[:3, :3]
+            c = R0.T @ (T[:3, :3] @ link.com + T[:3, 3] - p0)
+            parts.append((link.mass, c, R @ I @ R.T))
+        m = sum(p[0] for p in parts)
+        if m <= 0.0:
+            return 0.0, np.zeros(3), np.zeros((3, 3))
+        c = sum(p[0] * p[1] for p in parts) / m
+        I = np.zeros((3, 3))
+        for mk, ck, Ik in parts:
+            d = ck - c
+            I += Ik + mk * (d @ d * np.eye(3) - np.outer(d, d))
+        return m, c, I
+
+    # Massless moving bodies: a leaf is held rigid (locked) with a warning, else an error.
+    for top in reversed(list(members)):      # leaves first: a chain of them folds up
+        j = child_of.get(top)
+        if j is None:
+            continue
+        if lumped(top)[0] > 0.0:
+            continue
+        below = [k.name for n in members[top] for k in children[n] if moving(k)]
+        if below:
+            raise SceneError(f'{source}: link {top!r} (joint {j.name!r}) has no mass but moves '
+                             f'and carries moving joint(s) {below}: an affine body needs mass; '
+                             f'give it an <inertial>, or `lock: [{j.name}]`')
+        msg = (f'{source}: link {top!r} has no mass (nor anything fixed to it): joint '
+               f'{j.name!r} is held rigid (merged into {j.parent!r}), it has no dynamics')
+        notes.append(msg)
+        warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+        opt.lock.append(j.name)
+        for name in members.pop(top):
+            members[group[j.parent]].append(name)
+            group[name] = group[j.parent]
+
+    props = {top: lumped(top) for top in members}
+
+    bodies = []
+    for top in members:
+        m, c, I = props[top]
+        T = world_T[top]
+        rpy = matrix_rpy(T[:3, :3])
+        R0 = rpy_matrix(rpy)            # the frame the scene will use, to round-off
+        is_root = top == roots[0]
+        if m <= 0.0:
+            if not (is_root and opt.fixed_base):
+                raise SceneError(f'{source}: link {top!r} has no mass: a free body needs '
+                                 'an <inertial> with mass > 0')
+            m, c, I = FIXED_ROOT_MASS, np.zeros(3), FIXED_ROOT_MASS * 1e-2 * np.eye(3)
+        body = {'name': top,
+                'inertial': {'mass': float(m), 'com': _plain_list(c),
+                             'inertia': [_plain_list(r) for r in 0.5 * (I + I.T)],
+                             'volume': float(m) / WATER_DENSITY},
+                'position': _plain_list(T[:3, 3]), 'rpy': [float(a) for a in rpy]}
+        if opt.kappa is not None:
+            body['kappa'] = opt.kappa
+        if is_root and opt.fixed_base:
+            body['fixed'] = True
+        visuals = []
+        for name in members[top]:
+            for kind, size, uri, Tv, rgba in links[name].visuals:
+                W = world_T[name] @ Tv
+                Rv = R0.T @ W[:3, :3]
+                v = {'kind': kind, 'size': list(size),
+                     'origin_xyz': _plain_list(R0.T @ (W[:3, 3] - T[:3, 3])),
+                     'origin_rpy': [float(a) for a in matrix_rpy(Rv)]}
+                if uri:
+                    v['mesh_uri'] = uri
+                if rgba is not None:
+                    v['rgba'] = list(rgba)
+                visuals.append(v)
+        if visuals:
+            body['visuals'] = visuals
+        bodies.append(body)
+
+    movable = [j for j in joints.values() if moving(j)]
+    actuated = set(opt.actuated if opt.actuated is not None else [j.name for j in movable])
+    for name in actuated:
+        if not moving(joints[name]):
+            raise SceneError(f'{source}: robot.actuated: joint {name!r} is '
+                             f'{"locked" if name in opt.lock else joints[name].type}; only '
+                             'moving revolute/continuous joints can be actuated')
+    for name in opt.overrides:
+        if not moving(joints[name]):
+            raise SceneError(f'{source}: robot.joints.{name}: joint {name!r} is '
+                             f'{"locked" if name in opt.lock else joints[name].type}, not a '
+                             'moving revolute/continuous joint')
+    scene_joints = []
+    for j in movable:
+        F = joint_frame[j.name]
+        p0 = F[:3, 3]
+        axis = F[:3, :3] @ j.axis
+        q0 = q_init[j.name]
+        d = {'name': j.name, 'type': 'revolute', 'parent': group[j.parent],
+             'child': group[j.child], 'p0': _plain_list(p0), 'p1': _plain_list(p0 + axis),
+             'init_angle': q0}
+        if opt.strength_ratio is not None:
+            d['strength_ratio'] = opt.strength_ratio
+        if j.name in actuated:
+            et = {'torque': 0.0, 'enabled': opt.torque_enabled}
+            if j.effort is not None and j.effort > 0.0:
+                et['effort_limit'] = j.effort
+            d['external_torque'] = et
+        if opt.limits and j.type == 'revolute' and j.lower is not None and j.upper > j.lower:
+            d['limit'] = {'lower': j.lower, 'upper': j.upper}
+        if opt.driving is not None:         # UID 19 on every moving joint, holding its pose
+            d['driving'] = {'aim_angle': q0, **opt.driving}
+        over = opt.overrides.get(j.name, {})
+        for key in JOINT_OVERRIDES:
+            if key not in over:
+                continue
+            value = over[key]
+            if value is False or value is None:
+                d.pop(key, None)
+            elif key == 'strength_ratio':
+                d[key] = value
+            elif isinstance(value, dict):
+                base = d.get(key) if isinstance(d.get(key), dict) else {}
+                if key == 'driving' and 'driving' not in d:
+                    base = {'aim_angle': q0}
+                d[key] = {**base, **value}
+        lim = d.get('limit')
+        if isinstance(lim, dict) and 'lower' in lim and 'upper' in lim \
+                and not lim['lower'] <= q0 <= lim['upper']:
+            raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} rad is outside '
+                             f'the joint\'s limit [{lim["lower"]:g}, {lim["upper"]:g}]; the limit '
+                             f'would throw it back at once (widen it with joints: {{{j.name}: '
+                             '{limit: ...}}, or limits: false)')
+        scene_joints.append(d)
+    data = {'name': robot_name, 'bodies': bodies, 'joints': scene_joints}
+    return data, notes
+
+
+def read_urdf_source(source) -> tuple[str, str]:
+    """(text, name for messages) of a path or of URDF XML text."""
+    if isinstance(source, (bytes, bytearray)):
+        source = source.decode('utf-8', errors='replace')
+    if isinstance(source, str) and '<' in source:       # XML text (no path has a '<')
+        return source.lstrip('\ufeff'), '<robot_description>'
+    path = Path(os.path.expanduser(str(source)))
+    try:
+        return path.read_text(), str(path)
+    except OSError as exc:
+        raise SceneError(f'{path}: cannot read URDF: {exc.strerror or exc}') from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(f'{path}: not a text file ({exc.reason})') from None
+
+
+def resolve_package_uri(uri: str, base_dir: str) -> str:
+    """A ``robot: {urdf: ...}`` path: ``package://pkg/rel`` through the ament index,
+    otherwise relative to the scene file's directory."""
+    if uri.startswith('package://'):
+        pkg, _, rel = uri[len('package://'):].partition('/')
+        try:
+            from ament_index_python.packages import get_package_share_directory
+            return os.path.join(get_package_share_directory(pkg), rel)
+        except Exception:  # noqa: BLE001 - not found / no ament index
+            if pkg == 'abd_joint_sim':
+                return os.path.join(os.path.dirname(os.path.abspath(__file__)), rel)
+            raise SceneError(f'{uri}: package {pkg!r} not found in the ament index') from None
+    path = os.path.expanduser(uri)
+    return path if os.path.isabs(path) else os.path.join(base_dir, path)
+
+
+def scene_data_from_urdf(source, options: dict) -> tuple[dict, str, str, list[str]]:
+    """(full scene data, source name, URDF text, warnings) for ``Scene.from_urdf``."""
+    text, name = read_urdf_source(source)
+    options = dict(options)
+    scene_opts = {k: options.pop(k) for k in SCENE_OPTIONS if k in options}
+    data, notes = robot_scene_dict(text, name, options)
+    data['dt'] = scene_opts.pop('dt', DEFAULT_DT)
+    data['gravity'] = list(scene_opts.pop('gravity', DEFAULT_GRAVITY))
+    if scene_opts.get('name'):
+        data['name'] = scene_opts.pop('name')
+    scene_opts.pop('name', None)
+    data.update(scene_opts)
+    return data, name, text, notes

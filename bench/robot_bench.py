@@ -1,0 +1,114 @@
+"""bench/bench.py's URDF robot section (issue 11): one real robot description, the KUKA iiwa
+shipped in the pybullet wheel (`pybullet_data/kuka_iiwa/model.urdf`, 7 revolute joints),
+loaded by `Scene.from_urdf`, MuJoCo (its URDF import) and PyBullet (`loadURDF`): per-step
+cost at dt = 1 ms with gravity and a torque on every joint, each engine's default
+integrator (ours: bdf1; MuJoCo: Euler; PyBullet: its semi-implicit Euler), from Python.
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import time
+
+import numpy as np
+
+DT = 1e-3
+
+
+def robot_path():
+    """Path of the KUKA URDF, or None without pybullet_data."""
+    try:
+        import pybullet_data
+    except ImportError:
+        return None
+    path = os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf')
+    return path if os.path.isfile(path) else None
+
+
+def torques(n):
+    return [((-1) ** k) * (2.0 - 0.2 * k) for k in range(n)]
+
+
+def _time(step, steps, repeats):
+    out = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            step()
+        out.append((time.perf_counter() - t0) / steps)
+    return statistics.median(out)
+
+
+def ours(path, steps, repeats, backend='default'):
+    from abd_joint_sim import Scene, World
+    scene = Scene.from_urdf(path, dt=DT)
+    world = World(scene) if backend == 'default' else World(scene, backend=backend)
+    for name, tau in zip(scene.joint_names, torques(len(scene.joint_names))):
+        world.set_torque(name, tau)
+    world.step(3)
+    its = []
+
+    def step():
+        its.append(world.step().newton_iterations)
+    return _time(step, steps, repeats), float(np.mean(its)), world.backend
+
+
+def mujoco(path, steps, repeats):
+    try:
+        import mujoco as mj
+    except ImportError:
+        return None
+    m = mj.MjModel.from_xml_path(path)
+    m.opt.timestep = DT
+    m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
+    d = mj.MjData(m)
+    d.qfrc_applied[:] = torques(m.nv)
+    return _time(lambda: mj.mj_step(m, d), steps, repeats)
+
+
+def pybullet(path, steps, repeats):
+    try:
+        import pybullet as p
+    except ImportError:
+        return None
+    cid = p.connect(p.DIRECT)
+    try:
+        p.setGravity(0, 0, -9.81, physicsClientId=cid)
+        p.setTimeStep(DT, physicsClientId=cid)
+        rid = p.loadURDF(path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+                         physicsClientId=cid)
+        ids = list(range(p.getNumJoints(rid, physicsClientId=cid)))
+        p.setJointMotorControlArray(rid, ids, p.VELOCITY_CONTROL, forces=[0.0] * len(ids),
+                                    physicsClientId=cid)
+        tau = torques(len(ids))
+
+        def step():     # a torque command holds for one step in PyBullet: set it every step
+            p.setJointMotorControlArray(rid, ids, p.TORQUE_CONTROL, forces=tau,
+                                        physicsClientId=cid)
+            p.stepSimulation(physicsClientId=cid)
+        return _time(step, steps, repeats)
+    finally:
+        p.disconnect(cid)
+
+
+def run(quick=False, backend='default', peers=True):
+    """Print the robot's row; returns (path, ours s/step) or None without the file."""
+    path = robot_path()
+    if path is None:
+        print('URDF robot: skipped (pybullet_data not installed: requirements-bench.txt)')
+        return None
+    steps, repeats = (100, 3) if quick else (500, 5)
+    t, its, used = ours(path, steps, repeats, backend)
+    mj = mujoco(path, 5 * steps, repeats) if peers else None
+    pb = pybullet(path, 5 * steps, repeats) if peers else None
+
+    def peer(x):
+        return ('–', '–') if x is None else (f'{x * 1e6:.1f}', f'{t / x:.1f}')
+    print('\nURDF robot (pybullet_data/kuka_iiwa/model.urdf, 7 joints, dt 1 ms, gravity, torque on '
+          'every joint, each engine loading the same file):')
+    print('| robot | backend | µs/step median | RTF at dt | Newton it/step | MuJoCo µs/step | '
+          'ours/MuJoCo | PyBullet µs/step | ours/PyBullet |')
+    print('|' + '---|' * 9)
+    print(f'| KUKA iiwa | {used} | {t * 1e6:.0f} | {DT / t:.1f} | {its:.2f} | {peer(mj)[0]} | '
+          f'{peer(mj)[1]} | {peer(pb)[0]} | {peer(pb)[1]} |')
+    return path, t

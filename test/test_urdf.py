@@ -1,0 +1,316 @@
+"""URDF import (abd_joint_sim/urdf.py, Scene.from_urdf, the robot: block): mapping rules
+checked against hand-computed values, real-world quirks, and errors."""
+import math
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+from abd_joint_sim import Scene, World
+from abd_joint_sim.errors import SceneError
+from abd_joint_sim.model import rpy_matrix
+from abd_joint_sim.scene import load_yaml
+from abd_joint_sim.urdf import UrdfWarning, axis_rotation, matrix_rpy
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DEMO = os.path.join(os.path.dirname(HERE), 'abd_joint_sim', 'robots', 'demo_arm.urdf')
+
+
+def inertial(mass, xyz='0 0 0', rpy='0 0 0', ixx=0.01, iyy=0.01, izz=0.01, ixy=0.0):
+    return (f'<inertial><origin xyz="{xyz}" rpy="{rpy}"/><mass value="{mass}"/>'
+            f'<inertia ixx="{ixx}" ixy="{ixy}" ixz="0" iyy="{iyy}" iyz="0" izz="{izz}"/></inertial>')
+
+
+def robot(*parts, name='r'):
+    return f'<?xml version="1.0"?>\n<robot name="{name}">\n' + '\n'.join(parts) + '\n</robot>\n'
+
+
+def link(name, body=''):
+    return f'<link name="{name}">{body}</link>'
+
+
+def joint(name, jtype, parent, child, xyz='0 0 0', rpy='0 0 0', axis='0 0 1', extra=''):
+    return (f'<joint name="{name}" type="{jtype}"><parent link="{parent}"/><child link="{child}"/>'
+            f'<origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="{axis}"/>{extra}</joint>')
+
+
+ARM = robot(
+    '<material name="blue"><color rgba="0 0 1 1"/></material>',
+    link('base', inertial(5.0)),
+    link('upper', inertial(2.0, xyz='0.25 0 0', ixx=0.01, iyy=0.05, izz=0.05)
+         + '<visual><origin xyz="0.25 0 0" rpy="0 1.5707963267948966 0"/><geometry>'
+           '<cylinder radius="0.05" length="0.5"/></geometry><material name="blue"/></visual>'),
+    link('tool', inertial(0.5, xyz='0 0 0.05', ixx=0.002, iyy=0.002, izz=0.001)
+         + '<visual><geometry><mesh filename="package://my_robot/meshes/tool.stl" '
+           'scale="0.001 0.001 0.001"/></geometry></visual>'),
+    joint('shoulder', 'revolute', 'base', 'upper', xyz='0 0 0.3', axis='0 1 0',
+          extra='<limit lower="-1.5" upper="1.5" effort="40" velocity="2"/>'),
+    joint('tool_mount', 'fixed', 'upper', 'tool', xyz='0.5 0 0', rpy='0 0 1.5707963267948966'),
+    # ROS 1 / Gazebo / ros2_control extras the simulation ignores
+    '<transmission name="t1"><type>transmission_interface/SimpleTransmission</type>'
+    '<joint name="shoulder"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>'
+    '<actuator name="m1"><mechanicalReduction>1</mechanicalReduction></actuator></transmission>',
+    '<gazebo reference="upper"><material>Gazebo/Blue</material></gazebo>',
+    '<ros2_control name="sys" type="system"><hardware><plugin>x/Y</plugin></hardware>'
+    '<joint name="shoulder"><command_interface name="effort"/></joint></ros2_control>')
+
+
+def test_mapping_fixed_merge_limits_effort_visuals():
+    scene = Scene.from_urdf(ARM, dt=1e-3, gravity=[0, 0, 0])
+    assert scene.body_names == ('base', 'upper')          # tool merged into upper
+    assert scene.joint_names == ('shoulder',)
+    assert scene.gravity == (0.0, 0.0, 0.0) and scene.dt == 1e-3
+    base, upper = scene.bodies
+    assert base.fixed and not upper.fixed
+    # Lumped: mass sum, COM the mass-weighted mean, inertia by the parallel-axis theorem.
+    s = upper.shape
+    assert s.mass == pytest.approx(2.5)
+    c_tool = np.array([0.5, 0, 0.05])
+    c = (2.0 * np.array([0.25, 0, 0]) + 0.5 * c_tool) / 2.5
+    assert np.allclose(s.com, c)
+    Rz = rpy_matrix([0, 0, math.pi / 2])
+    I_tool = Rz @ np.diag([0.002, 0.002, 0.001]) @ Rz.T
+    expect = np.zeros((3, 3))
+    for m, ck, Ik in ((2.0, np.array([0.25, 0, 0]), np.diag([0.01, 0.05, 0.05])),
+                      (0.5, c_tool, I_tool)):
+        d = ck - c
+        expect += Ik + m * (d @ d * np.eye(3) - np.outer(d, d))
+    assert np.allclose(np.array(s.inertia).reshape(3, 3), expect, atol=1e-12)
+    j = scene.joints[0]
+    assert j.p0 == pytest.approx((0, 0, 0.3)) and j.p1 == pytest.approx((0, 1, 0.3))
+    assert j.limit.lower == -1.5 and j.limit.upper == 1.5
+    assert j.external_torque.effort_limit == 40.0 and j.external_torque.enabled
+    # Visuals: the cylinder keeps its link-frame pose and named material; the merged tool's
+    # mesh moves into upper's frame with the fixed joint's pose.
+    cyl, mesh = upper.visuals
+    assert cyl.kind == 'cylinder' and cyl.size == (0.05, 0.5) and cyl.rgba == (0, 0, 1, 1)
+    assert cyl.origin_xyz == pytest.approx((0.25, 0, 0))
+    assert mesh.kind == 'mesh' and mesh.mesh_uri == 'package://my_robot/meshes/tool.stl'
+    assert mesh.size == (0.001, 0.001, 0.001) and mesh.rgba is None
+    assert mesh.origin_xyz == pytest.approx((0.5, 0, 0))
+    assert np.allclose(rpy_matrix(mesh.origin_rpy), Rz)
+
+
+def test_limits_switch_and_overrides():
+    scene = Scene.from_urdf(ARM, limits=False, strength_ratio=50.0, kappa=1e9,
+                            joints={'shoulder': {'driving': {'strength_ratio': 20.0},
+                                                 'external_torque': {'effort_limit': 5.0}}})
+    j = scene.joints[0]
+    assert j.limit is None and j.strength_ratio == 50.0
+    assert j.driving.strength_ratio == 20.0 and j.driving.aim_angle == 0.0
+    assert j.external_torque.effort_limit == 5.0
+    assert all(b.kappa == 1e9 for b in scene.bodies)
+    scene = Scene.from_urdf(ARM, actuated=[], joints={'shoulder': {'limit': {'lower': -0.5,
+                                                                              'upper': 0.5}}})
+    assert scene.joints[0].external_torque is None and scene.joints[0].limit.upper == 0.5
+
+
+def test_sign_and_inertia_against_the_analytic_rotation():
+    """+τ about the URDF axis turns the link by +τ t²/(2 I_axis) (no gravity): the reported
+    angle and velocity follow the URDF joint position's sign."""
+    scene = Scene.from_urdf(ARM, dt=1e-4, gravity=[0, 0, 0], limits=False)
+    I_axis = (np.array(scene.bodies[1].shape.inertia).reshape(3, 3)[1, 1]
+              + 2.5 * (scene.bodies[1].shape.com[0] ** 2 + scene.bodies[1].shape.com[2] ** 2))
+    world = World(scene)
+    p, A = world.body_pose('upper')
+    com0 = A @ np.array(scene.bodies[1].shape.com) + p
+    world.set_torque('shoulder', 0.5)
+    world.step(100)
+    t = world.time
+    assert world.joint_velocities()[0] == pytest.approx(0.5 * t / I_axis, rel=2e-3)
+    assert world.joint_angles()[0] == pytest.approx(0.5 * t * t / (2 * I_axis), rel=2e-2)
+    # and the child really turned right-handedly about +y, which moves +x toward -z.
+    p, A = world.body_pose('upper')
+    com = A @ np.array(scene.bodies[1].shape.com) + p
+    assert com[2] - com0[2] == pytest.approx(-world.joint_angles()[0] * com0[0], rel=1e-2)
+
+
+def test_initial_positions_place_bodies_by_forward_kinematics():
+    q = 0.7
+    scene = Scene.from_urdf(ARM, initial_positions={'shoulder': q}, gravity=[0, 0, 0])
+    world = World(scene)
+    assert world.joint_angles()[0] == pytest.approx(q, abs=1e-12)
+    p, A = world.body_pose('upper')
+    assert np.allclose(p, [0, 0, 0.3])
+    assert np.allclose(A, axis_rotation([0, 1, 0], q), atol=1e-12)
+    world.step(10)          # at rest and no torque: stays there
+    assert world.joint_angles()[0] == pytest.approx(q, abs=1e-9)
+
+
+def test_matrix_rpy_round_trip_including_gimbal_lock():
+    rng = np.random.default_rng(1)
+    for rpy in list(rng.uniform(-3, 3, (20, 3))) + [(0.3, math.pi / 2, 0.2), (0.1, -math.pi / 2, 1)]:
+        R = rpy_matrix(rpy)
+        assert np.allclose(rpy_matrix(matrix_rpy(R)), R, atol=1e-12)
+
+
+@pytest.mark.parametrize('jtype', ['prismatic', 'planar', 'floating'])
+def test_unsupported_joint_is_one_clear_error_and_lock_holds_it(jtype):
+    text = robot(link('a', inertial(1)), link('b', inertial(1)), link('c', inertial(1)),
+                 joint('j1', 'revolute', 'a', 'b', extra='<limit lower="-1" upper="1" effort="1" velocity="1"/>'),
+                 joint('slide', jtype, 'b', 'c', xyz='0 0 0.2', axis='1 0 0',
+                       extra='<limit lower="0" upper="0.1" effort="1" velocity="1"/>'))
+    with pytest.raises(SceneError) as err:
+        Scene.from_urdf(text)
+    msg = str(err.value)
+    assert "'slide'" in msg and jtype in msg and 'lock: [slide]' in msg and '\n' not in msg
+    scene = Scene.from_urdf(text, lock=['slide'])
+    assert scene.body_names == ('a', 'b') and scene.bodies[1].shape.mass == 2.0
+
+
+def test_mimic_joint_refused_naming_it():
+    text = robot(link('a', inertial(1)), link('b', inertial(1)), link('c', inertial(1)),
+                 joint('j1', 'continuous', 'a', 'b'),
+                 joint('j2', 'continuous', 'b', 'c', extra='<mimic joint="j1" multiplier="1"/>'))
+    with pytest.raises(SceneError, match=r"joint 'j2'.*mimics joint 'j1'.*lock: \[j2\]"):
+        Scene.from_urdf(text)
+    scene = Scene.from_urdf(text, lock=['j2'])
+    assert scene.joint_names == ('j1',) and scene.joints[0].limit is None   # continuous
+
+
+@pytest.mark.parametrize('opts, match', [
+    ({'lokc': ['a']}, r"unknown option\(s\) 'lokc'"),
+    ({'lock': ['nope']}, r"robot.lock: unknown joint 'nope'"),
+    ({'initial_positions': {'elbow': 1.0}}, r"initial_positions: unknown joint 'elbow'"),
+    ({'initial_positions': {'shoulder': float('nan')}}, r'initial_positions.shoulder'),
+    ({'actuated': ['tool_mount']}, r"actuated: joint 'tool_mount' is fixed"),
+    ({'joints': {'shoulder': {'stiffness': 1}}}, r"joints.shoulder: unknown key\(s\) 'stiffness'"),
+    ({'fixed_base': 'yes'}, r'fixed_base: must be true or false'),
+])
+def test_bad_options_name_what_is_wrong(opts, match):
+    with pytest.raises(SceneError, match=match):
+        Scene.from_urdf(ARM, **opts)
+
+
+def test_non_physical_inertias_repaired_with_one_warning_each():
+    text = robot(link('a', inertial(1)),
+                 link('b', inertial(1.0, ixx=0.001, iyy=0.05, izz=0.1)),     # triangle broken
+                 link('c', inertial(2.0, ixx=0.0, iyy=0.0, izz=0.0)),        # point mass
+                 joint('j1', 'continuous', 'a', 'b', axis='1 0 0'),
+                 joint('j2', 'continuous', 'b', 'c', xyz='0 0 0.3', axis='1 0 0'))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(msgs) == 2 and len(scene.warnings) == 2
+    assert "link 'b'" in msgs[0] and 'triangle' in msgs[0] and 'balanceinertia' in msgs[0]
+    assert np.allclose(np.array(scene.bodies[1].shape.inertia).reshape(3, 3),
+                       np.eye(3) * (0.001 + 0.05 + 0.1) / 3)
+    r = (3 * 2.0 / 1000 / (4 * math.pi)) ** (1 / 3)
+    assert "link 'c'" in msgs[1] and 'sphere' in msgs[1]
+    assert np.allclose(np.array(scene.bodies[2].shape.inertia).reshape(3, 3), 0.4 * 2 * r * r * np.eye(3))
+    World(scene).step(5)
+
+
+def test_massless_links():
+    # A massless frame on a fixed joint merges trivially; a massless moving leaf is held rigid
+    # with a warning; a massless moving link carrying a moving joint is refused.
+    text = robot(link('world'), link('a', inertial(1)), link('b', inertial(1)), link('flange'),
+                 link('spin'),
+                 joint('weld', 'fixed', 'world', 'a'),
+                 joint('j1', 'continuous', 'a', 'b', axis='1 0 0'),
+                 joint('j_flange', 'fixed', 'b', 'flange', xyz='0 0 0.2'),
+                 joint('j_spin', 'continuous', 'flange', 'spin'))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text)
+    assert scene.body_names == ('world', 'b') and scene.joint_names == ('j1',)
+    assert any("link 'spin' has no mass" in str(w.message) and "'j_spin'" in str(w.message)
+               for w in caught)
+    text2 = robot(link('a', inertial(1)), link('ghost'), link('c', inertial(1)),
+                  joint('j1', 'continuous', 'a', 'ghost'), joint('j2', 'continuous', 'ghost', 'c'))
+    with pytest.raises(SceneError, match=r"link 'ghost' \(joint 'j1'\) has no mass.*lock: \[j1\]"):
+        Scene.from_urdf(text2)
+
+
+@pytest.mark.parametrize('text, match', [
+    ('<robot name="x"><link name="a"></robot>', r'<robot_description>: line 1, column \d+: not well-formed'),
+    ('<?xml version="1.0"?><!DOCTYPE r [<!ENTITY a "aaaa">]><robot name="x"><link name="a"/></robot>',
+     r'DOCTYPE/ENTITY declarations are not accepted'),
+    ('<robot name="x" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="a" value="1"/>'
+     '<link name="a"/></robot>', 'is a xacro element'),
+    ('<robot name="x"><link name="a"/><link name="b"/></robot>', 'one tree'),
+    ('<sdf/>', r'root element is <sdf>'),
+])
+def test_bad_xml_is_one_line(text, match):
+    with pytest.raises(SceneError, match=match) as err:
+        Scene.from_urdf(text)
+    assert '\n' not in str(err.value)
+
+
+def test_malformed_file_names_file_and_line(tmp_path):
+    path = tmp_path / 'bad.urdf'
+    path.write_text('<robot name="x">\n<link name="a">\n</robot>\n')
+    with pytest.raises(SceneError, match=r'bad.urdf: line 3, column \d+: not well-formed'):
+        Scene.from_urdf(str(path))
+
+
+def test_robot_block_in_scene_yaml(tmp_path):
+    (tmp_path / 'arm.urdf').write_text(ARM)
+    (tmp_path / 'scene.yaml').write_text(
+        'dt: 0.002\nintegrator: bdf2\nnewton: {max_iterations: 20}\n'
+        'robot:\n  urdf: arm.urdf\n  initial_positions: {shoulder: 0.3}\n  limits: false\n')
+    scene = Scene.from_yaml(tmp_path / 'scene.yaml')
+    assert scene.dt == 0.002 and scene.integrator == 'bdf2' and scene.newton.max_iterations == 20
+    assert scene.gravity == (0, 0, -9.81) and scene.joint_names == ('shoulder',)
+    assert scene.joints[0].init_angle == 0.3 and scene.joints[0].limit is None
+    assert scene.robot_description == ARM
+    # The stored source text is the lowered scene: it rebuilds the same scene without the URDF.
+    again = Scene.from_dict(load_yaml(scene.source_text))
+    assert again.bodies == scene.bodies and again.joints == scene.joints
+    (tmp_path / 'bad.yaml').write_text('robot: {urdf: arm.urdf, lokc: [x]}\n')
+    with pytest.raises(SceneError, match=r"bad.yaml: robot: unknown key\(s\) 'lokc'"):
+        Scene.from_yaml(tmp_path / 'bad.yaml')
+    (tmp_path / 'missing.yaml').write_text('robot: {urdf: nothere.urdf}\n')
+    with pytest.raises(SceneError, match=r'missing.yaml: robot: .*nothere.urdf: cannot read URDF'):
+        Scene.from_yaml(tmp_path / 'missing.yaml')
+
+
+def test_packaged_demo_arm_loads_and_runs():
+    scene = Scene.from_urdf(DEMO)
+    assert scene.joint_names == ('shoulder_pan', 'shoulder_lift', 'elbow')
+    assert all(j.limit is not None for j in scene.joints)
+    world = World(scene)
+    world.step(20)
+    assert np.all(np.isfinite(world.joint_angles()))
+    assert Scene.from_file(DEMO).joint_names == scene.joint_names
+
+
+@pytest.mark.parametrize('opts, match', [
+    ({'initial_positions': {'shoulder': 2.0}}, r"initial_positions.shoulder: 2 rad is outside the joint's limit \[-1.5, 1.5\]"),
+    ({'joints': {'shoulder': {'driving': {'aim': 1.0}}}}, r"joints.shoulder.driving: unknown key\(s\) 'aim'"),
+    ({'joints': {'shoulder': {'limit': 3}}}, r'joints.shoulder.limit: must be a mapping'),
+    ({'kappa': -1.0}, r'robot.kappa: must be a finite number > 0'),
+    ({'joints': {'shoulder': {'strength_ratio': 0}}}, r'joints.shoulder.strength_ratio: must be'),
+])
+def test_bad_overrides_name_the_joint_and_field(opts, match):
+    with pytest.raises(SceneError, match=match):
+        Scene.from_urdf(ARM, **opts)
+    # an initial position outside the URDF limit is fine once the limit is off
+    Scene.from_urdf(ARM, initial_positions={'shoulder': 2.0}, limits=False)
+
+
+def test_zero_outside_the_limit_starts_at_the_nearest_bound_with_a_warning():
+    text = ARM.replace('lower="-1.5" upper="1.5"', 'lower="0.5" upper="1.5"')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(msgs) == 1 and "joint 'shoulder': position 0 is outside its limit [0.5, 1.5]" in msgs[0]
+    world = World(scene)
+    assert world.joint_angles()[0] == pytest.approx(0.5, abs=1e-12)
+    world.step(20)
+    assert world.joint_angles()[0] == pytest.approx(0.5, abs=1e-6)     # at rest, not thrown
+    # no limit, no clamp; an explicit position outside the limit stays an error
+    assert Scene.from_urdf(text, limits=False).joints[0].init_angle == 0.0
+    with pytest.raises(SceneError, match='outside'):
+        Scene.from_urdf(text, initial_positions={'shoulder': 0.0})
+
+
+def test_xacro_substitutions_refused_but_not_in_comments():
+    ok = ARM.replace('<link name="base">', '<!-- ${not_expanded} is fine here -->\n<link name="base">')
+    assert Scene.from_urdf(ok).joint_names == ('shoulder',)
+    bad = ARM.replace('xyz="0 0 0.3"', 'xyz="$(optenv ARM_Z 0 0 0.3)"')
+    with pytest.raises(SceneError, match=r"<origin> xyz='\$\(optenv ARM_Z 0 0 0.3\)' is an unexpanded xacro/launch substitution"):
+        Scene.from_urdf(bad)
