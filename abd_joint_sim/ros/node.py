@@ -515,8 +515,7 @@ class SimNode(Node):
 
     def _on_joint_commands(self, msg: JointState) -> None:
         self._report('joint_commands', *self.commands.command_joint_state(
-            msg.name, msg.position, msg.velocity,
-                                                        msg.effort))
+            msg.name, msg.position, msg.velocity, msg.effort))
 
     def _on_enable_joint(self, joint: str, msg: Bool) -> None:
         self._report('enable', self.commands.command_enable(joint, msg.data), [])
