@@ -300,12 +300,17 @@ def coerce(name: str, value: Any) -> Any:
     return _COERCE[name](name, value)
 
 
-def config_from_values(values: dict[str, Any]) -> SimConfig:
-    """Build the config from raw parameter values (missing names take their defaults)."""
+def config_from_values(values: dict[str, Any], resolve: bool = True) -> SimConfig:
+    """Build the config from raw parameter values (missing names take their defaults).
+
+    `resolve`: turn `scene` into a file path (the node); a replay passes False, since its
+    scene comes from the bag and the stored value is only a label (a packaged scene's name, a
+    file's base name, or `robot_description`)."""
     kwargs = {}
     for spec in PARAMS:
         kwargs[spec.name] = coerce(spec.name, values.get(spec.name, spec.default))
-    kwargs['scene'] = resolve_scene(kwargs['scene'])
+    if resolve:
+        kwargs['scene'] = resolve_scene(kwargs['scene'])
     return SimConfig(**kwargs)
 
 

@@ -237,4 +237,4 @@ def config_for(run_parameters: dict[str, Any], overrides: Optional[dict[str, Any
     values['record'] = ''
     values['real_time_factor'] = 0.0
     values['start_paused'] = False
-    return config_from_values(values)
+    return config_from_values(values, resolve=False)   # the scene comes from the bag or the caller
