@@ -156,15 +156,3 @@ class Probe:
 @pytest.fixture
 def domain_id() -> int:
     return next_domain_id()
-
-
-@pytest.fixture(params=['numpy', 'numba'])
-def each_backend(request, monkeypatch):
-    """Run a test on both physics backends: World(backend='auto') follows ABD_BACKEND.
-    The numba one needs its kernels compiled (scripts/test.sh does that first)."""
-    if request.param == 'numba':
-        from abd_joint_sim import fast
-        if not fast.compiled():
-            pytest.skip('numba backend not compiled here (python -m abd_joint_sim.fast --warm-up)')
-    monkeypatch.setenv('ABD_BACKEND', request.param)
-    return request.param

@@ -57,10 +57,6 @@ PARAMS: tuple[ParamSpec, ...] = (
               'Empty = no recording.', True),
     ParamSpec('frame_id', '',
               'header.frame_id of the published joint states.', True),
-    ParamSpec('backend', 'auto',
-              'Physics backend: numpy (reference), numba (compiled, same results), or auto = '
-              'numba when its kernels are compiled for this install (python -m '
-              'abd_joint_sim.fast --warm-up), else numpy.', True),
 )
 
 PARAMS_BY_NAME = {p.name: p for p in PARAMS}
@@ -83,7 +79,6 @@ class SimConfig:
     joints: list[str] = field(default_factory=list)
     record: str = ''
     frame_id: str = ''
-    backend: str = 'auto'
 
     def as_dict(self) -> dict[str, Any]:
         return {p.name: getattr(self, p.name) for p in PARAMS}
@@ -197,15 +192,7 @@ _COERCE = {
     'joints': _as_str_list,
     'record': _as_str,
     'frame_id': _as_str,
-    'backend': lambda n, v: _as_choice(n, v, ('auto', 'numpy', 'numba')),
 }
-
-
-def _as_choice(name: str, value: Any, choices: tuple) -> str:
-    value = _as_str(name, value)
-    if value not in choices:
-        raise ValueError(f'parameter {name!r}: {value!r} is not one of {", ".join(choices)}')
-    return value
 
 
 def coerce(name: str, value: Any) -> Any:

@@ -78,9 +78,10 @@ def _forest(nf, sp, sc):
     return np.array(order, dtype=np.int64), parent
 
 
-def structure(model) -> Structure:
+def structure(model, force_dense: bool = False) -> Structure:
     """How Newton's system of this model is solved; ValueError for a closed loop of more
-    than DENSE_MAX_DOF / 12 free bodies."""
+    than DENSE_MAX_DOF / 12 free bodies. `force_dense`: the dense solve whatever the
+    structure (the tests compare the tree solve with it)."""
     fixed = model.body_fixed
     free_idx = np.flatnonzero(~fixed)
     nf = len(free_idx)
@@ -90,9 +91,9 @@ def structure(model) -> Structure:
     between = ~fixed[p] & ~fixed[c]
     joints = np.flatnonzero(between)
     sp, sc = slot[p[joints]], slot[c[joints]]
-    forest = _forest(nf, sp, sc)
+    forest = None if force_dense else _forest(nf, sp, sc)
     if forest is None:
-        if 12 * nf > DENSE_MAX_DOF:
+        if 12 * nf > DENSE_MAX_DOF and not force_dense:
             raise ValueError(f'the joints between free bodies form a closed loop and there are '
                              f'{nf} free bodies: at most {DENSE_MAX_DOF // 12} are supported '
                              'with a loop (chains and trees of any size are)')

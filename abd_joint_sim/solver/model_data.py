@@ -79,7 +79,8 @@ class ModelDataType(types.StructRef):
 
 
 class ModelData(structref.StructRefProxy):
-    """Python handle of the compiled model (fields readable from Python too)."""
+    """Python handle of the compiled model. Python reads the fields from the instance's
+    __dict__ (the same arrays the struct refers to: no copy); compiled code from the struct."""
 
 
 structref.define_proxy(ModelData, ModelDataType, [name for name, _ in FIELDS])
@@ -90,14 +91,14 @@ def _arr(x, dtype):
     return np.ascontiguousarray(np.array(x, dtype=dtype, copy=True))
 
 
-def build(model) -> ModelData:
+def build(model, force_dense: bool = False) -> ModelData:
     """The ModelData of a Model (raises ValueError for a linear system too large to solve
     densely that is not a forest; see linsolve.structure)."""
     m = model
     J = m.joint_count
     fixed = m.body_fixed
     free = np.flatnonzero(~fixed)
-    st = linsolve.structure(m)
+    st = linsolve.structure(m, force_dense)
     group, share, groups = retraction.floating_groups_and_shares(m)
     init = m.joint_init_angle
     size = m.body_size
@@ -150,4 +151,6 @@ def build(model) -> ModelData:
         # as numpy sums it (np.sum's pairwise order): the tolerance must not depend on layout
         free_mass=float(np.sum(m.body_mass[free])),
     )
-    return ModelData(*(values[name] for name, _ in FIELDS))
+    data = ModelData(*(values[name] for name, _ in FIELDS))
+    data.__dict__.update(values)
+    return data

@@ -71,9 +71,10 @@ class _Tally:
 class Solver:
     """The compiled step of one Model."""
 
-    def __init__(self, model):
+    def __init__(self, model, force_dense: bool = False):
+        """`force_dense`: solve Newton's system densely whatever its structure (for tests)."""
         self.model = model
-        self.data = model_data.build(model)        # ValueError for an unsupported loop
+        self.data = model_data.build(model, force_dense)    # ValueError for an unsupported loop
         B, J = model.body_count, model.joint_count
         self._skipped = np.zeros(max(2 * len(model.torque_joints), 1), dtype=np.int64)
         self._outcome = np.zeros(kernel.OUT_COLUMNS)
