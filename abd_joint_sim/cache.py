@@ -20,7 +20,8 @@ import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
-#: the modules holding compiled kernels (their sources make the cache stamp)
+#: where the compiled kernels live; the files among them that define any (`njit(`) make the
+#: cache stamp, so editing pure-Python modules there does not force a recompile
 KERNEL_SOURCES = ('smallmat.py', 'angles.py', 'terms', 'solver')
 
 
@@ -31,8 +32,10 @@ def sources_hash() -> str:
         path = PACKAGE / entry
         files = sorted(path.glob('*.py')) if path.is_dir() else [path]
         for f in files:
-            h.update(f.relative_to(PACKAGE).as_posix().encode())
-            h.update(f.read_bytes())
+            text = f.read_bytes()
+            if b'njit(' in text:
+                h.update(f.relative_to(PACKAGE).as_posix().encode())
+                h.update(text)
     return h.hexdigest()[:20]
 
 

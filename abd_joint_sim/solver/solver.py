@@ -154,9 +154,9 @@ class Solver:
             return None, 'step produced a non-finite state'
         if failure == kernel.FAIL_JOINT_APART:
             j = int(out[kernel.OUT_APART_JOINT])
-            return None, (f'joint {m.joint_names[j]!r} came apart: anchors '
-                          f'{out[kernel.OUT_SEPARATION]:.3g} m apart or more (> {SEPARATION_FAULT:g} '
-                          "x the bodies' size)")
+            apart = float(joint_separation(qvw[0], self.data, j))
+            return None, (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
+                          f"(> {SEPARATION_FAULT:g} x the bodies' size)")
         tally.max_step_rotation = max(tally.max_step_rotation, rotation)
         new = State(time=s.time + h, q=qvw[0], v=qvw[1], q_prev=s.q, v_prev=s.v,
                     joint_angle=aw[0], joint_velocity=aw[1] if m.joint_count else s.joint_velocity,
