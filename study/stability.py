@@ -105,7 +105,7 @@ class PhaseResult:
 def run_phase(p: Phase) -> PhaseResult:
     r = PhaseResult()
     w = common.make_world(p.scene)
-    r.backend = w.backend
+    r.backend = common.BACKEND
     m = w.model
     for j in w.actuated_joint_names:
         w.set_torque_enabled(j, p.torque != 0.0)
@@ -338,10 +338,7 @@ def main(argv=None):
     ap.add_argument('--out', default='out/stability', type=Path)
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--group', nargs='*', default=None, help='only these groups')
-    ap.add_argument('--backend', default='auto', choices=('auto', 'numpy', 'numba'),
-                    help="World backend (default auto: numba once compiled)")
     args = ap.parse_args(argv)
-    common.BACKEND = args.backend
     t0 = time.perf_counter()
     rows = run_all(args.quick, args.group)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -381,7 +378,7 @@ def summary_md(rows, quick, elapsed, argv):
     lines = ['# Stability on stiff and extreme cases', '',
              f'Command: `python study/stability.py {" ".join(argv)}` ({"quick" if quick else "full"} mode, '
              f'{elapsed:.0f} s). {common.machine()}. '
-             f'{common.backend_note(b for r in rows for b in r["backend"].split("+"))}', '',
+             f'{common.backend_note()}', '',
              f'{len(rows)} cases: {counts["pass"]} pass, {counts["fail-loud"]} fail loudly (reported by the '
              f'simulator), {counts["FAIL-SILENT"]} fail silently.', '',
              'Criteria (see study/stability.py): finite state; joint separation <= 1% of the smallest body '
