@@ -176,7 +176,8 @@ class World:
         Raises SimulationError when a step cannot be finished even with sub-steps; the state
         is then that of the last good step (time stays a multiple of dt)."""
         n = int(n)
-        if n <= 0:
+        if n == 1:
+            self.state, self.last_step = self.solver.step(self.state, self.control)
             return self.last_step
         while n > 0:
             # the solver never writes a State: on SimulationError self.state is the last good one
