@@ -18,7 +18,7 @@ Criteria checked after every step:
   continuity  a reported angle never moves more than newton.max_step_rotation per (sub-)step:
               |Δθ| <= max_step_rotation × substeps, and StepReport.max_step_rotation within it;
   reference   where known, |θ − θ_ref| <= rtol |θ_ref| + α h t + velocity_tol t / 0.6 + 1e-9 rad
-              (α h t = twice the BDF1 error ½ α h t of PHYSICS.md §7; the last term is what the
+              (α h t = twice the BDF1 error ½ α h t of docs/physics.md "Analytic references"; the last term is what the
               Newton tolerance on point velocities allows at the 0.6 m lever arm);
   momentum    (free pairs) |P|, |L| <= 1e-3 τ t + 4 eps Σ m (|p| + size) / h + 1e-12 (the
               Newton tolerance limits it; the middle term is the rounding floor of m v when

@@ -28,7 +28,7 @@ def box(name, pos, size=(0.4, 0.4, 0.4), fixed=False, **kw):
 
 
 def hinge_dict(**kw):
-    """Reference scene of PHYSICS.md §7 (I_axis = 24.747)."""
+    """Reference scene of docs/physics.md "Analytic references" (I_axis = 24.747)."""
     d = scene_dict('hinge')
     d.update(kw)
     return d

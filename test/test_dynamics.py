@@ -1,4 +1,4 @@
-"""Whole-step physics against analytic solutions and conservation laws (PHYSICS.md §2, §7)."""
+"""Whole-step physics against analytic solutions and conservation laws (docs/physics.md "Time integration", "Analytic references")."""
 import copy
 import subprocess
 import sys
@@ -61,7 +61,7 @@ def test_bdf2_is_second_order_and_applies_the_torque():
 
 
 def _free_pair_reference(theta_end_time, tau=1.0, m=8.0, Ic=0.2 ** 2 * 8 / 6, d=0.1):
-    """θ(t) = 2φ with t(φ) = ∫₀^φ sqrt((I_c + m d² sin² s)/(2τ s)) ds (PHYSICS.md §7)."""
+    """θ(t) = 2φ with t(φ) = ∫₀^φ sqrt((I_c + m d² sin² s)/(2τ s)) ds (docs/physics.md "Analytic references")."""
     def t_of(phi):
         # substitute s = u²: the integrand's 1/sqrt(s) singularity becomes smooth
         f = lambda u: 2 * np.sqrt((Ic + m * d * d * np.sin(u * u) ** 2) / (2 * tau))

@@ -21,7 +21,7 @@ from study import stability as ST
 
 
 def test_references():
-    # PHYSICS.md §7 closed forms
+    # docs/physics.md "Analytic references" closed forms
     assert S.free_pair_reference()(1.0) == pytest.approx(11.786632172303, rel=1e-11)
     I, m = S.hinge_inertia()
     assert m == pytest.approx(64.0) and I == pytest.approx(24.7467, abs=1e-4)

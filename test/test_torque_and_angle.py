@@ -1,4 +1,4 @@
-"""UID 668 torque and the joint angle, against PHYSICS.md §4-5 (virtual work, signs,
+"""UID 668 torque and the joint angle, against docs/physics.md "Joint angle" and "External joint torque (UID 668)" (virtual work, signs,
 antisymmetry, enable gating, singular guard, multi-turn angle)."""
 import numpy as np
 import pytest
