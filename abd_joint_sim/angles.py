@@ -122,9 +122,8 @@ def theta_derivatives(q, m, j, grad, hess, want_hess):
 
 
 @njit(cache=True, error_model='numpy')
-def theta_and_rate(q, v, m, j, grad):
-    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad is scratch (18,))."""
-    scratch = np.empty((1, 1))
+def theta_and_rate(q, v, m, j, grad, scratch):
+    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,) and scratch (1,1): work arrays)."""
     th = theta_derivatives(q, m, j, grad, scratch, False)
     i_body, j_body = m.joint_parent[j], m.joint_child[j]
     rate = 0.0

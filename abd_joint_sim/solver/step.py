@@ -107,10 +107,11 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     v_new = new_qvw[1]
     bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
     grad = np.empty(18)
+    scratch = np.empty((1, 1))
     rotation = 0.0
     finite = True
     for j in range(J):
-        th, rate = angles.theta_and_rate(q_new, v_new, m, j, grad)
+        th, rate = angles.theta_and_rate(q_new, v_new, m, j, grad, scratch)
         rel = angles.unwrap(th, angle_start[j])
         new_angles[0, j] = rel + m.joint_init_angle[j]
         new_angles[1, j] = rate
@@ -125,17 +126,11 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
         outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
         return
     outcome[OUT_ROTATION] = rotation
-    separation = 0.0
-    for j in range(J):
-        d = revolute.joint_separation(q_new, m, j)
-        if d > separation or d != d:
-            separation = d
-        if d > m.joint_warn_separation[j]:
-            outcome[OUT_OVERLOADED] = 1.0
-        if not d <= m.joint_fault_separation[j] and outcome[OUT_APART_JOINT] < 0:
-            outcome[OUT_APART_JOINT] = j
-            outcome[OUT_FAILURE] = FAIL_JOINT_APART
+    separation, overloaded, apart = revolute.check_separations(q_new, m)
     outcome[OUT_SEPARATION] = separation
+    outcome[OUT_OVERLOADED] = 1.0 if overloaded else 0.0
+    if apart >= 0:
+        outcome[OUT_APART_JOINT], outcome[OUT_FAILURE] = apart, FAIL_JOINT_APART
     for b in range(B):
         for r in range(12):
             new_qvw[0, b, r] = q_new[b, r]

@@ -19,6 +19,7 @@ from ..smallmat import svd3
 
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
+    weight = m.ortho_weight
     E = 0.0
     for b in m.free_bodies:
         acc = 0.0
@@ -29,7 +30,7 @@ def energy(q, m, ctx):
                 if r == c:
                     x -= 1.0
                 acc += x * x
-        E += m.ortho_weight[b] * acc
+        E += weight[b] * acc
     return ctx.h * ctx.h * E
 
 
@@ -44,6 +45,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     V = np.empty((3, 3))
     r2 = math.sqrt(0.5)
     hh = ctx.h * ctx.h
+    weight = m.ortho_weight
     for b in m.free_bodies:
         for r in range(3):
             for c in range(3):
@@ -52,7 +54,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             for c in range(3):
                 C[r, c] = A[r, 0] * A[c, 0] + A[r, 1] * A[c, 1] + A[r, 2] * A[c, 2]
             C[r, r] -= 1.0
-        w = 4.0 * hh * m.ortho_weight[b]
+        w = 4.0 * hh * weight[b]
         for r in range(3):
             for c in range(3):
                 grad[b, 3 + 3 * r + c] += w * (C[r, 0] * A[0, c] + C[r, 1] * A[1, c] + C[r, 2] * A[2, c])

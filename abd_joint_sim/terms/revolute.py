@@ -18,9 +18,9 @@ from numba import njit
 
 
 @njit(cache=True, error_model='numpy')
-def separation(q, m, j, a, d):
-    """d = x_i − x_j of anchor a (0: P0, 1: P1) of joint j. [m]"""
-    i_body, j_body, x_bar = m.joint_parent[j], m.joint_child[j], m.joint_x_bar
+def separation(q, i_body, j_body, x_bar, j, a, d):
+    """d = x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body
+    (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor). [m]"""
     for r in range(3):
         xi = q[i_body, r]
         xj = q[j_body, r]
@@ -33,10 +33,14 @@ def separation(q, m, j, a, d):
 @njit(cache=True, error_model='numpy')
 def joint_separation(q, m, j):
     """max_a |x_i^a − x_j^a| of joint j (NaN wins). [m]"""
-    d = np.empty(3)
+    return _joint_separation(q, m.joint_parent[j], m.joint_child[j], m.joint_x_bar, j, np.empty(3))
+
+
+@njit(cache=True, error_model='numpy')
+def _joint_separation(q, i_body, j_body, x_bar, j, d):
     out = 0.0
     for a in range(2):
-        separation(q, m, j, a, d)
+        separation(q, i_body, j_body, x_bar, j, a, d)
         n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         if n > out or n != n:
             out = n
@@ -46,24 +50,48 @@ def joint_separation(q, m, j):
 @njit(cache=True, error_model='numpy')
 def max_separation(q, m):
     """The largest joint separation over all joints (0 without joints; NaN wins). [m]"""
+    parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
+    d = np.empty(3)
     out = 0.0
-    for j in range(m.joint_parent.size):
-        n = joint_separation(q, m, j)
+    for j in range(parent.size):
+        n = _joint_separation(q, parent[j], child[j], x_bar, j, d)
         if n > out or n != n:
             out = n
     return out
 
 
 @njit(cache=True, error_model='numpy')
+def check_separations(q, m):
+    """(largest separation, whether a joint exceeds m.joint_warn_separation, the first joint
+    beyond m.joint_fault_separation or -1). [m]"""
+    parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
+    warn, fault = m.joint_warn_separation, m.joint_fault_separation
+    d = np.empty(3)
+    largest = 0.0
+    overloaded = False
+    apart = -1
+    for j in range(parent.size):
+        n = _joint_separation(q, parent[j], child[j], x_bar, j, d)
+        if n > largest or n != n:
+            largest = n
+        if n > warn[j]:
+            overloaded = True
+        if not n <= fault[j] and apart < 0:
+            apart = j
+    return largest, overloaded, apart
+
+
+@njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
+    parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     d = np.empty(3)
     E = 0.0
-    for j in range(m.joint_parent.size):
+    for j in range(parent.size):
         acc = 0.0
         for a in range(2):
-            separation(q, m, j, a, d)
+            separation(q, parent[j], child[j], x_bar, j, a, d)
             acc += d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-        E += m.joint_K[j] * acc
+        E += K[j] * acc
     return 0.5 * E
 
 
@@ -71,13 +99,13 @@ def energy(q, m, ctx):
 def accumulate(q, m, ctx, grad, diag, pair, project):
     Kd = np.empty((2, 3))
     d = np.empty(3)
-    x_bar, H = m.joint_x_bar, m.joint_hessian
-    for j in range(m.joint_parent.size):
+    parent, child, x_bar, H, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_hessian, m.joint_K
+    for j in range(parent.size):
+        i_body, j_body = parent[j], child[j]
         for a in range(2):
-            separation(q, m, j, a, d)
+            separation(q, i_body, j_body, x_bar, j, a, d)
             for r in range(3):
-                Kd[a, r] = m.joint_K[j] * d[r]
-        i_body, j_body = m.joint_parent[j], m.joint_child[j]
+                Kd[a, r] = K[j] * d[r]
         for side in range(2):
             b = i_body if side == 0 else j_body
             sign = 1.0 if side == 0 else -1.0
