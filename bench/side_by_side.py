@@ -7,7 +7,8 @@ package `abd_joint_sim`), alternating rounds so the machine's load hits both ali
 
 Times are CPU time of the process (`time.process_time`): on a machine shared with other jobs
 wall time mostly measures the load, CPU time the code. Per scene and implementation: median
-over rounds of the mean µs per `World.step()` call
+over rounds (and the minimum, the round least disturbed by other jobs) of the mean µs per
+`World.step()` call
 (one step per call, as the node's single steps), and for this tree also `World.step(n)` (n
 steps in one call: the clean ones batched in compiled code). Torque on every joint (the
 scene's, else 1 N m), 3 warm-up steps first.
@@ -71,7 +72,8 @@ def main(argv=None):
     ap.add_argument('--rounds', type=int, default=5)
     ap.add_argument('--scenes', nargs='*', default=list(SCENES))
     args = ap.parse_args(argv)
-    print('| scene | old µs/step | new µs/step | new/old | new µs/step in step(n) | Newton it (old, new) | same final angle |')
+    print('| scene | old µs/step median (min) | new µs/step median (min) | new/old median (min) | '
+          'new µs/step in step(n) | Newton it (old, new) | same final angle |')
     print('|---|---|---|---|---|---|---|')
     for name in args.scenes:
         res = {'old': [], 'new': []}
@@ -79,10 +81,12 @@ def main(argv=None):
             res['old'].append(run(args.old, name, SCENES[name], 'old'))
             res['new'].append(run(HERE, name, SCENES[name], 'new'))
         med = {k: statistics.median(r['single'] for r in v) * 1e6 for k, v in res.items()}
+        low = {k: min(r['single'] for r in v) * 1e6 for k, v in res.items()}
         batched = statistics.median(r['batched'] for r in res['new']) * 1e6
         same = res['old'][0]['angle'] == res['new'][0]['angle']
-        print(f'| {name} | {med["old"]:.1f} | {med["new"]:.1f} | {med["new"] / med["old"]:.2f} | '
-              f'{batched:.1f} | {res["old"][0]["its"]}, {res["new"][0]["its"]} | {same} |', flush=True)
+        print(f'| {name} | {med["old"]:.1f} ({low["old"]:.1f}) | {med["new"]:.1f} ({low["new"]:.1f}) | '
+              f'{med["new"] / med["old"]:.2f} ({low["new"] / low["old"]:.2f}) | {batched:.1f} | '
+              f'{res["old"][0]["its"]}, {res["new"][0]["its"]} | {same} |', flush=True)
 
 
 if __name__ == '__main__':
