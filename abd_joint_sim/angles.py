@@ -34,10 +34,10 @@ def unwrap(theta, reference):
 
 
 @njit(cache=True, error_model='numpy')
-def frames(q, m, j, fr):
-    """fr[0..3] = n_i, n_j, b_i, b_j of joint j in world axes."""
-    i_body, j_body = m.joint_parent[j], m.joint_child[j]
-    nbar, bbar = m.joint_nbar, m.joint_bbar
+def frames(q, i_body, j_body, nbar, bbar, j, fr):
+    """fr[0..3] = n_i, n_j, b_i, b_j of joint j in world axes (nbar, bbar = m.joint_nbar,
+    m.joint_bbar: the functions ending in `_at` take the model's arrays, not m, because they
+    run once per joint and a structref field lookup in such a loop costs more than the math)."""
     for r in range(3):
         ni = nj = bi = bj = 0.0
         for c in range(3):
@@ -66,25 +66,37 @@ def cos_sin(fr):
 @njit(cache=True, error_model='numpy')
 def theta(q, m, j):
     """Wrapped θ ∈ (−π, π] of joint j, relative to the rest pose."""
+    return theta_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j)
+
+
+@njit(cache=True, error_model='numpy')
+def theta_at(q, parent, child, nbar, bbar, j):
     fr = np.empty((4, 3))
-    frames(q, m, j, fr)
+    frames(q, parent[j], child[j], nbar, bbar, j, fr)
     c, s = cos_sin(fr)
     return math.atan2(s, c)
 
 
 @njit(cache=True, error_model='numpy')
 def theta_derivatives(q, m, j, grad, hess, want_hess):
+    """See theta_derivatives_at."""
+    return theta_derivatives_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j,
+                                grad, hess, want_hess)
+
+
+@njit(cache=True, error_model='numpy')
+def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess):
     """Wrapped θ of joint j; fills grad = ∇θ (18,) and, if want_hess, hess = ∇²θ (18,18),
     w.r.t. [vec A_i, vec A_j]. With N = c ∇s − s ∇c, P = c ∇c + s ∇s, r² = c² + s²:
     ∇θ = N / r², ∇²θ = (∇s ∇cᵀ − ∇c ∇sᵀ + c ∇²s − s ∇²c)/r² − 2 N Pᵀ / r⁴ (symmetrised)."""
     fr = np.empty((4, 3))
-    frames(q, m, j, fr)
+    frames(q, parent[j], child[j], nbar, bbar, j, fr)
     c, s = cos_sin(fr)
     th = math.atan2(s, c)
     dc = np.empty(18)
     ds = np.empty(18)
-    nbi, nbj = m.joint_nbar[j, 0], m.joint_nbar[j, 1]
-    bbi, bbj = m.joint_bbar[j, 0], m.joint_bbar[j, 1]
+    nbi, nbj = nbar[j, 0], nbar[j, 1]
+    bbi, bbj = bbar[j, 0], bbar[j, 1]
     for r in range(3):                     # ∂(A n̄)·w/∂A = w n̄ᵀ
         for k in range(3):
             dc[3 * r + k] = 0.5 * (fr[1, r] * nbi[k] + fr[3, r] * bbi[k])
@@ -122,10 +134,10 @@ def theta_derivatives(q, m, j, grad, hess, want_hess):
 
 
 @njit(cache=True, error_model='numpy')
-def theta_and_rate(q, v, m, j, grad, scratch):
+def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch):
     """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,) and scratch (1,1): work arrays)."""
-    th = theta_derivatives(q, m, j, grad, scratch, False)
-    i_body, j_body = m.joint_parent[j], m.joint_child[j]
+    th = theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False)
+    i_body, j_body = parent[j], child[j]
     rate = 0.0
     for a in range(9):
         rate += grad[a] * v[i_body, 3 + a] + grad[9 + a] * v[j_body, 3 + a]
@@ -142,7 +154,7 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     (orthonormal columns): the eigenproblem is solved on QᵀHQ (12x12)."""
     if n == 0:
         return
-    nbar, bbar = m.joint_nbar, m.joint_bbar
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     G = np.empty((n, 18))
     H = np.empty((n, 18, 18))
     hh = np.empty((18, 18))
@@ -154,7 +166,7 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     all_psd = True
     for k in range(n):
         j = joints[k]
-        theta_derivatives(q, m, j, G[k], hh, True)
+        theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True)
         for a in range(18):
             for b in range(18):
                 H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + d1s[k] * hh[a, b]
@@ -199,7 +211,7 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
                     H[k, b, a] = acc
     for k in range(n):
         j = joints[k]
-        i_body, j_body = m.joint_parent[j], m.joint_child[j]
+        i_body, j_body = parent[j], child[j]
         for a in range(9):
             grad[i_body, 3 + a] += d1s[k] * G[k, a]
             grad[j_body, 3 + a] += d1s[k] * G[k, 9 + a]

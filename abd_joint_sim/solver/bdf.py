@@ -42,8 +42,9 @@ def predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde):
             for r in range(12):
                 q_tilde[b, r] = q[b, r] + h * v[b, r] + hh * acc[b, r]
         scale = 1.0
+    fixed = m.body_fixed
     for b in range(B):
-        if m.body_fixed[b]:
+        if fixed[b]:
             for r in range(12):
                 q_tilde[b, r] = q[b, r]
     return scale
@@ -52,9 +53,10 @@ def predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde):
 @njit(cache=True, error_model='numpy')
 def velocity(m, q_new, q, q_prev, h, bdf2, v_new):
     """Fills v_new (B,12) from the solved q_new (0 on fixed bodies)."""
+    fixed = m.body_fixed
     for b in range(q.shape[0]):
         for r in range(12):
-            if m.body_fixed[b]:
+            if fixed[b]:
                 v_new[b, r] = 0.0
             elif bdf2:
                 v_new[b, r] = (3 * q_new[b, r] - 4 * q[b, r] + q_prev[b, r]) / (2 * h)

@@ -44,10 +44,11 @@ def predicted_rotation(m, q, q_tilde):
     """max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| (NaN wins, and then no split is asked)."""
     grad = np.empty(18)
     scratch = np.empty((1, 1))
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
-    for j in range(m.joint_parent.size):
-        angles.theta_derivatives(q, m, j, grad, scratch, False)
-        i_body, j_body = m.joint_parent[j], m.joint_child[j]
+    for j in range(parent.size):
+        angles.theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False)
+        i_body, j_body = parent[j], child[j]
         x = 0.0
         for a in range(9):
             x += (grad[a] * (q_tilde[i_body, 3 + a] - q[i_body, 3 + a])
@@ -84,14 +85,15 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
             outcome[OUT_ROTATION], outcome[OUT_FAILURE] = predicted, FAIL_PREDICTED_ROTATION
             return
     # 3. Newton
+    init_angle = m.joint_init_angle
     angle_start = np.empty(J)
     for j in range(J):
-        angle_start[j] = joint_angle[j] - m.joint_init_angle[j]
-    D = m.drive_joints.size
-    drive_target = np.empty(D)
-    for k in range(D):
-        j = m.drive_joints[k]
-        drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - m.joint_init_angle[j]
+        angle_start[j] = joint_angle[j] - init_angle[j]
+    drive_joints = m.drive_joints
+    drive_target = np.empty(drive_joints.size)
+    for k in range(drive_joints.size):
+        j = drive_joints[k]
+        drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
     ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled)
     cw = h * h / scale
     q_new = np.empty((B, 12))
@@ -108,12 +110,13 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
     grad = np.empty(18)
     scratch = np.empty((1, 1))
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     rotation = 0.0
     finite = True
     for j in range(J):
-        th, rate = angles.theta_and_rate(q_new, v_new, m, j, grad, scratch)
+        th, rate = angles.theta_and_rate_at(q_new, v_new, parent, child, nbar, bbar, j, grad, scratch)
         rel = angles.unwrap(th, angle_start[j])
-        new_angles[0, j] = rel + m.joint_init_angle[j]
+        new_angles[0, j] = rel + init_angle[j]
         new_angles[1, j] = rate
         if not math.isfinite(rel):
             finite = False

@@ -18,29 +18,33 @@ from .. import angles
 
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
     E = 0.0
-    for k in range(m.drive_joints.size):
-        if ctx.drive_on[k]:
-            j = m.drive_joints[k]
-            x = angles.unwrap(angles.theta(q, m, j), ctx.angle_start[j])
-            e = x - ctx.drive_target[k]
-            E += 0.5 * m.drive_K[k] * e * e
+    for k in range(joints.size):
+        if on[k]:
+            j = joints[k]
+            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+            e = x - target[k]
+            E += 0.5 * K[k] * e * e
     return E
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    D = m.drive_joints.size
+    drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
+    D = drive_joints.size
     joints = np.empty(D, dtype=np.int64)
     d1s = np.empty(D)
     d2s = np.empty(D)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     n = 0
     for k in range(D):
-        if ctx.drive_on[k]:
-            j = m.drive_joints[k]
-            x = angles.unwrap(angles.theta(q, m, j), ctx.angle_start[j])
+        if on[k]:
+            j = drive_joints[k]
+            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
             joints[n] = j
-            d1s[n] = m.drive_K[k] * (x - ctx.drive_target[k])
-            d2s[n] = m.drive_K[k]
+            d1s[n] = K[k] * (x - target[k])
+            d2s[n] = K[k]
             n += 1
     angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)

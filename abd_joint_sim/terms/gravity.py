@@ -10,6 +10,7 @@ from numba import njit
 def add_acceleration(q, m, acc):
     if not m.has_gravity:
         return
+    g = m.gravity
     for b in m.free_bodies:
         for r in range(3):
-            acc[b, r] += m.gravity[r]
+            acc[b, r] += g[r]

@@ -38,27 +38,33 @@ def active(x, lower, upper):
 
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
+    start = ctx.angle_start
     E = 0.0
-    for k in range(m.limit_joints.size):
-        j = m.limit_joints[k]
-        x = angles.unwrap(angles.theta(q, m, j), ctx.angle_start[j])
-        if active(x, m.limit_lower[k], m.limit_upper[k]):
-            E += phi(x, m.limit_lower[k], m.limit_upper[k], m.limit_strength[k])[0]
+    for k in range(joints.size):
+        j = joints[k]
+        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+        if active(x, lower[k], upper[k]):
+            E += phi(x, lower[k], upper[k], strength[k])[0]
     return E
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    L = m.limit_joints.size
+    limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
+    start = ctx.angle_start
+    L = limit_joints.size
     joints = np.empty(L, dtype=np.int64)
     d1s = np.empty(L)
     d2s = np.empty(L)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     n = 0
     for k in range(L):
-        j = m.limit_joints[k]
-        x = angles.unwrap(angles.theta(q, m, j), ctx.angle_start[j])
-        if active(x, m.limit_lower[k], m.limit_upper[k]):
-            _, d1, d2 = phi(x, m.limit_lower[k], m.limit_upper[k], m.limit_strength[k])
+        j = limit_joints[k]
+        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+        if active(x, lower[k], upper[k]):
+            _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
             joints[n] = j
             d1s[n] = d1
             d2s[n] = d2

@@ -28,11 +28,15 @@ AXIS_EPS = 1e-12
 @njit(cache=True, error_model='numpy')
 def axis(q, m, j, e):
     """e = ê_j (3,) of joint j, the child's torque axis (0 when neither raw axis is usable)."""
-    es = np.empty((2, 3))
-    x_bar = m.joint_x_bar
+    axis_at(q, m.joint_parent, m.joint_child, m.joint_x_bar, j, e, np.empty((2, 3)))
+
+
+@njit(cache=True, error_model='numpy')
+def axis_at(q, parent, child, x_bar, j, e, es):
+    """axis() on the model's arrays, es (2,3) a work array (it runs once per joint)."""
     usable = 0
     for side in range(2):
-        b = m.joint_parent[j] if side == 0 else m.joint_child[j]
+        b = parent[j] if side == 0 else child[j]
         v0 = v1 = v2 = 0.0
         d2 = 0.0
         for c in range(3):
@@ -57,12 +61,14 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
     """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
     written to `skipped` (parent side of every joint first, then child side); returns their
     count."""
-    T = m.torque_joints.size
+    torque_joints, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    T = torque_joints.size
     n_skipped = 0
     e = np.empty((T, 3))
+    es = np.empty((2, 3))
     for k in range(T):
         if torque_enabled[k] and torque_value[k] != 0.0:
-            axis(q, m, m.torque_joints[k], e[k])
+            axis_at(q, parent, child, m.joint_x_bar, torque_joints[k], e[k], es)
     A = np.empty((3, 3))
     inv = np.empty((3, 3))
     for side in range(2):
@@ -71,8 +77,8 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
             tau = torque_value[k] if torque_enabled[k] else 0.0
             if tau == 0.0:
                 continue
-            j = m.torque_joints[k]
-            b = m.joint_parent[j] if side == 0 else m.joint_child[j]
+            j = torque_joints[k]
+            b = parent[j] if side == 0 else child[j]
             for r in range(3):
                 for c in range(3):
                     A[r, c] = q[b, 3 + 3 * r + c]
