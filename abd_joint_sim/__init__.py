@@ -9,7 +9,7 @@ from .errors import SceneError, SimulationError
 from .model import Model, compile_scene
 from .scene import Scene
 from .state import Control, State
-from .world import StepReport, World
+from .world import Status, StepReport, World
 
-__all__ = ['Scene', 'World', 'Model', 'State', 'Control', 'StepReport', 'compile_scene',
+__all__ = ['Scene', 'World', 'Model', 'State', 'Control', 'StepReport', 'Status', 'compile_scene',
            'SceneError', 'SimulationError']

@@ -24,6 +24,7 @@ from numba import njit
 from .smallmat import jacobi_eigh
 
 TWO_PI = 2.0 * np.pi
+WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 
 
 @njit(cache=True, error_model='numpy')
@@ -81,20 +82,21 @@ def theta_at(q, parent, child, nbar, bbar, j):
 def theta_derivatives(q, m, j, grad, hess, want_hess):
     """See theta_derivatives_at."""
     return theta_derivatives_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j,
-                                grad, hess, want_hess)
+                                grad, hess, want_hess, np.empty(WORK_SHAPE))
 
 
 @njit(cache=True, error_model='numpy')
-def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess):
+def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess, work):
     """Wrapped θ of joint j; fills grad = ∇θ (18,) and, if want_hess, hess = ∇²θ (18,18),
     w.r.t. [vec A_i, vec A_j]. With N = c ∇s − s ∇c, P = c ∇c + s ∇s, r² = c² + s²:
     ∇θ = N / r², ∇²θ = (∇s ∇cᵀ − ∇c ∇sᵀ + c ∇²s − s ∇²c)/r² − 2 N Pᵀ / r⁴ (symmetrised)."""
-    fr = np.empty((4, 3))
+    # work rows: 0-3 the frames, 4 ∇c, 5 ∇s, 6 N, 7 P (a per-joint loop allocates it once)
+    fr = work[0:4, 0:3]
     frames(q, parent[j], child[j], nbar, bbar, j, fr)
     c, s = cos_sin(fr)
     th = math.atan2(s, c)
-    dc = np.empty(18)
-    ds = np.empty(18)
+    dc = work[4]
+    ds = work[5]
     nbi, nbj = nbar[j, 0], nbar[j, 1]
     bbi, bbj = bbar[j, 0], bbar[j, 1]
     for r in range(3):                     # ∂(A n̄)·w/∂A = w n̄ᵀ
@@ -104,13 +106,13 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess)
             ds[3 * r + k] = 0.5 * (fr[1, r] * bbi[k] - fr[3, r] * nbi[k])
             ds[9 + 3 * r + k] = 0.5 * (fr[2, r] * nbj[k] - fr[0, r] * bbj[k])
     r2 = c * c + s * s
-    N = np.empty(18)
+    N = work[6]
     for a in range(18):
         N[a] = c * ds[a] - s * dc[a]
         grad[a] = N[a] / r2
     if not want_hess:
         return th
-    P = np.empty(18)
+    P = work[7]
     for a in range(18):
         P[a] = c * dc[a] + s * ds[a]
     rr = r2 * r2
@@ -134,9 +136,10 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess)
 
 
 @njit(cache=True, error_model='numpy')
-def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch):
-    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,) and scratch (1,1): work arrays)."""
-    th = theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False)
+def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch, work):
+    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,), scratch (1,1), work WORK_SHAPE:
+    work arrays)."""
+    th = theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
     i_body, j_body = parent[j], child[j]
     rate = 0.0
     for a in range(9):
@@ -163,10 +166,11 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     W = np.empty((n, 12))
     V = np.empty((n, 12, 12))
     tmp = np.empty((18, 12))
+    work = np.empty(WORK_SHAPE)
     all_psd = True
     for k in range(n):
         j = joints[k]
-        theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True)
+        theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True, work)
         for a in range(18):
             for b in range(18):
                 H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + d1s[k] * hh[a, b]

@@ -393,3 +393,22 @@ def test_import_layer_check_can_fail(tmp_path):
     bad = _layer_violations([(probe, 'abd_joint_sim.terms.probe')])
     assert bad and bad[0][1] == {'abd_joint_sim.world', 'abd_joint_sim.world.World', 'abd_joint_sim.solver.step',
                                  'abd_joint_sim.solver.step.step'}
+
+
+def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, capsys):
+    """Without the compiled-marker, ensure_compiled prints its line to stderr BEFORE the
+    kernels run (a first run never waits in silence); with it, nothing is printed."""
+    from abd_joint_sim import cache, warmup
+    seen = []
+
+    def fake_run():
+        seen.append(capsys.readouterr().err)      # what was printed before compiling
+    monkeypatch.setattr(warmup, '_run_kernels', fake_run)
+    monkeypatch.setattr(warmup, '_done', False)
+    monkeypatch.setattr(cache, 'marker', lambda: tmp_path / 'compiled-marker')
+    monkeypatch.setattr(cache, 'mark_compiled', lambda: (tmp_path / 'compiled-marker').write_text(''))
+    out = warmup.ensure_compiled()
+    assert out['compiled'] and 'compiling the physics kernels (first run on this machine' in seen[0]
+    monkeypatch.setattr(warmup, '_done', False)
+    out = warmup.ensure_compiled()
+    assert not out['compiled'] and seen[1] == '' and capsys.readouterr().err == ''

@@ -44,10 +44,11 @@ def predicted_rotation(m, q, q_tilde):
     """max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| (NaN wins, and then no split is asked)."""
     grad = np.empty(18)
     scratch = np.empty((1, 1))
+    work = np.empty(angles.WORK_SHAPE)
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
     for j in range(parent.size):
-        angles.theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False)
+        angles.theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
         i_body, j_body = parent[j], child[j]
         x = 0.0
         for a in range(9):
@@ -110,11 +111,12 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
     grad = np.empty(18)
     scratch = np.empty((1, 1))
+    work = np.empty(angles.WORK_SHAPE)
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     rotation = 0.0
     finite = True
     for j in range(J):
-        th, rate = angles.theta_and_rate_at(q_new, v_new, parent, child, nbar, bbar, j, grad, scratch)
+        th, rate = angles.theta_and_rate_at(q_new, v_new, parent, child, nbar, bbar, j, grad, scratch, work)
         rel = angles.unwrap(th, angle_start[j])
         new_angles[0, j] = rel + init_angle[j]
         new_angles[1, j] = rate
