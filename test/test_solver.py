@@ -18,7 +18,7 @@ from abd_joint_sim import Scene, SimulationError, World
 from abd_joint_sim.smallmat import jacobi_eigh, svd3
 from abd_joint_sim.solver import linsolve
 
-from physics_helpers import box, chain_dict, hinge_dict, random_rotation, scene_dict
+from physics_helpers import box, hinge_dict, random_rotation, scene_dict
 
 REPO = Path(__file__).resolve().parents[1]
 
