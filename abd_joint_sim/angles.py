@@ -1,83 +1,225 @@
-"""Joint angle θ of revolute joints, shared by the torque, driving and limit terms.
+"""Joint angle θ of a revolute joint, shared by UID 668 (angle readout), UID 19 and UID 670
+(docs/physics.md "Joint angle").
 
-PHYSICS.md §4: per body k the stored basis (n̄_k, b̄_k) is carried by A_k (no
-normalisation), n_k = A_k n̄_k, b_k = A_k b̄_k, and
+Per body k the stored basis (n̄_k, b̄_k) is carried by A_k (not normalised):
+n_k = A_k n̄_k, b_k = A_k b̄_k, and
 
     cos θ = (n_i·n_j + b_i·b_j)/2,   sin θ = (b_i·n_j − n_i·b_j)/2,   θ = atan2(sin, cos).
 
-Rotating the child by +φ about +t gives θ = +φ (n_j = cos φ n + sin φ b, b = t × n).
-Derivatives are taken with respect to x = [vec A_i, vec A_j] (18,), vec = row-major, so
-x maps onto q_i[3:12] and q_j[3:12]. c and s are bilinear in (A_i, A_j): their second
+Rotating the child by +φ about +t = (P1 − P0)/|P1 − P0| gives θ = +φ (b = t × n).
+Derivatives are taken with respect to x = [vec A_i, vec A_j] (18,), vec = row-major, so x
+maps onto q_i[3:12] and q_j[3:12]. c and s are bilinear in (A_i, A_j): their second
 derivatives are zero within a body and ½ I3 ⊗ (outer products) across the pair.
+`unwrap` picks the branch of θ nearest to the previous step's angle (multi-turn angle).
+`accumulate_angle_hessian` adds the gradient and PSD-projected Hessian of any E(θ), the
+shared part of UID 19 and UID 670.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
+
+from .smallmat import jacobi_eigh
 
 TWO_PI = 2.0 * np.pi
+WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 
 
-def _frames(model, q, joints):
-    A = q[:, 3:12].reshape(-1, 3, 3)
-    Ai, Aj = A[model.joint_parent[joints]], A[model.joint_child[joints]]
-    nbi, nbj = model.joint_nbar[joints, 0], model.joint_nbar[joints, 1]
-    bbi, bbj = model.joint_bbar[joints, 0], model.joint_bbar[joints, 1]
-    # columns 0, 1 of A @ [n̄ b̄]: both frame vectors in one batched product per body
-    fi = np.matmul(Ai, np.stack([nbi, bbi], axis=2))
-    fj = np.matmul(Aj, np.stack([nbj, bbj], axis=2))
-    ni, bi, nj, bj = fi[:, :, 0], fi[:, :, 1], fj[:, :, 0], fj[:, :, 1]
-    return (ni, nj, bi, bj), (nbi, nbj, bbi, bbj)
+@njit(cache=True, error_model='numpy')
+def unwrap(theta, reference):
+    """The branch of θ nearest to `reference`: reference + ((θ − reference + π) mod 2π) − π
+    (Python's float % has the sign of 2π, like numpy's remainder)."""
+    return reference + (theta - reference + np.pi) % TWO_PI - np.pi
 
 
-def _cos_sin(ni, nj, bi, bj):
-    c = 0.5 * (np.einsum('jr,jr->j', ni, nj) + np.einsum('jr,jr->j', bi, bj))
-    s = 0.5 * (np.einsum('jr,jr->j', bi, nj) - np.einsum('jr,jr->j', ni, bj))
+@njit(cache=True, error_model='numpy')
+def frames(q, i_body, j_body, nbar, bbar, j, fr):
+    """fr[0..3] = n_i, n_j, b_i, b_j of joint j in world axes (nbar, bbar = m.joint_nbar,
+    m.joint_bbar: the functions ending in `_at` take the model's arrays, not m, because they
+    run once per joint and a structref field lookup in such a loop costs more than the math)."""
+    for r in range(3):
+        ni = nj = bi = bj = 0.0
+        for c in range(3):
+            Ai = q[i_body, 3 + 3 * r + c]
+            Aj = q[j_body, 3 + 3 * r + c]
+            ni += Ai * nbar[j, 0, c]
+            bi += Ai * bbar[j, 0, c]
+            nj += Aj * nbar[j, 1, c]
+            bj += Aj * bbar[j, 1, c]
+        fr[0, r] = ni
+        fr[1, r] = nj
+        fr[2, r] = bi
+        fr[3, r] = bj
+
+
+@njit(cache=True, error_model='numpy')
+def cos_sin(fr):
+    """(cos θ, sin θ) of the frames (not normalised: |(c, s)| = 1 only for rigid A)."""
+    c = 0.5 * ((fr[0, 0] * fr[1, 0] + fr[0, 1] * fr[1, 1] + fr[0, 2] * fr[1, 2])
+               + (fr[2, 0] * fr[3, 0] + fr[2, 1] * fr[3, 1] + fr[2, 2] * fr[3, 2]))
+    s = 0.5 * ((fr[2, 0] * fr[1, 0] + fr[2, 1] * fr[1, 1] + fr[2, 2] * fr[1, 2])
+               - (fr[0, 0] * fr[3, 0] + fr[0, 1] * fr[3, 1] + fr[0, 2] * fr[3, 2]))
     return c, s
 
 
-def joint_theta(model, q, joints) -> np.ndarray:
-    """Wrapped angle θ ∈ (−π, π] of the given joints, relative to the rest pose. (len(joints),)"""
-    (ni, nj, bi, bj), _ = _frames(model, q, joints)
-    c, s = _cos_sin(ni, nj, bi, bj)
-    return np.arctan2(s, c)
+@njit(cache=True, error_model='numpy')
+def theta(q, m, j):
+    """Wrapped θ ∈ (−π, π] of joint j, relative to the rest pose."""
+    return theta_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j)
 
 
-def unwrap(theta, reference):
-    """The branch of θ nearest to `reference`: reference + remainder(θ − reference, 2π)."""
-    return reference + np.remainder(theta - reference + np.pi, TWO_PI) - np.pi
+@njit(cache=True, error_model='numpy')
+def theta_at(q, parent, child, nbar, bbar, j):
+    fr = np.empty((4, 3))
+    frames(q, parent[j], child[j], nbar, bbar, j, fr)
+    c, s = cos_sin(fr)
+    return math.atan2(s, c)
 
 
-def _outer(u, v):
-    return np.einsum('jr,jc->jrc', u, v).reshape(-1, 9)
+@njit(cache=True, error_model='numpy')
+def theta_derivatives(q, m, j, grad, hess, want_hess):
+    """See theta_derivatives_at."""
+    return theta_derivatives_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j,
+                                grad, hess, want_hess, np.empty(WORK_SHAPE))
 
 
-def joint_theta_derivatives(model, q, joints, hessian=True):
-    """θ (wrapped), dθ/dx (n,18) and, if asked, d²θ/dx² (n,18,18)."""
-    (ni, nj, bi, bj), (nbi, nbj, bbi, bbj) = _frames(model, q, joints)
-    c, s = _cos_sin(ni, nj, bi, bj)
-    theta = np.arctan2(s, c)
-    # ∂(A n̄)·w/∂A = w n̄ᵀ
-    dc = 0.5 * np.concatenate([_outer(nj, nbi) + _outer(bj, bbi), _outer(ni, nbj) + _outer(bi, bbj)], axis=1)
-    ds = 0.5 * np.concatenate([_outer(nj, bbi) - _outer(bj, nbi), _outer(bi, nbj) - _outer(ni, bbj)], axis=1)
+@njit(cache=True, error_model='numpy')
+def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess, work):
+    """Wrapped θ of joint j; fills grad = ∇θ (18,) and, if want_hess, hess = ∇²θ (18,18),
+    w.r.t. [vec A_i, vec A_j]. With N = c ∇s − s ∇c, P = c ∇c + s ∇s, r² = c² + s²:
+    ∇θ = N / r², ∇²θ = (∇s ∇cᵀ − ∇c ∇sᵀ + c ∇²s − s ∇²c)/r² − 2 N Pᵀ / r⁴ (symmetrised)."""
+    # work rows: 0-3 the frames, 4 ∇c, 5 ∇s, 6 N, 7 P (a per-joint loop allocates it once)
+    fr = work[0:4, 0:3]
+    frames(q, parent[j], child[j], nbar, bbar, j, fr)
+    c, s = cos_sin(fr)
+    th = math.atan2(s, c)
+    dc = work[4]
+    ds = work[5]
+    nbi, nbj = nbar[j, 0], nbar[j, 1]
+    bbi, bbj = bbar[j, 0], bbar[j, 1]
+    for r in range(3):                     # ∂(A n̄)·w/∂A = w n̄ᵀ
+        for k in range(3):
+            dc[3 * r + k] = 0.5 * (fr[1, r] * nbi[k] + fr[3, r] * bbi[k])
+            dc[9 + 3 * r + k] = 0.5 * (fr[0, r] * nbj[k] + fr[2, r] * bbj[k])
+            ds[3 * r + k] = 0.5 * (fr[1, r] * bbi[k] - fr[3, r] * nbi[k])
+            ds[9 + 3 * r + k] = 0.5 * (fr[2, r] * nbj[k] - fr[0, r] * bbj[k])
     r2 = c * c + s * s
-    N = c[:, None] * ds - s[:, None] * dc
-    grad = N / r2[:, None]
-    if not hessian:
-        return theta, grad, None
-    n = len(joints)
-    eye = np.eye(3)
-    # cross-body second derivatives (9x9): ½ I3 ⊗ (...)
-    cc = 0.5 * (np.einsum('jc,jd->jcd', nbi, nbj) + np.einsum('jc,jd->jcd', bbi, bbj))
-    ss = 0.5 * (np.einsum('jc,jd->jcd', bbi, nbj) - np.einsum('jc,jd->jcd', nbi, bbj))
-    ddc = np.zeros((n, 18, 18))
-    dds = np.zeros((n, 18, 18))
-    ddc[:, :9, 9:] = np.einsum('rs,jcd->jrcsd', eye, cc).reshape(n, 9, 9)
-    dds[:, :9, 9:] = np.einsum('rs,jcd->jrcsd', eye, ss).reshape(n, 9, 9)
-    ddc[:, 9:, :9] = ddc[:, :9, 9:].transpose(0, 2, 1)
-    dds[:, 9:, :9] = dds[:, :9, 9:].transpose(0, 2, 1)
-    P = c[:, None] * dc + s[:, None] * ds
-    hess = (np.einsum('ja,jb->jab', ds, dc) - np.einsum('ja,jb->jab', dc, ds)
-            + c[:, None, None] * dds - s[:, None, None] * ddc) / r2[:, None, None] \
-        - 2.0 * np.einsum('ja,jb->jab', N, P) / (r2 * r2)[:, None, None]
-    hess = 0.5 * (hess + hess.transpose(0, 2, 1))   # exact analytically; remove roundoff asymmetry
-    return theta, grad, hess
+    N = work[6]
+    for a in range(18):
+        N[a] = c * ds[a] - s * dc[a]
+        grad[a] = N[a] / r2
+    if not want_hess:
+        return th
+    P = work[7]
+    for a in range(18):
+        P[a] = c * dc[a] + s * ds[a]
+    rr = r2 * r2
+    for a in range(18):
+        for b in range(18):
+            hess[a, b] = (ds[a] * dc[b] - dc[a] * ds[b]) / r2 - 2.0 * N[a] * P[b] / rr
+    for k in range(3):                     # cross-body ∇²c, ∇²s = ½ I3 ⊗ (...)
+        for d in range(3):
+            cc = 0.5 * (nbi[k] * nbj[d] + bbi[k] * bbj[d])
+            ss = 0.5 * (bbi[k] * nbj[d] - nbi[k] * bbj[d])
+            extra = (c * ss - s * cc) / r2
+            for r in range(3):
+                hess[3 * r + k, 9 + 3 * r + d] += extra
+                hess[9 + 3 * r + d, 3 * r + k] += extra
+    for a in range(18):                    # exact analytically; remove round-off asymmetry
+        for b in range(a + 1, 18):
+            h = 0.5 * (hess[a, b] + hess[b, a])
+            hess[a, b] = h
+            hess[b, a] = h
+    return th
+
+
+@njit(cache=True, error_model='numpy')
+def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch, work):
+    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,), scratch (1,1), work WORK_SHAPE:
+    work arrays)."""
+    th = theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
+    i_body, j_body = parent[j], child[j]
+    rate = 0.0
+    for a in range(9):
+        rate += grad[a] * v[i_body, 3 + a] + grad[9 + a] * v[j_body, 3 + a]
+    return th, rate
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project):
+    """For the n joints `joints[:n]` of one term with E'(θ), E''(θ) in d1s, d2s: adds
+    ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ to the blocks on q[3:12]. With `project`,
+    H is PSD-projected as a batch (kept as is when every eigenvalue of the batch is ≥ 0,
+    else negative eigenvalues clamped to 0). θ depends on A_k only through A_k n̄_k and
+    A_k b̄_k, so H's range lies in the 12-dim span of Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])
+    (orthonormal columns): the eigenproblem is solved on QᵀHQ (12x12)."""
+    if n == 0:
+        return
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    G = np.empty((n, 18))
+    H = np.empty((n, 18, 18))
+    hh = np.empty((18, 18))
+    Q = np.zeros((n, 18, 12))
+    Hs = np.empty((n, 12, 12))
+    W = np.empty((n, 12))
+    V = np.empty((n, 12, 12))
+    tmp = np.empty((18, 12))
+    work = np.empty(WORK_SHAPE)
+    all_psd = True
+    for k in range(n):
+        j = joints[k]
+        theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True, work)
+        for a in range(18):
+            for b in range(18):
+                H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + d1s[k] * hh[a, b]
+        if not project:
+            continue
+        for side in range(2):
+            for r in range(3):
+                for c in range(3):
+                    Q[k, 9 * side + 3 * r + c, 6 * side + 2 * r] = nbar[j, side, c]
+                    Q[k, 9 * side + 3 * r + c, 6 * side + 2 * r + 1] = bbar[j, side, c]
+        for a in range(18):
+            for l in range(12):
+                acc = 0.0
+                for b in range(18):
+                    acc += H[k, a, b] * Q[k, b, l]
+                tmp[a, l] = acc
+        for l in range(12):
+            for l2 in range(l, 12):
+                acc = 0.0
+                for a in range(18):
+                    acc += Q[k, a, l] * tmp[a, l2]
+                Hs[k, l, l2] = acc
+                Hs[k, l2, l] = acc
+        jacobi_eigh(Hs[k], W[k], V[k])
+        for l in range(12):
+            if not W[k, l] >= 0.0:
+                all_psd = False
+    if project and not all_psd:
+        for k in range(n):
+            for l in range(12):             # V <- Q V, H = Σ max(w, 0) v vᵀ
+                for a in range(18):
+                    acc = 0.0
+                    for l2 in range(12):
+                        acc += Q[k, a, l2] * V[k, l2, l]
+                    tmp[a, l] = acc
+            for a in range(18):
+                for b in range(a, 18):
+                    acc = 0.0
+                    for l in range(12):
+                        acc += tmp[a, l] * max(W[k, l], 0.0) * tmp[b, l]
+                    H[k, a, b] = acc
+                    H[k, b, a] = acc
+    for k in range(n):
+        j = joints[k]
+        i_body, j_body = parent[j], child[j]
+        for a in range(9):
+            grad[i_body, 3 + a] += d1s[k] * G[k, a]
+            grad[j_body, 3 + a] += d1s[k] * G[k, 9 + a]
+            for b in range(9):
+                diag[i_body, 3 + a, 3 + b] += H[k, a, b]
+                diag[j_body, 3 + a, 3 + b] += H[k, 9 + a, 9 + b]
+                pair[j, 3 + a, 3 + b] += H[k, a, 9 + b]

@@ -1,6 +1,6 @@
 """Model: the immutable, compiled form of a Scene (arrays, index maps, term selection).
 
-Conventions (shared/spec/PHYSICS.md §1, §3, §4):
+Conventions (docs/physics.md "Affine body", "Revolute joint (UID 18)", "Joint angle"):
 - body state ``q = [p, a1, a2, a3]`` (12,), the a's being the ROWS of A; a rest point x̄ is
   at ``x = A x̄ + p = J(x̄) q`` with ``J(x̄) = [I3 | I3 ⊗ x̄ᵀ]``.
 - mass matrix from the dyadic mass (m, m x̄_c, S); gravity in q-space is ``[g, 0...]``.
@@ -82,7 +82,7 @@ def mass_properties(body):
 
 
 def mass_matrix(m, com, S) -> np.ndarray:
-    """12x12 ABD mass matrix (PHYSICS.md §1)."""
+    """12x12 ABD mass matrix (docs/physics.md "Affine body")."""
     M = np.zeros((12, 12))
     M[0:3, 0:3] = m * np.eye(3)
     for k in range(3):
@@ -93,7 +93,7 @@ def mass_matrix(m, com, S) -> np.ndarray:
 
 
 def joint_basis(t):
-    """(n, b) orthonormal to the unit axis t, with b = t × n (PHYSICS.md §4)."""
+    """(n, b) orthonormal to the unit axis t, with b = t × n (docs/physics.md "Joint angle")."""
     test = np.array([0.0, 1.0, 0.0]) if abs(t[0]) > 0.9 else np.array([1.0, 0.0, 0.0])
     n = np.cross(t, test)
     n /= np.linalg.norm(n)

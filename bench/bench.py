@@ -7,7 +7,7 @@ compared on a 3-link chain before anything is timed; a mismatch exits 1. A real 
 description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
 same file, and in sim_node (bench/robot_bench.py).
 
-    python bench/bench.py [--quick] [--no-peers] [--no-node] [--backend numpy|numba|auto]
+    python bench/bench.py [--quick] [--no-peers] [--no-node]
 
 The node figures come two ways: `_step_once` against `World.step` in one process (the
 node's per-step overhead), and sim_node end to end in its own process over DDS, as users run
@@ -37,12 +37,8 @@ from peers import make_mujoco, make_pybullet                # noqa: E402
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
 
 
-def _world(d, backend):
-    kw = {} if backend == 'default' else {'backend': backend}
-    try:
-        return World(Scene.from_dict(d), **kw)
-    except TypeError:                       # a World without backends: numpy only
-        return World(Scene.from_dict(d))
+def _world(d):
+    return World(Scene.from_dict(d))
 
 
 def time_steps(step, steps, repeats):
@@ -58,8 +54,8 @@ def time_steps(step, steps, repeats):
     return out
 
 
-def bench_ours(d, steps, repeats, backend):
-    w = _world(d, backend)
+def bench_ours(d, steps, repeats):
+    w = _world(d)
     for name in w.actuated_joint_names:
         w.set_torque(name, w.model.torque_value0[w.actuated_joint_names.index(name)] or 1.0)
     w.step(3)                                # warm-up (and JIT, if any)
@@ -69,11 +65,11 @@ def bench_ours(d, steps, repeats, backend):
         its.append(w.step().newton_iterations)
     times = time_steps(step, steps, repeats)
     tracemalloc.start()
-    w2 = _world(d, backend)
+    w2 = _world(d)
     w2.step(3)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    kind = 'compiled' if w.backend == 'numba' else w.solver.system.kind
+    kind = 'tree' if w.solver.data.solve_kind == 1 else 'dense'
     return dict(times=times, its=float(np.mean(its)), dt=w.dt, mem=peak,
                 kind=kind, converged=w.last_step.converged)
 
@@ -100,7 +96,7 @@ def check_agreement():
     return ok
 
 
-def node_overhead(steps, backend):
+def node_overhead(steps):
     """Per-step cost of sim_node's step (pending commands, step, /clock every step,
     /joint_states at its 100 Hz default), one at a time and in the node's batches, against
     World.step alone: one process, no subscribers, no recording; rounds interleaved and the
@@ -118,8 +114,6 @@ def node_overhead(steps, backend):
     try:
         params = [Parameter('real_time_factor', value=0.0), Parameter('start_paused', value=True),
                   Parameter('record', value='')]
-        if backend != 'default':
-            params.append(Parameter('backend', value=backend))
         node = SimNode(parameter_overrides=params)
         node._step_once()
         node_t, world_t, batch_t = [], [], []
@@ -128,14 +122,13 @@ def node_overhead(steps, backend):
             node_t += time_steps(node._step_once, steps, 1)
             world_t += time_steps(node.world.step, steps, 1)
             batch_t += [t / batch for t in time_steps(lambda: node._step_batch(batch), steps // batch, 1)]
-        used = node.world.backend
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    return min(node_t), min(world_t), min(batch_t), used
+    return min(node_t), min(world_t), min(batch_t)
 
 
-def node_end_to_end(seconds, backend, record_dir=None, subscribe=True, extra_args=()):
+def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
     """sim_node as users run it: its own process, real DDS (loopback only), as fast as
     possible (real_time_factor 0), /clock every step, /joint_states at the default 100 Hz,
     optionally recording, and with `subscribe` a subscriber on both in this process (which
@@ -161,8 +154,6 @@ def node_end_to_end(seconds, backend, record_dir=None, subscribe=True, extra_arg
     args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p', 'real_time_factor:=0.0']
     if record_dir:                  # (rcl cannot parse an empty `record:=`; the default is off)
         args += ['-p', f'record:={record_dir}']
-    if backend != 'default':
-        args += ['-p', f'backend:={backend}']
     args += list(extra_args)
     proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     old_domain = os.environ.get('ROS_DOMAIN_ID')
@@ -209,13 +200,11 @@ def main(argv=None):
     ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
     ap.add_argument('--no-peers', action='store_true', help='skip MuJoCo and PyBullet')
     ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
-    ap.add_argument('--backend', default='default',
-                    help="World backend: numpy, numba or auto (default: the World's default)")
     args = ap.parse_args(argv)
 
     print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
           f'Python {platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f}, '
-          f'backend {_world(chain_scene(1), args.backend).backend}')
+          'compiled physics step')
     if not args.no_peers and not check_agreement():
         print('ERROR: engines disagree on the 3-link chain; not timing.')
         return 1
@@ -233,7 +222,7 @@ def main(argv=None):
         big = n is not None and n >= 1000
         steps = 3 if big else (20 if (n or 0) >= 100 else (50 if args.quick else 200))
         repeats = 3 if big else 5
-        r = bench_ours(d, steps, repeats, args.backend)
+        r = bench_ours(d, steps, repeats)
         med, best = statistics.median(r['times']), min(r['times'])
         per_step[label] = med
         row = dict(label=label, med=med, best=best, sps=1.0 / med, rtf=r['dt'] / med, its=r['its'],
@@ -269,10 +258,10 @@ def main(argv=None):
         a, b = per_step['chain 100'], per_step['chain 1000']
         print(f'\ncost growth 100 -> 1000 links: x{b / a:.1f} (exponent {np.log10(b / a):.2f}; 1 = linear)')
     if not args.no_node:
-        res = node_overhead(100 if args.quick else 500, args.backend)
+        res = node_overhead(100 if args.quick else 500)
         if res:
-            t_node, t_world, t_batch, used = res
-            print(f'\nsim_node step on the default scene ({used} backend): {t_node * 1e6:.0f} µs '
+            t_node, t_world, t_batch = res
+            print(f'\nsim_node step on the default scene: {t_node * 1e6:.0f} µs '
                   f'vs World.step {t_world * 1e6:.0f} µs -> node overhead '
                   f'{(t_node - t_world) * 1e6:.0f} µs/step; real-time factor with the node at '
                   f'dt 1 ms: {1e-3 / t_node:.1f} one step at a time, {1e-3 / t_batch:.1f} in '
@@ -282,7 +271,7 @@ def main(argv=None):
             for label, rec, sub in (('no subscriber, not recording', None, False),
                                     ('a subscriber on /clock and /joint_states', None, True),
                                     ('no subscriber, recording', str(Path(tmp) / 'bag'), False)):
-                res = node_end_to_end(4 if args.quick else 8, args.backend, rec, sub)
+                res = node_end_to_end(4 if args.quick else 8, rec, sub)
                 if res and res[0]:
                     rtfs, counts = res
                     print(f'sim_node end to end (own process, DDS, as fast as possible, default '
@@ -295,9 +284,9 @@ def main(argv=None):
                     print(f'sim_node end to end ({label}): no /diagnostics report received')
     # URDF robot (issue 11): a real robot description in all three engines, and in sim_node.
     import robot_bench
-    robot = robot_bench.run(args.quick, args.backend, peers=not args.no_peers)
+    robot = robot_bench.run(args.quick, peers=not args.no_peers)
     if robot and not args.no_node:
-        res = node_end_to_end(4 if args.quick else 8, args.backend, None, False,
+        res = node_end_to_end(4 if args.quick else 8, None, False,
                               ['-p', f'scene:={robot[0]}'])
         if res and res[0]:
             print(f'sim_node end to end, KUKA iiwa URDF (own process, DDS, as fast as possible, '

@@ -39,10 +39,10 @@ def _time(step, steps, repeats):
     return statistics.median(out)
 
 
-def ours(path, steps, repeats, backend='default'):
+def ours(path, steps, repeats):
     from abd_joint_sim import Scene, World
     scene = Scene.from_urdf(path, dt=DT)
-    world = World(scene) if backend == 'default' else World(scene, backend=backend)
+    world = World(scene)
     for name, tau in zip(scene.joint_names, torques(len(scene.joint_names))):
         world.set_torque(name, tau)
     world.step(3)
@@ -50,7 +50,7 @@ def ours(path, steps, repeats, backend='default'):
 
     def step():
         its.append(world.step().newton_iterations)
-    return _time(step, steps, repeats), float(np.mean(its)), world.backend
+    return _time(step, steps, repeats), float(np.mean(its))
 
 
 def mujoco(path, steps, repeats):
@@ -91,14 +91,14 @@ def pybullet(path, steps, repeats):
         p.disconnect(cid)
 
 
-def run(quick=False, backend='default', peers=True):
+def run(quick=False, peers=True):
     """Print the robot's row; returns (path, ours s/step) or None without the file."""
     path = robot_path()
     if path is None:
         print('URDF robot: skipped (pybullet_data not installed: requirements-bench.txt)')
         return None
     steps, repeats = (100, 3) if quick else (500, 5)
-    t, its, used = ours(path, steps, repeats, backend)
+    t, its = ours(path, steps, repeats)
     mj = mujoco(path, 5 * steps, repeats) if peers else None
     pb = pybullet(path, 5 * steps, repeats) if peers else None
 
@@ -106,9 +106,9 @@ def run(quick=False, backend='default', peers=True):
         return ('–', '–') if x is None else (f'{x * 1e6:.1f}', f'{t / x:.1f}')
     print('\nURDF robot (pybullet_data/kuka_iiwa/model.urdf, 7 joints, dt 1 ms, gravity, torque on '
           'every joint, each engine loading the same file):')
-    print('| robot | backend | µs/step median | RTF at dt | Newton it/step | MuJoCo µs/step | '
+    print('| robot | µs/step median | RTF at dt | Newton it/step | MuJoCo µs/step | '
           'ours/MuJoCo | PyBullet µs/step | ours/PyBullet |')
-    print('|' + '---|' * 9)
-    print(f'| KUKA iiwa | {used} | {t * 1e6:.0f} | {DT / t:.1f} | {its:.2f} | {peer(mj)[0]} | '
+    print('|' + '---|' * 8)
+    print(f'| KUKA iiwa | {t * 1e6:.0f} | {DT / t:.1f} | {its:.2f} | {peer(mj)[0]} | '
           f'{peer(mj)[1]} | {peer(pb)[0]} | {peer(pb)[1]} |')
     return path, t

@@ -34,11 +34,11 @@ else
     export PYTHONPATH="$PREFIX/lib/$SITE/site-packages${PYTHONPATH:+:$PYTHONPATH}"
 fi
 
-# The installed copy of the numba backend has its own cache: compile it once (~1 min the first
-# time, ~1 s after). Without it the node still runs, on the numpy backend.
-# (Run from / : `python -m` puts the current directory first on sys.path, and from the
-# repository root that would compile the source tree's copy instead of the installed one.)
-echo "[run_default] fast backend of the install (first time ~1 min): $(cd / && python -m abd_joint_sim.fast --warm-up 2>&1 | tail -n 1)" >&2
+# Compile the installed copy's physics kernels (~1 min the first time on a machine, announced
+# before it starts; ~1 s after: the cache is keyed on the sources, so the source tree's
+# compile serves the install too). Run from / : `python -m` puts the current directory first
+# on sys.path, and from the repository root that would load the source tree's copy.
+(cd / && python -m abd_joint_sim.warmup) >&2 || { echo "[run_default] the physics kernels failed to compile" >&2; exit 1; }
 
 # `ros2 run abd_joint_sim sim_node`: <prefix>/lib/<pkg>/<exe> found through the ament index.
 EXE="$(python -c 'import os; from ament_index_python.packages import get_package_prefix as p

@@ -13,24 +13,21 @@ if str(REPO) not in sys.path:          # run as `python study/x.py` from a check
     sys.path.insert(0, str(REPO))
 
 
-# 'auto' | 'numpy' | 'numba' (World(backend=...)); set by the studies' --backend option
-BACKEND = 'auto'
+#: what the studies record in their 'backend' column: the one compiled implementation
+BACKEND = 'compiled'
 
 
-def make_world(scene_dict, backend=None):
-    """A World for a scene dict on the studies' backend (which one a World resolved to is
-    `world.backend`: the studies record it in every output)."""
+def make_world(scene_dict):
+    """A World for a scene dict."""
     from abd_joint_sim import Scene, World
-    return World(Scene.from_dict(scene_dict), backend=backend or BACKEND)
+    return World(Scene.from_dict(scene_dict))
 
 
-def backend_note(used):
-    """One line naming the backend(s) a run used, for the summaries."""
-    used = sorted(set(used))
-    extra = (' (numba: compiled kernels of abd_joint_sim/fast; `python -m abd_joint_sim.fast '
-             '--warm-up` makes `auto` pick it)' if 'numba' in used else
-             ' (numba not compiled or not installed: `python -m abd_joint_sim.fast --warm-up`)')
-    return f'Backend: {", ".join(used)}{extra}.'
+def backend_note(used=()):
+    """One line naming the implementation, for the summaries."""
+    import numba
+    return (f'Physics: the compiled step (numba {numba.__version__}; '
+            '`python -m abd_joint_sim.warmup` compiles it once per machine).')
 
 
 def pyplot():

@@ -7,8 +7,7 @@ internal torque (closed form for the relative angle; momentum must stay zero), p
 under gravity with a sinusoidal torque (DOP853 reference at rtol 1e-12). With MuJoCo
 installed (optional), the hinge and the pendulum also run in MuJoCo in the same run
 (study/mujoco_peer.py) and the summary gives the run time at equal error, ours/MuJoCo;
-without it the study says so and runs the rest. Options: --backend (auto = numba once
-compiled), --numpy-scene (also time one scene on numpy), --no-mujoco.
+without it the study says so and runs the rest. Option: --no-mujoco.
 For every point: wall time per simulated second (the step calls only), angle error (max
 over the horizon and final), max joint-anchor separation, Newton iterations per step,
 max |momentum| (free pair). Writes results.csv, summary.md and, with matplotlib, PNGs.
@@ -55,9 +54,9 @@ COLUMNS = ('engine', 'backend', 'scene', 'integrator', 'velocity_tol', 'tau_samp
            'substep_steps', 'max_linear_momentum', 'max_angular_momentum', 'warnings', 'error')
 
 
-def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end', backend=None):
+def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end'):
     """Simulate one point; returns a row dict (see COLUMNS)."""
-    w = common.make_world(case.scene(dt, integrator, velocity_tol), backend)
+    w = common.make_world(case.scene(dt, integrator, velocity_tol))
     w.set_torque_enabled('hinge', True)
     n = int(round(horizon / dt))
     times, angles = np.empty(n), np.empty(n)
@@ -91,7 +90,7 @@ def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end', bac
     err = np.abs(angles - ref)
     ok = len(err) and np.all(np.isfinite(err))
     return {
-        'engine': 'abd', 'backend': w.backend,
+        'engine': 'abd', 'backend': common.BACKEND,
         'scene': case.name, 'integrator': integrator, 'velocity_tol': velocity_tol,
         'tau_sample': tau_sample, 'dt': dt, 'steps': len(times),
         'sim_time': float(times[-1]) if len(times) else 0.0, 'wall_s': wall,
@@ -249,7 +248,7 @@ MJ_STYLE = {'mj_euler': ('C2', '^'), 'mj_implicitfast': ('C4', 'v'), 'mj_rk4': (
 EXACT = 1e-12               # MuJoCo RK4 is exact on the constant torque (~1e-16)
 
 
-def plots(rows, img_dir, prefix='', mj_rows=(), np_rows=()):
+def plots(rows, img_dir, prefix='', mj_rows=()):
     plt = common.pyplot()
     if plt is None:
         return []
@@ -260,7 +259,7 @@ def plots(rows, img_dir, prefix='', mj_rows=(), np_rows=()):
              ('bdf1', 'start'): ('C0', 'x'), ('bdf2', 'start'): ('C3', 'x')}
     tols = sorted({r['velocity_tol'] for r in rows}, reverse=True)
     ls_tol = {t: ls for t, ls in zip(tols, ('--', '-', ':'))}
-    mj_rows, np_rows = list(mj_rows), list(np_rows)
+    mj_rows = list(mj_rows)
     for kind in ('dt', 'wall'):
         fig, axes = plt.subplots(1, len(scenes_), figsize=(5.4 * len(scenes_), 4.6), squeeze=False)
         for ax, scene in zip(axes[0], scenes_):
@@ -285,12 +284,6 @@ def plots(rows, img_dir, prefix='', mj_rows=(), np_rows=()):
                     label += f' (exact: err <= {max(y):.0e}, drawn at {bottom:.0e})'
                     y = [bottom] * len(y)
                 ax.loglog(x, y, '-.', color=c, marker=mk, ms=5, mfc='none', label=label)
-            if kind == 'wall':
-                for (s, integ, tol, samp), g in groups(np_rows).items():
-                    if s == scene:
-                        ax.loglog([r['wall_per_sim_s'] for r in g], [r['err_max'] for r in g], '-',
-                                  color='0.5', marker='s', ms=3, alpha=0.7,
-                                  label=f'ours {integ} tol={tol:g}, numpy backend')
             if kind == 'dt':
                 g0 = [r for r in rows if r['scene'] == scene]
                 dts = np.array(sorted({r['dt'] for r in g0}))
@@ -319,7 +312,7 @@ MJ_TARGETS = (1e-2, 1e-3, 1e-4, 1e-5)
 
 def ours_vs_mujoco(rows, mj_rows):
     """Run time at equal error, ours (best of bdf1/bdf2 and both tolerances, tau@end, the
-    default backend) over each MuJoCo integrator; log-log interpolation on each envelope."""
+    compiled step) over each MuJoCo integrator; log-log interpolation on each envelope."""
     out = []
     for scene in dict.fromkeys(r['scene'] for r in mj_rows):
         ours = [r for r in rows if r['scene'] == scene and r['tau_sample'] == 'end']
@@ -334,26 +327,12 @@ def ours_vs_mujoco(rows, mj_rows):
     return out
 
 
-def backend_table(rows, np_rows):
-    """Per dt: ms per step of the default backend and of numpy on the same points, and the
-    largest difference in the angle error (the backends agree to rounding)."""
-    out = []
-    for r in np_rows:
-        (d,) = [x for x in rows if (x['scene'], x['integrator'], x['velocity_tol'], x['tau_sample'], x['dt']) ==
-                (r['scene'], r['integrator'], r['velocity_tol'], r['tau_sample'], r['dt'])]
-        out.append({'scene': r['scene'], 'integrator': r['integrator'], 'velocity_tol': r['velocity_tol'],
-                    'dt': r['dt'], f'ms_per_step_{d["backend"]}': d['ms_per_step'],
-                    'ms_per_step_numpy': r['ms_per_step'], 'speed_up': r['ms_per_step'] / d['ms_per_step'],
-                    'err_max_diff': abs(r['err_max'] - d['err_max'])})
-    return out
-
-
 def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco_note, elapsed, argv,
-               mj_rows=(), mj_orders=(), mj_ratios=(), bk_rows=()):
+               mj_rows=(), mj_orders=(), mj_ratios=()):
     lines = ['# Error against run time', '',
              f'Command: `python study/error_vs_runtime.py {" ".join(argv)}`'
              f' ({"quick" if quick else "full"} mode, {elapsed:.0f} s). {common.machine()}. '
-             f'{common.backend_note(r["backend"] for r in rows)}', '',
+             f'{common.backend_note()}', '',
              f'Horizon {cfg["horizon"]} s; dt in {", ".join(f"{d:g}" for d in cfg["dts"])}; Newton '
              f'velocity_tol in {", ".join(f"{t:g}" for t in cfg["tols"])} m/s. Torque sampled at the '
              'step end t_n + h (`tau@end`); `tau@start` is the zero-order hold tau(t_n). Wall time '
@@ -384,9 +363,6 @@ def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco
                   'nan: the target is not reached in the dt range; a target looser than the cheapest '
                   'point costs that point):', '',
                   common.md_table(mj_ratios, cols), '']
-    if bk_rows:
-        lines += ['## Backends', '', 'The same points on the numpy backend (the reference implementation):', '',
-                  common.md_table(bk_rows, list(bk_rows[0])), '']
     lines += ['## Pareto front (err_max vs wall time per simulated second)', '',
               common.md_table(par, ['scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt', 'wall_per_sim_s',
                                     'err_max', 'newton_per_step']),
@@ -409,14 +385,8 @@ def main(argv=None):
     ap.add_argument('--img-dir', type=Path, default=None, help='where the PNGs go (default: --out)')
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--scenes', nargs='*', default=None, choices=list(S.CASES))
-    ap.add_argument('--backend', default='auto', choices=('auto', 'numpy', 'numba'),
-                    help='World backend (default auto: numba once compiled)')
-    ap.add_argument('--numpy-scene', default=None, choices=list(S.CASES),
-                    help='also time this scene (bdf2, tightest tolerance) on the numpy backend '
-                         '(default: hinge_const in full mode, none with --quick)')
     ap.add_argument('--no-mujoco', action='store_true', help='skip the MuJoCo side-by-side run')
     args = ap.parse_args(argv)
-    common.BACKEND = args.backend
     t0 = time.perf_counter()
     rows, cfg = sweep(args.quick, args.scenes)
     order_rows = orders(rows, cfg['fit_min_dt'])
@@ -425,24 +395,16 @@ def main(argv=None):
     mj_rows, mujoco_note = mujoco_run(rows, args, cfg)
     mj_orders = orders(mj_rows, cfg['fit_min_dt']) if mj_rows else []
     mj_ratios = ours_vs_mujoco(rows, mj_rows) if mj_rows else []
-    np_scene = args.numpy_scene or (None if args.quick else 'hinge_const')
-    np_rows = []
-    if np_scene and np_scene in {r['scene'] for r in rows} and rows[0]['backend'] != 'numpy':
-        for dt in cfg['dts']:
-            r = run_point(S.CASES[np_scene], dt, 'bdf2', min(cfg['tols']), cfg['horizon'], backend='numpy')
-            np_rows.append(r)
-            print(f'{np_scene:14s} bdf2 numpy backend dt={dt:<7g} {r["ms_per_step"]:.2f} ms/step')
-    bk_rows = backend_table(rows, np_rows)
     args.out.mkdir(parents=True, exist_ok=True)
-    common.write_csv(args.out / 'results.csv', rows + mj_rows + np_rows, COLUMNS)
+    common.write_csv(args.out / 'results.csv', rows + mj_rows, COLUMNS)
     common.write_csv(args.out / 'orders.csv', order_rows + mj_orders, list(order_rows[0]))
     if mj_ratios:
         common.write_csv(args.out / 'mujoco_equal_error.csv', mj_ratios, list(mj_ratios[0]))
     img_dir = args.img_dir or args.out
-    pngs = plots(rows, img_dir, mj_rows=mj_rows, np_rows=np_rows)
+    pngs = plots(rows, img_dir, mj_rows=mj_rows)
     rel = [Path(__import__('os').path.relpath(p, args.out)) for p in pngs]
     md = summary_md(rows, order_rows, par, ratios, cfg, problems, rel, args.quick, mujoco_note,
-                    time.perf_counter() - t0, argv, mj_rows, mj_orders, mj_ratios, bk_rows)
+                    time.perf_counter() - t0, argv, mj_rows, mj_orders, mj_ratios)
     (args.out / 'summary.md').write_text(md)
     print()
     for o in order_rows + mj_orders:

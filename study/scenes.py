@@ -3,16 +3,16 @@
 Every builder returns a plain scene dict (what `Scene.from_dict` accepts), so the studies do
 not depend on the YAML files and each parameter is visible here.
 
-Sign conventions (PHYSICS.md §4, §5): the hinge axis is t = (p1 − p0)/|p1 − p0| = +z, and a
+Sign conventions (docs/physics.md "Joint angle", "External joint torque (UID 668)"): the hinge axis is t = (p1 − p0)/|p1 − p0| = +z, and a
 positive torque turns the child about +t, i.e. it increases the joint angle θ.
 
 Reference solutions
 -------------------
 * ``hinge``: fixed cube, free cube, no gravity, constant τ from rest: θ(t) = ½ (τ/I) t².
-  I = I_cm,z + m d² is computed from the geometry (the "24.747" of PHYSICS.md §7 is rounded:
+  I = I_cm,z + m d² is computed from the geometry (the "24.747" of docs/physics.md "Analytic references" is rounded:
   using it leaves a relative error of 1.3e-5 that masks BDF2 below dt ≈ 1e-3).
 * ``free_pair``: two identical free cubes, internal torque τ: each turns by φ = θ/2 with
-  (I_c + m d² sin²φ) φ̇² = 2τφ (PHYSICS.md §7). With φ = u² the map t(u) is smooth,
+  (I_c + m d² sin²φ) φ̇² = 2τφ (docs/physics.md "Analytic references"). With φ = u² the map t(u) is smooth,
   dt/du = 2 sqrt((I_c + m d² sin² u²)/(2τ)), so we integrate du/dt = 1/that (DOP853,
   rtol 1e-13) and take θ = 2u². Check: θ(1 s) = 11.786632172303 for the default scene.
 * ``pendulum``: the hinge scene turned into a pendulum: gravity (0, −g, 0), axis +z, arm COM
@@ -206,7 +206,7 @@ class HingeConstant(Case):
 
 class FreePair(Case):
     name = 'free_pair'
-    description = 'two free 0.2 m cubes, internal tau = 1 N m; closed form (PHYSICS.md 7), momentum 0'
+    description = 'two free 0.2 m cubes, internal tau = 1 N m; closed form (docs/physics.md, Analytic references), momentum 0'
     tau = 1.0
 
     def scene(self, dt, integrator, velocity_tol):

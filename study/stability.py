@@ -18,7 +18,7 @@ Criteria checked after every step:
   continuity  a reported angle never moves more than newton.max_step_rotation per (sub-)step:
               |Δθ| <= max_step_rotation × substeps, and StepReport.max_step_rotation within it;
   reference   where known, |θ − θ_ref| <= rtol |θ_ref| + α h t + velocity_tol t / 0.6 + 1e-9 rad
-              (α h t = twice the BDF1 error ½ α h t of PHYSICS.md §7; the last term is what the
+              (α h t = twice the BDF1 error ½ α h t of docs/physics.md "Analytic references"; the last term is what the
               Newton tolerance on point velocities allows at the 0.6 m lever arm);
   momentum    (free pairs) |P|, |L| <= 1e-3 τ t + 4 eps Σ m (|p| + size) / h + 1e-12 (the
               Newton tolerance limits it; the middle term is the rounding floor of m v when
@@ -105,7 +105,7 @@ class PhaseResult:
 def run_phase(p: Phase) -> PhaseResult:
     r = PhaseResult()
     w = common.make_world(p.scene)
-    r.backend = w.backend
+    r.backend = common.BACKEND
     m = w.model
     for j in w.actuated_joint_names:
         w.set_torque_enabled(j, p.torque != 0.0)
@@ -338,10 +338,7 @@ def main(argv=None):
     ap.add_argument('--out', default='out/stability', type=Path)
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--group', nargs='*', default=None, help='only these groups')
-    ap.add_argument('--backend', default='auto', choices=('auto', 'numpy', 'numba'),
-                    help="World backend (default auto: numba once compiled)")
     args = ap.parse_args(argv)
-    common.BACKEND = args.backend
     t0 = time.perf_counter()
     rows = run_all(args.quick, args.group)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -381,7 +378,7 @@ def summary_md(rows, quick, elapsed, argv):
     lines = ['# Stability on stiff and extreme cases', '',
              f'Command: `python study/stability.py {" ".join(argv)}` ({"quick" if quick else "full"} mode, '
              f'{elapsed:.0f} s). {common.machine()}. '
-             f'{common.backend_note(b for r in rows for b in r["backend"].split("+"))}', '',
+             f'{common.backend_note()}', '',
              f'{len(rows)} cases: {counts["pass"]} pass, {counts["fail-loud"]} fail loudly (reported by the '
              f'simulator), {counts["FAIL-SILENT"]} fail silently.', '',
              'Criteria (see study/stability.py): finite state; joint separation <= 1% of the smallest body '

@@ -158,18 +158,6 @@ def domain_id() -> int:
     return next_domain_id()
 
 
-@pytest.fixture(params=['numpy', 'numba'])
-def each_backend(request, monkeypatch):
-    """Run a test on both physics backends: World(backend='auto') follows ABD_BACKEND.
-    The numba one needs its kernels compiled (scripts/test.sh does that first)."""
-    if request.param == 'numba':
-        from abd_joint_sim import fast
-        if not fast.compiled():
-            pytest.skip('numba backend not compiled here (python -m abd_joint_sim.fast --warm-up)')
-    monkeypatch.setenv('ABD_BACKEND', request.param)
-    return request.param
-
-
 # ------------------------------------------------------------------ MCAP validation ----
 # Every MCAP file the tests leave under pytest's temporary directory is checked by the
 # official MCAP reader (@mcap/core, TypeScript; test/mcap_validator/validate.mjs): framing,

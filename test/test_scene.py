@@ -319,7 +319,7 @@ def test_supported_range_corners_build_and_step():
             for b, x in zip(d['bodies'], (-1.5, 1.5)):
                 b.update(box=[size] * 3, density=density, kappa=kappa, position=[x * size, 0, 0])
             d['joints'][0].update(p0=[0, 0, -size], p1=[0, 0, size])
-            world = World(Scene.from_dict(d), backend='numpy')
+            world = World(Scene.from_dict(d))
             for _ in range(2):
                 world.step()
             assert np.all(np.isfinite(world.joint_angles()))

@@ -1,7 +1,7 @@
 """Reduced versions of the studies (study/): convergence orders and stability criteria.
 
-Budget: ~5 s on the numba backend (after `python -m abd_joint_sim.fast --warm-up`), ~50-65 s
-on numpy, 2 shared cores. The full studies run from the command line (docs/studies.md).
+Budget: ~5 s once the physics kernels are compiled (`python -m abd_joint_sim.warmup`)
+on 2 shared cores. The full studies run from the command line (docs/studies.md).
 Open physics-core issues would be strict xfails here (docs/studies.md section 3); there are
 none at present: the last one (stiff-kappa drift) is test_stiff_kappa_does_not_drift.
 """
@@ -21,7 +21,7 @@ from study import stability as ST
 
 
 def test_references():
-    # PHYSICS.md §7 closed forms
+    # docs/physics.md "Analytic references" closed forms
     assert S.free_pair_reference()(1.0) == pytest.approx(11.786632172303, rel=1e-11)
     I, m = S.hinge_inertia()
     assert m == pytest.approx(64.0) and I == pytest.approx(24.7467, abs=1e-4)

@@ -1,16 +1,19 @@
-"""Every energy term's gradient and Hessian against finite differences, and the checker
-itself against deliberately broken terms (it must be able to fail)."""
+"""Every compiled energy term (abd_joint_sim/terms/) against the independent oracle
+(test/oracle.py, written from docs/physics.md) and against finite differences: energy =
+oracle, gradient = FD of the energy, raw Hessian = FD of the gradient, symmetric, projected
+Hessian PSD. The checker itself must fail on deliberately broken terms."""
 import numpy as np
 import pytest
 
+import oracle
 from abd_joint_sim import Scene, compile_scene
-from abd_joint_sim.terms.angle_terms import Driving, Limit
-from abd_joint_sim.terms.base import StepContext
-from abd_joint_sim.terms.check import check_term
-from abd_joint_sim.terms.ortho import OrthoPotential
-from abd_joint_sim.terms.revolute import RevoluteJoint
+from abd_joint_sim.solver import model_data
+from abd_joint_sim.terms import driving, inertia, limit, ortho, revolute, torque
+from abd_joint_sim.terms.context import StepContext
 
 from physics_helpers import box, random_rotation
+
+TERMS = {'inertia': inertia, 'ortho': ortho, 'revolute': revolute, 'driving': driving, 'limit': limit}
 
 
 def _model():
@@ -18,18 +21,23 @@ def _model():
              joints=[dict(name='j0', parent='a', child='b', p0=[0.25, 0, -0.2], p1=[0.25, 0.1, 0.3],
                           init_angle=0.3,
                           driving=dict(aim_angle=1.2, enabled=True, strength_ratio=50.0),
-                          limit=dict(lower=-0.2, upper=0.4, strength=3.0)),
+                          limit=dict(lower=-0.2, upper=0.4, strength=3.0),
+                          external_torque=dict(torque=1.0)),
                      dict(name='j1', parent='c', child='b', p0=[0.8, 0, 0], p1=[0.8, 0, 1],
-                          limit=dict(lower=0.1, upper=0.1))])
+                          limit=dict(lower=0.1, upper=0.1), external_torque=dict(torque=1.0))])
     return compile_scene(Scene.from_dict(d))
 
 
-def _state(model, seed, scale=0.15):
+MODEL = _model()
+DATA = model_data.build(MODEL)
+
+
+def _state(seed, scale=0.15):
     """A generic state: rotated, sheared and displaced bodies (not near SO(3))."""
     rng = np.random.default_rng(seed)
-    q = model.body_q0.copy()
-    for b in range(model.body_count):
-        if model.body_fixed[b]:
+    q = MODEL.body_q0.copy()
+    for b in range(MODEL.body_count):
+        if MODEL.body_fixed[b]:
             continue
         A = random_rotation(rng) @ (np.eye(3) + scale * rng.normal(size=(3, 3)))
         q[b, 3:12] = A.ravel()
@@ -37,72 +45,175 @@ def _state(model, seed, scale=0.15):
     return q
 
 
-def _ctx(model, rel=None, active=True):
-    rel = np.zeros(model.joint_count) if rel is None else rel
-    return StepContext(h=0.01, joint_rel_start=rel,
-                       drive_target=np.full(len(model.drive_joints), 0.9),
-                       drive_active=np.full(len(model.drive_joints), active))
+def _ctx(q_tilde=None, on=True, angle_start=None):
+    J = MODEL.joint_count
+    q_tilde = MODEL.body_q0.copy() if q_tilde is None else q_tilde
+    start = np.zeros(J) if angle_start is None else np.asarray(angle_start, float)
+    return StepContext(0.01, 9.0 / 4.0, q_tilde, start, np.full(len(MODEL.drive_joints), 0.9),
+                       np.full(len(MODEL.drive_joints), on))
+
+
+def _oracle_energy(name, q, ctx):
+    if name == 'inertia':
+        return oracle.inertia_energy(MODEL, q, ctx.q_tilde, ctx.scale)
+    if name == 'ortho':
+        return oracle.ortho_energy(MODEL, q, ctx.h)
+    if name == 'revolute':
+        return oracle.revolute_energy(MODEL, q)
+    if name == 'driving':
+        return oracle.driving_energy(MODEL, q, ctx.angle_start, ctx.drive_target, ctx.drive_on)
+    return oracle.limit_energy(MODEL, q, ctx.angle_start)
+
+
+def dense(term, q, ctx, project):
+    """(E, ∇E (12B,), ∇²E (12B,12B)) of a compiled term, the blocks assembled densely."""
+    B, J = MODEL.body_count, MODEL.joint_count
+    grad, diag, pair = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
+    term.accumulate(q, DATA, ctx, grad, diag, pair, project)
+    H = np.zeros((12 * B, 12 * B))
+    for b in range(B):
+        H[12 * b:12 * b + 12, 12 * b:12 * b + 12] += diag[b]
+    for j in range(J):
+        i_b, j_b = MODEL.joint_parent[j], MODEL.joint_child[j]
+        H[12 * i_b:12 * i_b + 12, 12 * j_b:12 * j_b + 12] += pair[j]
+        H[12 * j_b:12 * j_b + 12, 12 * i_b:12 * i_b + 12] += pair[j].T
+    return term.energy(q, DATA, ctx), grad.ravel(), H
+
+
+def _rel(a, b):
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), np.max(np.abs(a)), 1e-300))
+
+
+def check_term(term, q, ctx, *, eps=1e-6, rtol=2e-5, name='term'):
+    """Raise ValueError if the term's derivatives at q disagree with finite differences of
+    its own energy / gradient, its Hessian is asymmetric, or its projection is not PSD."""
+    E, g, H = dense(term, q, ctx, project=False)
+    _, _, Hp = dense(term, q, ctx, project=True)
+    dofs = np.concatenate([np.arange(12 * b, 12 * b + 12) for b in np.flatnonzero(~MODEL.body_fixed)])
+    flat = q.ravel()
+    g_fd = np.zeros(len(dofs))
+    H_fd = np.zeros((len(dofs), len(dofs)))
+    for k, d in enumerate(dofs):
+        step = eps * max(1.0, abs(flat[d]))
+        qp, qm = flat.copy(), flat.copy()
+        qp[d] += step
+        qm[d] -= step
+        qp, qm = qp.reshape(q.shape), qm.reshape(q.shape)
+        g_fd[k] = (term.energy(qp, DATA, ctx) - term.energy(qm, DATA, ctx)) / (2 * step)
+        H_fd[:, k] = (dense(term, qp, ctx, False)[1][dofs] - dense(term, qm, ctx, False)[1][dofs]) / (2 * step)
+    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+        raise ValueError(f'{name}: non-finite gradient or Hessian')
+    err = _rel(g[dofs], g_fd)
+    if err > rtol:
+        raise ValueError(f'{name}: gradient disagrees with finite differences (rel. error {err:.2e})')
+    Hs = H[np.ix_(dofs, dofs)]
+    err = _rel(Hs, H_fd)
+    if err > rtol:
+        raise ValueError(f'{name}: Hessian disagrees with finite differences (rel. error {err:.2e})')
+    if _rel(Hs, Hs.T) > 1e-12:
+        raise ValueError(f'{name}: Hessian is not symmetric')
+    w = np.linalg.eigvalsh(Hp[np.ix_(dofs, dofs)])
+    if w.min() < -1e-9 * max(1.0, abs(w).max()):
+        raise ValueError(f'{name}: projected Hessian is not PSD (min eigenvalue {w.min():.3e})')
+    return E
 
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
-@pytest.mark.parametrize('term_cls', [OrthoPotential, RevoluteJoint, Driving, Limit])
-def test_term_derivatives_match_finite_differences(term_cls, seed):
-    model = _model()
-    term = term_cls.build(model)
-    assert term is not None
-    q = _state(model, seed)
-    E = check_term(term, model, q, _ctx(model), eps=1e-6, rtol=2e-5)
-    assert np.isfinite(E)
+@pytest.mark.parametrize('name', list(TERMS))
+def test_term_energy_matches_the_oracle(name, seed):
+    q = _state(seed)
+    ctx = _ctx(q_tilde=_state(seed + 10), angle_start=[0.1, -0.2])
+    E = TERMS[name].energy(q, DATA, ctx)
+    ref = _oracle_energy(name, q, ctx)
+    assert ref > 0.0, 'the state must activate the term'
+    assert E == pytest.approx(ref, rel=1e-12)
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+@pytest.mark.parametrize('name', list(TERMS))
+def test_term_derivatives_match_finite_differences(name, seed):
+    q = _state(seed)
+    E = check_term(TERMS[name], q, _ctx(q_tilde=_state(seed + 10)), name=name)
+    assert np.isfinite(E) and E > 0.0
+
+
+def test_joint_angle_matches_the_oracle():
+    from abd_joint_sim import angles
+    for seed in range(5):
+        q = _state(seed, scale=0.3)
+        for j in range(MODEL.joint_count):
+            assert angles.theta(q, DATA, j) == pytest.approx(oracle.theta(MODEL, q, j), abs=1e-14)
+
+
+def test_torque_force_matches_the_oracle():
+    for seed in range(3):
+        q = _state(seed)
+        taus = np.array([2.5, -1.5])
+        F = np.zeros((MODEL.body_count, 12))
+        skipped = np.zeros(4, dtype=np.int64)
+        n = torque.generalized_force(q, DATA, taus, np.ones(2, bool), F, skipped)
+        assert n == 0
+        np.testing.assert_allclose(F, oracle.torque_force(MODEL, q, taus), rtol=1e-12, atol=1e-14)
 
 
 def test_limit_is_active_on_both_sides_and_zero_inside():
-    model = _model()
-    term = Limit.build(model)
-    ctx = _ctx(model)
-    q = model.body_q0.copy()
-    assert term.energy(q, ctx) == 0.0 or model.limit_lower[1] == model.limit_upper[1]
-    init = model.joint_init_angle[model.limit_joints]
-    lo, up = model.limit_lower - init, model.limit_upper - init     # relative bounds
-    on = np.ones(2, bool)
-    E, d1, _ = term._phi(lo - 0.3, ctx, on)
-    assert E[0] > 0 and d1[0] < 0          # below the lower limit it pushes up
-    E, d1, _ = term._phi(up + 0.3, ctx, on)
-    assert E[0] > 0 and d1[0] > 0          # above the upper limit it pushes down
-    assert E[1] > 0 and d1[1] > 0          # zero-width limit: s|x - l|^3
-    inside = 0.5 * (model.limit_lower[0] + model.limit_upper[0]) - init[0]
-    E, d1, d2 = term._phi(np.full(2, inside), ctx, np.ones(2, bool))
-    assert E[0] == 0.0 and d1[0] == 0.0 and d2[0] == 0.0
+    lo, up, s = -0.2, 0.4, 3.0
+    E, d1, _ = limit.phi(lo - 0.3, lo, up, s)
+    assert E > 0 and d1 < 0            # below the lower limit it pushes up
+    E, d1, _ = limit.phi(up + 0.3, lo, up, s)
+    assert E > 0 and d1 > 0            # above the upper limit it pushes down
+    E, d1, _ = limit.phi(0.4, 0.1, 0.1, s)
+    assert E > 0 and d1 > 0            # zero-width limit: s|x - l|^3
+    assert limit.phi(0.1, lo, up, s) == (0.0, 0.0, 0.0)
+    assert not limit.active(0.1, lo, up) and limit.active(0.11, 0.1, 0.1)
 
 
 def test_projected_hessians_are_psd_far_from_rest():
-    model = _model()
-    q = _state(model, 7, scale=0.8)            # strongly sheared: ortho is non-convex here
-    ctx = _ctx(model)
-    for cls in (OrthoPotential, Driving, Limit):
-        term = cls.build(model)
-        _, _, Hraw = term.dense(model, q, ctx, project=False)
-        _, _, H = term.dense(model, q, ctx, project=True)
+    q = _state(7, scale=0.8)            # strongly sheared: ortho is non-convex here
+    ctx = _ctx()
+    for name in ('ortho', 'driving', 'limit'):
+        _, _, H = dense(TERMS[name], q, ctx, project=True)
         w = np.linalg.eigvalsh(H)
-        assert w.min() > -1e-8 * abs(w).max(), cls.name
-    _, _, Hraw = OrthoPotential.build(model).dense(model, q, ctx, project=False)
+        assert w.min() > -1e-8 * abs(w).max(), name
+    _, _, Hraw = dense(ortho, q, ctx, project=False)
     assert np.linalg.eigvalsh(Hraw).min() < 0, 'this state should make the raw ortho Hessian indefinite'
 
 
+def test_ortho_analytic_projection_matches_eigendecomposition():
+    rng = np.random.default_rng(11)
+    q = _state(11, scale=0.6)
+    q[0, 3:12] = (random_rotation(rng) @ np.diag([1.0, 1.0, 0.2])).ravel()    # compressed
+    ctx = _ctx()
+    _, _, Hraw = dense(ortho, q, ctx, project=False)
+    _, _, Hp = dense(ortho, q, ctx, project=True)
+    negative = 0
+    for b in np.flatnonzero(~MODEL.body_fixed):
+        block = Hraw[12 * b + 3:12 * b + 12, 12 * b + 3:12 * b + 12]
+        w, V = np.linalg.eigh(block)
+        ref = (V * np.maximum(w, 0.0)) @ V.T
+        negative += w.min() < -1e-3 * abs(w).max()
+        assert np.abs(Hp[12 * b + 3:12 * b + 12, 12 * b + 3:12 * b + 12] - ref).max() < 1e-10 * np.abs(block).max()
+    assert negative, 'the projection must matter here'
+
+
 def test_disabled_drive_contributes_nothing():
-    model = _model()
-    term = Driving.build(model)
-    q = _state(model, 3)
-    E, g, H = term.dense(model, q, _ctx(model, active=False))
+    q = _state(3)
+    E, g, H = dense(driving, q, _ctx(on=False), project=True)
     assert E == 0.0 and not g.any() and not H.any()
 
 
 # -- the checker must be able to fail -------------------------------------------------------
-class _Broken(OrthoPotential):
-    mode = ''
+class _Broken:
+    """The ortho term with one deliberate mistake."""
 
-    def accumulate(self, q, ctx, grad, diag, pair, project=True):
-        super().accumulate(q, ctx, grad, diag, pair, project)
-        b = self.bodies[0]
+    energy = staticmethod(ortho.energy)
+
+    def __init__(self, mode):
+        self.mode = mode
+
+    def accumulate(self, q, data, ctx, grad, diag, pair, project):
+        ortho.accumulate(q, data, ctx, grad, diag, pair, project)
+        b = 0
         if self.mode == 'grad':
             grad[b, 4] *= 1.01
         elif self.mode == 'hess':
@@ -117,23 +228,16 @@ class _Broken(OrthoPotential):
 @pytest.mark.parametrize('mode,message', [('grad', 'gradient disagrees'), ('hess', 'Hessian disagrees'),
                                           ('asym', 'Hessian'), ('neg', 'not PSD')])
 def test_checker_catches_broken_terms(mode, message):
-    model = _model()
-    term = _Broken(model, np.flatnonzero(~model.body_fixed))
-    term.mode = mode
     with pytest.raises(ValueError, match=message):
-        check_term(term, model, _state(model, 0), _ctx(model))
+        check_term(_Broken(mode), _state(0), _ctx())
 
 
-def test_ortho_analytic_projection_matches_eigendecomposition():
-    from abd_joint_sim.terms.base import project_psd
-    from abd_joint_sim.terms.ortho import projected_hessian
-    rng = np.random.default_rng(11)
-    A = np.eye(3) + rng.normal(scale=0.6, size=(50, 3, 3))
-    A[0] = random_rotation(rng)                         # at rest: twist modes exactly zero
-    A[1] = np.diag([1.0, 1.0, 0.2])                     # compressed: negative modes
-    C = A @ A.transpose(0, 2, 1) - np.eye(3)
-    eye = np.eye(3)
-    raw = (np.einsum('ij,blk->bikjl', eye, A.transpose(0, 2, 1) @ A)
-           + np.einsum('bil,bjk->bikjl', A, A) + np.einsum('bij,kl->bikjl', C, eye)).reshape(-1, 9, 9)
-    assert np.abs(projected_hessian(A) - project_psd(raw)).max() < 1e-10 * np.abs(raw).max()
-    assert (np.linalg.eigvalsh(raw) < -1e-3).any(axis=1).sum() > 10     # the projection mattered
+def test_oracle_comparison_can_fail(monkeypatch):
+    """An angle of the wrong sign (child and parent swapped) is seen by the comparison."""
+    q = _state(1)
+    ctx = _ctx(angle_start=[0.1, -0.2])
+    good = driving.energy(q, DATA, ctx)
+    assert good == pytest.approx(_oracle_energy('driving', q, ctx), rel=1e-12)
+    right = oracle.theta
+    monkeypatch.setattr(oracle, 'theta', lambda model, q, j: -right(model, q, j))
+    assert good != pytest.approx(_oracle_energy('driving', q, ctx), rel=1e-6)

@@ -28,7 +28,7 @@ def buffer_for(scene, world):
 
 def test_joint_commands_effort_position_and_refusals():
     scene = Scene.from_urdf(str(DEMO), joints={'elbow': {'driving': {'enabled': True}}})
-    world = World(scene, backend='numpy')
+    world = World(scene)
     buf = buffer_for(scene, world)
     # effort on a subset, clamped to the URDF effort limit (elbow: 15 N m)
     rej, clamps = buf.command_joint_state(['elbow', 'shoulder_pan'], [], [], [-40.0, 1.5])

@@ -71,7 +71,7 @@ class SimNode(Node):
         # Scene and world. Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene, World
         self.scene = self._load_scene(Scene)
-        self.world = World(self.scene, dt=self.config.time_step or None, backend=self.config.backend)
+        self.world = World(self.scene, dt=self.config.time_step or None)
         self.joint_names = list(self.world.joint_names)
         self.actuated = list(self.world.actuated_joint_names)
         self.commands = CommandBuffer(self.actuated, self.config.joints,
@@ -648,7 +648,7 @@ class SimNode(Node):
                   or 'none')
         ns = self.get_namespace().rstrip('/')
         self.get_logger().info(
-            f'scene {c.scene} | dt {self.world.dt:g} s | {self.world.backend} backend | '
+            f'scene {c.scene} | dt {self.world.dt:g} s | '
             f'joints {self.joint_names} | '
             f'actuated {self.actuated} (torque enabled: {enabled or "none"}) | '
             f'publishing {ns}/{TOPIC_JOINT_STATES} '

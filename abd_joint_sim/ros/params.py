@@ -61,10 +61,6 @@ PARAMS: tuple[ParamSpec, ...] = (
               'Empty = no recording.', True),
     ParamSpec('frame_id', '',
               'header.frame_id of the published joint states.', True),
-    ParamSpec('backend', 'auto',
-              'Physics backend: numpy (reference), numba (compiled, same results), or auto = '
-              'numba when its kernels are compiled for this install (python -m '
-              'abd_joint_sim.fast --warm-up), else numpy.', True),
     ParamSpec('marker_rate', 30.0,
               'Rate of the body markers on `markers` (visualization_msgs/MarkerArray) [Hz of '
               'simulated time], never more than one per step; recorded too. 0 = off.', True),
@@ -95,7 +91,6 @@ class SimConfig:
     joints: list[str] = field(default_factory=list)
     record: str = ''
     frame_id: str = ''
-    backend: str = 'auto'
     marker_rate: float = 30.0
     marker_frame_id: str = 'world'
     marker_joint_axes: bool = False
@@ -273,7 +268,6 @@ _COERCE = {
     'joints': _as_str_list,
     'record': _as_str,
     'frame_id': _as_str,
-    'backend': lambda n, v: _as_choice(n, v, ('auto', 'numpy', 'numba')),
     'marker_rate': _as_nonneg,
     'marker_frame_id': lambda n, v: _as_frame(n, v),
     'marker_joint_axes': _as_bool,
@@ -285,13 +279,6 @@ def _as_frame(name: str, value: Any) -> str:
     if not value:
         raise ValueError(f'parameter {name!r}: empty; markers need a frame to be drawn in '
                          "(e.g. 'world')")
-    return value
-
-
-def _as_choice(name: str, value: Any, choices: tuple) -> str:
-    value = _as_str(name, value)
-    if value not in choices:
-        raise ValueError(f'parameter {name!r}: {value!r} is not one of {", ".join(choices)}')
     return value
 
 

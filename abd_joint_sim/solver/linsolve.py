@@ -1,148 +1,232 @@
-"""Assemble and solve H Δq = −g over the free bodies, in one place.
+"""Solve Newton's system H Δq = −∇Π over the free bodies (docs/physics.md "Newton").
 
-H is block-sparse: a 12x12 block per free body on the diagonal and one per joint between two
-free bodies off it (the joint graph). The solver is chosen once per model, by structure:
-- dense Cholesky for up to DENSE_MAX_DOF unknowns (set-up cost dominates there);
-- banded Cholesky (LAPACK pbtrf) when a reverse Cuthill-McKee ordering of the body graph
-  gives a block bandwidth ≤ BAND_MAX_BLOCKS: chains and near-chains, cost O(n kd²), linear;
-- otherwise sparse LU (SuperLU, symmetric mode, minimum-degree ordering of A+Aᵀ).
-The sparsity pattern and the scatter of blocks into it are computed once per model; each
-Newton iteration refills values with one bincount.
-
-BLAS runs single-threaded inside the banded and sparse solves: OpenBLAS's threaded pbtrf
-took 250-800 ms instead of 0.05 ms for a 120-DOF band on a loaded 2-core machine (its
-threads spin on every panel). Dense solves are too small for OpenBLAS to thread.
+H is block-sparse: a 12x12 block per free body on the diagonal (`diag`) and one per joint
+between two free bodies off it (`pair`, the (parent, child) block). The method is chosen
+once per model by `structure`:
+- TREE: when the free bodies and the joints between them form a forest (chains, trees: every
+  robot arm without a closed loop), a block Cholesky along the forest, leaves first: no
+  fill-in, cost linear in the number of bodies;
+- DENSE: otherwise (closed loops), a dense Cholesky of all free unknowns, up to
+  DENSE_MAX_DOF unknowns (larger loops are refused with a message).
+A matrix that is not positive definite gives a NaN step (Newton reports it non-finite).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
-import scipy.linalg
-import scipy.sparse
-import scipy.sparse.csgraph
-import scipy.sparse.linalg
-from threadpoolctl import ThreadpoolController
+from numba import njit
 
-DENSE_MAX_DOF = 96          # up to 8 free bodies: dense is faster than any sparse set-up
-BAND_MAX_BLOCKS = 3         # block bandwidth up to which banded Cholesky beats SuperLU
-_THREADS = None             # ThreadpoolController, made on first structured solve (scans libs once)
+from ..smallmat import cholesky, lower_solve, upper_solve
+
+DENSE, TREE = 0, 1
+DENSE_MAX_DOF = 12 * 64     # a loop of 64 free bodies: ~10⁸ flops per Newton iteration
 
 
-def _single_thread():
-    global _THREADS
-    if _THREADS is None:
-        _THREADS = ThreadpoolController()
-    return _THREADS.limit(limits=1, user_api='blas')
+@dataclass(frozen=True)
+class Structure:
+    kind: int                   #: TREE or DENSE
+    order: np.ndarray           #: (F,) elimination order over free slots, leaves first
+    parent: np.ndarray          #: (F,) elimination parent slot, -1 at a root
+    edge_ptr: np.ndarray        #: (F+1,) CSR pointer into edge_joints
+    edge_joints: np.ndarray     #: joints between a slot and its parent
+    slot: np.ndarray            #: (B,) slot of each free body, -1 if fixed
+    between_free: np.ndarray    #: (J,) bool: both bodies free
 
 
-class LinearSystem:
-    def __init__(self, model):
-        self.model = model
-        free = ~model.body_fixed
-        self.free = np.flatnonzero(free)
-        self.slot = np.full(model.body_count, -1)
-        self.slot[self.free] = np.arange(len(self.free))
-        p, c = model.joint_parent, model.joint_child
-        both = free[p] & free[c]
-        self.pair_joints = np.flatnonzero(both)
-        self.n = 12 * len(self.free)
-        self.dense = self.n <= DENSE_MAX_DOF
-        sp, sc = self.slot[p[both]], self.slot[c[both]]
-        self._sp, self._sc = sp, sc
-        self.kind = 'dense' if self.dense else 'sparse'
-        if not self.dense and self.n:
-            self._setup_banded(len(self.free), sp, sc) or self._setup_sparse(len(self.free), sp, sc)
+def _forest(nf, sp, sc):
+    """(order, parent) of an elimination order children-first over the free-body graph with
+    edges (sp, sc) in slot numbers, or None if the graph has a cycle (several joints between
+    the same two bodies are one edge)."""
+    adj = [set() for _ in range(nf)]
+    root = list(range(nf))
 
-    @staticmethod
-    def _coords(a, b):
-        """Row and column indices of the 144 entries of blocks (a_k, b_k): (len(a),12,12)."""
-        r12 = np.arange(12)
-        rows = 12 * a[:, None, None] + r12[None, :, None] + 0 * r12[None, None, :]
-        cols = 12 * b[:, None, None] + r12[None, None, :] + 0 * r12[None, :, None]
-        return rows, cols
+    def find(a):
+        while root[a] != a:
+            root[a] = root[root[a]]
+            a = root[a]
+        return a
 
-    def _setup_banded(self, nf, sp, sc):
-        adj = scipy.sparse.coo_matrix((np.ones(len(sp)), (sp, sc)), shape=(nf, nf)).tocsr()
-        order = scipy.sparse.csgraph.reverse_cuthill_mckee(adj + adj.T, symmetric_mode=True)
-        pos = np.empty(nf, dtype=np.int64)
-        pos[order] = np.arange(nf)
-        width = int(np.max(np.abs(pos[sp] - pos[sc]))) if len(sp) else 0
-        if width > BAND_MAX_BLOCKS:
-            return False
-        self.kind = 'banded'
-        self.kd = kd = 12 * (width + 1) - 1
-        self._dof = (12 * pos[:, None] + np.arange(12)).ravel()       # old DOF -> new DOF
-        fb = np.arange(nf)
-        rd, cd = self._coords(pos[fb], pos[fb])
-        ru, cu = self._coords(pos[sp], pos[sc])
-        rows = np.concatenate([rd.ravel(), ru.ravel()])
-        cols = np.concatenate([cd.ravel(), cu.ravel()])
-        lo, hi = np.minimum(rows, cols), np.maximum(rows, cols)
-        # upper storage ab[kd + i - j, j] = H[i, j], i <= j; keep the diagonal blocks' upper
-        # triangles and every off-diagonal block (mirrored if it sits below the diagonal)
-        keep = np.concatenate([(rd <= cd).ravel(), np.ones(ru.size, bool)])
-        self._keep = keep
-        self._band_index = (kd + lo - hi) * self.n + hi
-        self._band_index = self._band_index[keep]
-        return True
+    for a, b in zip(sp.tolist(), sc.tolist()):
+        if b in adj[a]:
+            continue
+        if a == b:
+            return None
+        ra, rb = find(a), find(b)
+        if ra == rb:
+            return None
+        root[ra] = rb
+        adj[a].add(b)
+        adj[b].add(a)
+    parent = np.full(nf, -1, dtype=np.int64)
+    order = []
+    seen = np.zeros(nf, bool)
+    for r in range(nf):
+        if seen[r]:
+            continue
+        seen[r] = True
+        stack, pre = [r], []
+        while stack:                       # iterative DFS; reversed preorder = children first
+            a = stack.pop()
+            pre.append(a)
+            for b in sorted(adj[a]):
+                if not seen[b]:
+                    seen[b] = True
+                    parent[b] = a
+                    stack.append(b)
+        order += pre[::-1]
+    return np.array(order, dtype=np.int64), parent
 
-    def _setup_sparse(self, nf, sp, sc):
-        self.kind = 'sparse'
-        fb = np.arange(nf)
-        rd, cd = self._coords(fb, fb)
-        ru, cu = self._coords(sp, sc)
-        rows = np.concatenate([rd.ravel(), ru.ravel(), cu.ravel()])
-        cols = np.concatenate([cd.ravel(), cu.ravel(), ru.ravel()])
-        # CSC order is (column, row); entries of several joints between the same two
-        # bodies fall on one key and are summed by bincount.
-        keys = cols.astype(np.int64) * self.n + rows
-        uniq, self._inv = np.unique(keys, return_inverse=True)
-        self._indices = (uniq % self.n).astype(np.int32)
-        self._indptr = np.searchsorted(uniq // self.n, np.arange(self.n + 1)).astype(np.int32)
-        self._nnz = len(uniq)
-        return True
 
-    def solve(self, diag, pair, grad):
-        """Δq (B,12) (zero on fixed bodies) solving H Δq = −grad."""
-        out = np.zeros((self.model.body_count, 12))
-        if not self.n:
-            return out
-        g = grad[self.free].ravel()
-        D = diag[self.free]
-        U = pair[self.pair_joints]
-        if self.dense:
-            H = np.zeros((self.n, self.n))
-            nf = len(self.free)
-            H4 = H.reshape(nf, 12, nf, 12)
-            H4[np.arange(nf), :, np.arange(nf), :] = D
-            for k in range(len(self._sp)):
-                H4[self._sp[k], :, self._sc[k], :] += U[k]
-                H4[self._sc[k], :, self._sp[k], :] += U[k].T
-            try:
-                cho = scipy.linalg.cho_factor(H, check_finite=False)
-                x = scipy.linalg.cho_solve(cho, -g, check_finite=False)
-            except np.linalg.LinAlgError:
-                x = np.linalg.lstsq(H, -g, rcond=None)[0]
-        elif self.kind == 'banded':
-            vals = np.concatenate([D.ravel(), U.ravel()])[self._keep]
-            ab = np.bincount(self._band_index, weights=vals,
-                             minlength=(self.kd + 1) * self.n).reshape(self.kd + 1, self.n)
-            rhs = np.empty(self.n)
-            rhs[self._dof] = -g
-            try:
-                with _single_thread():
-                    cb = scipy.linalg.cholesky_banded(ab, lower=False, check_finite=False)
-                    y = scipy.linalg.cho_solve_banded((cb, False), rhs, check_finite=False)
-            except np.linalg.LinAlgError:
-                y = np.full(self.n, np.nan)    # not PD: reported as a non-finite Newton step
-            x = y[self._dof]
-        else:
-            vals = np.concatenate([D.ravel(), U.ravel(), U.ravel()])
-            data = np.bincount(self._inv, weights=vals, minlength=self._nnz)
-            A = scipy.sparse.csc_matrix((data, self._indices, self._indptr),
-                                        shape=(self.n, self.n))
-            with _single_thread():
-                lu = scipy.sparse.linalg.splu(A, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-                                              options={'SymmetricMode': True})
-                x = lu.solve(-g)
-        out[self.free] = x.reshape(-1, 12)
-        return out
+def structure(model, force_dense: bool = False) -> Structure:
+    """How Newton's system of this model is solved; ValueError for a closed loop of more
+    than DENSE_MAX_DOF / 12 free bodies. `force_dense`: the dense solve whatever the
+    structure (the tests compare the tree solve with it)."""
+    fixed = model.body_fixed
+    free_idx = np.flatnonzero(~fixed)
+    nf = len(free_idx)
+    slot = np.full(model.body_count, -1, dtype=np.int64)
+    slot[free_idx] = np.arange(nf)
+    p, c = model.joint_parent, model.joint_child
+    between = ~fixed[p] & ~fixed[c]
+    joints = np.flatnonzero(between)
+    sp, sc = slot[p[joints]], slot[c[joints]]
+    forest = None if force_dense else _forest(nf, sp, sc)
+    if forest is None:
+        if 12 * nf > DENSE_MAX_DOF and not force_dense:
+            raise ValueError(f'the joints between free bodies form a closed loop and there are '
+                             f'{nf} free bodies: at most {DENSE_MAX_DOF // 12} are supported '
+                             'with a loop (chains and trees of any size are)')
+        z = np.zeros(nf, dtype=np.int64)
+        return Structure(DENSE, z, z - 1, np.zeros(nf + 1, dtype=np.int64),
+                         np.zeros(0, dtype=np.int64), slot, between)
+    order, parent = forest
+    edge_ptr = np.zeros(nf + 1, dtype=np.int64)
+    edge_joints = []
+    for s in range(nf):
+        if parent[s] >= 0:
+            ends = {s, int(parent[s])}
+            edge_joints += [int(j) for j, a, b in zip(joints, sp, sc) if {int(a), int(b)} == ends]
+        edge_ptr[s + 1] = len(edge_joints)
+    return Structure(TREE, order, parent, edge_ptr, np.array(edge_joints, dtype=np.int64), slot, between)
+
+
+@njit(cache=True, error_model='numpy')
+def solve(m, diag, pair, grad, dq):
+    """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite)."""
+    if m.solve_kind == TREE:
+        solve_tree(m, diag, pair, grad, dq)
+    else:
+        solve_dense(m, diag, pair, grad, dq)
+
+
+@njit(cache=True, error_model='numpy')
+def solve_dense(m, diag, pair, grad, dq):
+    """Dense path: H over the free bodies, Cholesky; NaN if not PD."""
+    free_idx, jp, jc = m.free_bodies, m.joint_parent, m.joint_child
+    pair_joints, slot = m.joint_between_free, m.body_slot
+    nf = free_idx.size
+    n = 12 * nf
+    H = np.zeros((n, n))
+    for s in range(nf):
+        b = free_idx[s]
+        for r in range(12):
+            for c in range(12):
+                H[12 * s + r, 12 * s + c] = diag[b, r, c]
+    for j in range(jp.size):
+        if pair_joints[j]:
+            sp, sc = slot[jp[j]], slot[jc[j]]
+            for r in range(12):
+                for c in range(12):
+                    H[12 * sp + r, 12 * sc + c] += pair[j, r, c]
+                    H[12 * sc + c, 12 * sp + r] += pair[j, r, c]
+    x = np.empty(n)
+    for s in range(nf):
+        for r in range(12):
+            x[12 * s + r] = -grad[free_idx[s], r]
+    if not cholesky(H, n):
+        x[:] = np.nan
+    else:
+        lower_solve(H, x, n)
+        upper_solve(H, x, n)
+    for s in range(nf):
+        for r in range(12):
+            dq[free_idx[s], r] = x[12 * s + r]
+
+
+@njit(cache=True, error_model='numpy')
+def solve_tree(m, diag, pair, grad, dq):
+    """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
+    For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
+    D_p −= XᵀX; forward y_k = L_kk⁻¹ b_k, b_p −= Xᵀ y_k; backward x_k = L_kk⁻ᵀ (y_k − X x_p).
+    NaN if not PD."""
+    free_idx, jp, order, eparent = m.free_bodies, m.joint_parent, m.tree_order, m.tree_parent
+    edge_ptr, edge_joint = m.tree_edge_ptr, m.tree_edge_joints
+    nf = free_idx.size
+    W = np.empty((nf, 12, 12))
+    X = np.zeros((nf, 12, 12))
+    y = np.empty((nf, 12))
+    for s in range(nf):
+        b = free_idx[s]
+        for r in range(12):
+            y[s, r] = -grad[b, r]
+            for c in range(12):
+                W[s, r, c] = diag[b, r, c]
+    ok = True
+    col = np.empty(12)
+    for t in range(nf):
+        s = order[t]
+        if not cholesky(W[s], 12):
+            ok = False
+            break
+        p = eparent[s]
+        lower_solve(W[s], y[s], 12)
+        if p < 0:
+            continue
+        bs = free_idx[s]
+        for e in range(edge_ptr[s], edge_ptr[s + 1]):       # U = H[s, p] = Σ pair or pairᵀ
+            j = edge_joint[e]
+            if jp[j] == bs:
+                for r in range(12):
+                    for c in range(12):
+                        X[s, r, c] += pair[j, r, c]
+            else:
+                for r in range(12):
+                    for c in range(12):
+                        X[s, r, c] += pair[j, c, r]
+        for c in range(12):
+            for r in range(12):
+                col[r] = X[s, r, c]
+            lower_solve(W[s], col, 12)
+            for r in range(12):
+                X[s, r, c] = col[r]
+        for r in range(12):
+            for c in range(r, 12):
+                acc = 0.0
+                for k in range(12):
+                    acc += X[s, k, r] * X[s, k, c]
+                W[p, r, c] -= acc
+                if c != r:
+                    W[p, c, r] -= acc
+            acc = 0.0
+            for k in range(12):
+                acc += X[s, k, r] * y[s, k]
+            y[p, r] -= acc
+    if not ok:
+        for s in range(nf):
+            for r in range(12):
+                dq[free_idx[s], r] = np.nan
+        return
+    for t in range(nf - 1, -1, -1):
+        s = order[t]
+        p = eparent[s]
+        if p >= 0:
+            for r in range(12):
+                acc = 0.0
+                for c in range(12):
+                    acc += X[s, r, c] * y[p, c]
+                y[s, r] -= acc
+        upper_solve(W[s], y[s], 12)
+    for s in range(nf):
+        for r in range(12):
+            dq[free_idx[s], r] = y[s, r]

@@ -1,128 +1,150 @@
-"""Newton's method with backtracking line search on the incremental potential.
+"""Newton's method with a backtracking line search on the incremental potential
+(docs/physics.md "Newton"):
 
     Π(q) = (s/2) Σ_free (q − q̃)ᵀ M (q − q̃) + Σ_terms E(q)
 
-with s = 1 (BDF1) or 1/β = 9/4 (BDF2) (PHYSICS.md §2). Each iteration solves H Δq = −∇Π with
-H the sum of PSD(-projected) term Hessians plus sM (so H is positive definite on free DOFs),
-then halves α until Π(q ⊕ αΔq) ≤ Π(q) (roundoff slack ROUNDOFF·|Π|), where q ⊕ Δq applies
-each body's step as a screw motion (solver/retraction.py; = q + Δq to first order).
-Convergence (libuipc defaults): every free body's bounding-box corners move less than
-velocity_tol·h under Δq, and max |Δq[3:12]| ≤ transrate_tol·h; and (ours) the Newton
-decrement −½∇Πᵀ Δq, the predicted distance in energy to the minimum, is below what moving
-all bodies by velocity_tol·h costs in the mass metric, s·½Σm(velocity_tol·h)². When H ≈ sM
-the two tests agree; with a stiff mode (the ortho twist of a stretched A, large dt) a
-step-size test alone accepts tiny steps far from the minimiser (docs/decisions.md). Hitting max_iterations, a
-failed line search or a non-finite value is returned as a Status, never hidden.
+Each iteration solves H Δq = −∇Π (H = sM + the PSD-projected term Hessians, positive
+definite on the free bodies), then halves α until Π(q ⊕ αΔq) ≤ Π(q) + ROUNDOFF·|Π|, where
+⊕ applies each body's step as a screw motion (retraction.py; = q + Δq to first order).
+Converged (libuipc's tests, plus ours): every free body's bounding-box corners move less
+than velocity_tol·h under Δq, max |Δq[3:12]| ≤ transrate_tol·h, and the Newton decrement
+−½∇ΠᵀΔq is at most s·½Σm(velocity_tol·h)², what moving every body by the displacement
+tolerance costs in the mass metric. A decrement below ROUNDOFF·|Π| is converged whatever
+the tolerances (double precision can do no better). Max iterations, a failed line search
+and a non-finite value are returned as a status, never hidden.
+
+`potential` and `assemble` are the step's list of terms: a new energy term is one line in
+each (and its module in terms/).
 """
 from __future__ import annotations
 
-import enum
-from dataclasses import dataclass
+import math
 
 import numpy as np
+from numba import njit
 
-from .retraction import ScrewRetraction
+from ..terms import driving, inertia, limit, ortho, revolute
+from . import linsolve
+from .retraction import retract
 
 # Every term of Π is nonnegative and computed without cancellation, so Π's rounding error
 # is a small multiple of eps·Π; below this relative decrement Newton cannot improve q.
 ROUNDOFF = 1e-12
+# status codes (report.Status)
+CONVERGED, MAX_ITERATIONS, LINE_SEARCH_FAILED, NONFINITE = 0, 1, 2, 3
 
 
-class Status(enum.Enum):
-    CONVERGED = 'converged'
-    MAX_ITERATIONS = 'max_iterations'
-    LINE_SEARCH_FAILED = 'line_search_failed'
-    NONFINITE = 'nonfinite'
+@njit(cache=True, error_model='numpy')
+def potential(q, m, ctx):
+    """Π(q)."""
+    E = inertia.energy(q, m, ctx)
+    E += ortho.energy(q, m, ctx)            # UID 1, shape
+    E += revolute.energy(q, m, ctx)         # UID 18
+    E += driving.energy(q, m, ctx)          # UID 19 (0 without drives)
+    E += limit.energy(q, m, ctx)            # UID 670 (0 inside the limits)
+    return E
 
 
-@dataclass(frozen=True)
-class NewtonResult:
-    q: np.ndarray
-    status: Status
-    iterations: int
-    line_search_iterations: int
-    last_step_size: float       #: [m] largest corner displacement in the last Newton step
+@njit(cache=True, error_model='numpy')
+def assemble(q, m, ctx, grad, diag, pair):
+    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the blocks diag, pair."""
+    grad[:] = 0.0
+    diag[:] = 0.0
+    pair[:] = 0.0
+    inertia.accumulate(q, m, ctx, grad, diag, pair, True)
+    ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
+    revolute.accumulate(q, m, ctx, grad, diag, pair, True)     # UID 18
+    driving.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 19
+    limit.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 670
 
 
-class NewtonSolver:
-    def __init__(self, model, terms, system):
-        self.model = model
-        self.terms = terms
-        self.system = system
-        self.free = ~model.body_fixed
-        self.retract = ScrewRetraction(model)
-        self.M_free = np.ascontiguousarray(model.body_M[self.free])
+@njit(cache=True, error_model='numpy')
+def all_finite(x):
+    for b in range(x.shape[0]):
+        for r in range(x.shape[1]):
+            if not math.isfinite(x[b, r]):
+                return False
+    return True
 
-    def potential(self, q, q_tilde, scale, ctx) -> float:
-        d = (q - q_tilde)[self.free]
-        E = 0.5 * scale * float(np.sum(np.matmul(self.M_free, d[:, :, None])[:, :, 0] * d))
-        for term in self.terms:
-            E += term.energy(q, ctx)
-        return E
 
-    def minimize(self, q_start, q_tilde, scale, ctx, q_other=None) -> NewtonResult:
-        """Minimise Π from q_start, or from `q_other` if Π is lower there (World._single
-        passes the warm start and q̃: the better guess wins, so a warm start never starts
-        Newton at a higher Π than the plain prediction would)."""
-        m = self.model
-        spec = m.newton
-        h = ctx.h
-        B, J = m.body_count, m.joint_count
-        q = q_start.copy()
-        free = self.free
-        corners = m.body_corners[free]
-        ls_total = 0
-        E = self.potential(q, q_tilde, scale, ctx)
-        if q_other is not None:
-            E_other = self.potential(q_other, q_tilde, scale, ctx)
-            if E_other < E:
-                q, E = q_other.copy(), E_other
-        disp = np.inf
-        # the energy that moving every body by velocity_tol·h costs in the mass metric
-        energy_tol = 0.5 * float(np.sum(m.body_mass[free])) * (spec.velocity_tol * h) ** 2
-        for it in range(1, spec.max_iterations + 1):
-            grad = np.zeros((B, 12))
-            diag = np.zeros((B, 12, 12))
-            pair = np.zeros((J, 12, 12))
-            grad[free] = scale * np.matmul(self.M_free, (q - q_tilde)[free][:, :, None])[:, :, 0]
-            diag[free] = scale * self.M_free
-            for term in self.terms:
-                term.accumulate(q, ctx, grad, diag, pair)
-            dq = self.system.solve(diag, pair, grad)
-            if not np.all(np.isfinite(dq)):
-                return NewtonResult(q, Status.NONFINITE, it, ls_total, np.inf)
-            dqf = dq[free]
-            move = dqf[:, None, :3] + np.matmul(corners, dqf[:, 3:12].reshape(-1, 3, 3).transpose(0, 2, 1))
-            disp = float(np.max(np.linalg.norm(move, axis=2))) if len(dqf) else 0.0
-            rate = float(np.max(np.abs(dqf[:, 3:12]))) if len(dqf) else 0.0
-            decrement = -0.5 * float(np.sum(grad[free] * dqf))      # ≈ Π(q) − min Π
-            converged = (disp <= spec.velocity_tol * h and rate <= spec.transrate_tol * h
-                         and decrement <= scale * energy_tol)
-            # At the roundoff floor the line search cannot see a decrease any more: when the
-            # predicted decrease −½gᵀΔq is below the rounding error of Π, q is as good as
-            # double precision allows, whatever the tolerances ask.
-            if decrement <= ROUNDOFF * abs(E):
-                return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
-            alpha = 1.0
-            # The step follows rigid screw motions (solver/retraction.py): a stiff body turns
-            # without stretching. Once the tolerances hold only the full step is tried:
-            # whether it lowers Π is then decided by rounding, and halving would only spend
-            # iterations.
-            for _ in range(spec.line_search_max):
-                trial = self.retract(q, alpha * dq)
-                E_new = self.potential(trial, q_tilde, scale, ctx)
-                if E_new <= E + ROUNDOFF * abs(E):
-                    break
-                if converged:      # the step is below tolerance: q is as good
-                    return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
-                alpha *= 0.5
-                ls_total += 1
-            else:
-                return NewtonResult(q, Status.LINE_SEARCH_FAILED, it, ls_total, disp)
-            if not np.isfinite(E_new):
-                return NewtonResult(q, Status.NONFINITE, it, ls_total, disp)
-            q = trial
-            E = E_new
-            if converged and alpha == 1.0:     # a cut step left part of Δq undone: go on
-                return NewtonResult(q, Status.CONVERGED, it, ls_total, disp)
-        return NewtonResult(q, Status.MAX_ITERATIONS, spec.max_iterations, ls_total, disp)
+@njit(cache=True, error_model='numpy')
+def step_within_tolerance(dq, m, h):
+    """libuipc's tests: the largest bounding-box corner displacement under Δq ≤ velocity_tol·h
+    and max |Δq[3:12]| ≤ transrate_tol·h."""
+    disp = 0.0
+    rate = 0.0
+    corners = m.body_corners
+    for b in m.free_bodies:
+        for i in range(8):
+            n2 = 0.0
+            for r in range(3):
+                x = dq[b, r]
+                for c in range(3):
+                    x += corners[b, i, c] * dq[b, 3 + 3 * r + c]
+                n2 += x * x
+            d = math.sqrt(n2)
+            if d > disp or d != d:
+                disp = d
+        for a in range(3, 12):
+            x = abs(dq[b, a])
+            if x > rate or x != x:
+                rate = x
+    return disp <= m.velocity_tol * h and rate <= m.transrate_tol * h
+
+
+@njit(cache=True, error_model='numpy')
+def minimize(m, ctx, q):
+    """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (the
+    warm start never starts Newton above the plain prediction). Returns
+    (status, iterations, line-search halvings)."""
+    h, scale = ctx.h, ctx.scale
+    B, J = q.shape[0], m.joint_parent.size
+    E = potential(q, m, ctx)
+    E_tilde = potential(ctx.q_tilde, m, ctx)
+    if E_tilde < E:
+        q[:] = ctx.q_tilde
+        E = E_tilde
+    energy_tol = 0.5 * m.free_mass * (m.velocity_tol * h) ** 2
+    grad = np.empty((B, 12))
+    diag = np.empty((B, 12, 12))
+    pair = np.empty((J, 12, 12))
+    dq = np.zeros((B, 12))
+    trial = np.empty_like(q)
+    halvings = 0
+    for it in range(1, m.max_iterations + 1):
+        assemble(q, m, ctx, grad, diag, pair)
+        linsolve.solve(m, diag, pair, grad, dq)
+        if not all_finite(dq):
+            return NONFINITE, it, halvings
+        dec = 0.0
+        for b in m.free_bodies:
+            for r in range(12):
+                dec += grad[b, r] * dq[b, r]
+        decrement = -0.5 * dec                  # ≈ Π(q) − min Π
+        converged = step_within_tolerance(dq, m, h) and decrement <= scale * energy_tol
+        if decrement <= ROUNDOFF * abs(E):
+            return CONVERGED, it, halvings
+        # Once the tolerances hold only the full step is tried: whether it lowers Π is then
+        # decided by rounding, and halving would only spend iterations.
+        alpha = 1.0
+        found = False
+        E_new = E
+        for _ in range(m.line_search_max):
+            retract(q, dq, alpha, m, trial)
+            E_new = potential(trial, m, ctx)
+            if E_new <= E + ROUNDOFF * abs(E):
+                found = True
+                break
+            if converged:
+                break
+            alpha *= 0.5
+            halvings += 1
+        if not found:
+            return (CONVERGED if converged else LINE_SEARCH_FAILED), it, halvings
+        if not math.isfinite(E_new):
+            return NONFINITE, it, halvings
+        q[:] = trial
+        E = E_new
+        if converged and alpha == 1.0:          # a cut step left part of Δq undone: go on
+            return CONVERGED, it, halvings
+    return MAX_ITERATIONS, m.max_iterations, halvings

@@ -26,24 +26,15 @@ removed (a rigid shift of the group: no joint or body is strained by it).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 SCREW_STRAIN = 1e-2   # max |A Aᵀ − I| up to which a body's step is applied as a screw
 # [rad] below: Taylor series of the screw coefficients to θ⁶ (truncation < 1e-21 relative);
 # above, the closed forms lose ~eps/θ² to cancellation (< 3e-12 relative)
 SMALL_ANGLE = 1e-2
-
-
-def screw_coefficients(theta):
-    """(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ), accurate at θ → 0."""
-    t2 = theta * theta
-    small = theta < SMALL_ANGLE
-    safe = np.where(small, 1.0, theta)
-    s = np.where(small, 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)), np.sin(safe) / safe)
-    c = np.where(small, 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0)),
-                 (1.0 - np.cos(safe)) / (safe * safe))
-    b = np.where(small, t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)), (safe - np.sin(safe)) / safe)
-    return s, c, b
 
 
 def floating_groups(model):
@@ -66,56 +57,125 @@ def floating_groups(model):
     return np.array([labels.get(r, -1) for r in roots.tolist()], dtype=np.int64)
 
 
-class ScrewRetraction:
-    """q ⊕ Δq for one model: the free bodies, their floating groups and masses."""
-
-    def __init__(self, model):
-        self.bodies = np.flatnonzero(~model.body_fixed)
-        group = floating_groups(model)[self.bodies]
-        self.floating = group >= 0
-        self.group = group[self.floating]
-        self.groups = int(self.group.max()) + 1 if len(self.group) else 0
-        mass = model.body_mass[self.bodies][self.floating]
-        self.share = mass / np.bincount(self.group, mass, self.groups)[self.group]
-
-    def __call__(self, q, dq):
-        return retract(q, dq, self.bodies, self)
+def floating_groups_and_shares(model):
+    """(group (B,), share (B,), group count): the floating group of each free body (-1 for
+    fixed bodies and those jointed to one) and its mass share m_b / Σ m of the group."""
+    group = floating_groups(model)
+    group[model.body_fixed] = -1
+    groups = int(group.max()) + 1 if len(group) and group.max() >= 0 else 0
+    share = np.zeros(model.body_count)
+    on = group >= 0
+    if groups:
+        total = np.bincount(group[on], model.body_mass[on], groups)
+        share[on] = model.body_mass[on] / total[group[on]]
+    return group, share, groups
 
 
-def retract(q, dq, bodies, momentum=None):
-    """q with the step dq applied to `bodies` as screw motions (module docstring); with
-    `momentum` (a ScrewRetraction), each floating group's mean turn translation removed."""
-    out = q + dq
-    if len(bodies) == 0:
-        return out
-    A = q[bodies, 3:12].reshape(-1, 3, 3)
-    rigid = np.abs(np.matmul(A, A.transpose(0, 2, 1)) - np.eye(3)).max(axis=(1, 2)) <= SCREW_STRAIN
-    dA = dq[bodies, 3:12].reshape(-1, 3, 3) * rigid[:, None, None]
-    t = dq[bodies, :3] * rigid[:, None]
-    S = np.matmul(dA, np.linalg.inv(np.where(rigid[:, None, None], A, np.eye(3))))
-    w = 0.5 * np.stack([S[:, 2, 1] - S[:, 1, 2], S[:, 0, 2] - S[:, 2, 0], S[:, 1, 0] - S[:, 0, 1]], axis=1)
-    W = np.zeros_like(S)
-    W[:, 2, 1], W[:, 1, 2] = w[:, 0], -w[:, 0]
-    W[:, 0, 2], W[:, 2, 0] = w[:, 1], -w[:, 1]
-    W[:, 1, 0], W[:, 0, 1] = w[:, 2], -w[:, 2]
-    theta2 = np.sum(w * w, axis=1)
-    theta = np.sqrt(theta2)
-    s, c, b = screw_coefficients(theta)
-    # exp(W)(A + D) − (A + ΔA) = −b W A + s W D + c W²(A + D) (Rodrigues, s − 1 = −b): added
-    # to q + Δq as a correction of order θ², so that a tiny step rounds exactly like q + Δq
-    WA = np.matmul(W, A)
-    D = dA - WA
-    corr = (-b[:, None, None] * WA + s[:, None, None] * np.matmul(W, D)
-            + c[:, None, None] * np.matmul(W, np.matmul(W, A + D)))
-    out[bodies, 3:12] += corr.reshape(-1, 9)
-    # p' − p = t + (exp(W) − I − W)(p − c) = t + c(θ)·ω×t − b(θ)·t⊥, with W(p − c) = t⊥
-    wt = np.sum(w * t, axis=1)
-    t_perp = t - w * np.where(theta2 > 0, wt / np.where(theta2 > 0, theta2, 1.0), 0.0)[:, None]
-    turn = c[:, None] * np.cross(w, t) - b[:, None] * t_perp
-    if momentum is not None and momentum.groups:
-        f = momentum.floating
-        mean = np.zeros((momentum.groups, 3))
-        np.add.at(mean, momentum.group, momentum.share[:, None] * turn[f])
-        turn[f] -= mean[momentum.group]
-    out[bodies, :3] += turn
-    return out
+@njit(cache=True, error_model='numpy')
+def screw_coefficients(th):
+    """(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ), accurate at θ → 0 (series below SMALL_ANGLE)."""
+    th2 = th * th
+    if th < SMALL_ANGLE:
+        cb = th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
+        cs = 1.0 - cb
+        cc = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
+        return cs, cc, cb
+    return math.sin(th) / th, (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / th
+
+
+@njit(cache=True, error_model='numpy')
+def retract(q, dq, alpha, m, out):
+    """out = q ⊕ α·dq: each free body moved along the screw motion of its step, the floating
+    groups' mean turn translation removed."""
+    free_idx, group, share, ngroups = m.free_bodies, m.body_group, m.group_share, m.group_count
+    mean = np.zeros((max(ngroups, 1), 3))
+    nf = len(free_idx)
+    for g in range(ngroups):
+        mean[g, 0] = mean[g, 1] = mean[g, 2] = 0.0
+    for b in range(q.shape[0]):
+        for r in range(12):
+            out[b, r] = q[b, r] + alpha * dq[b, r]
+    W = np.empty((3, 3))
+    R = np.empty((3, 3))
+    AD = np.empty((3, 3))
+    corr_wd = np.empty((3, 3))
+    Y = np.empty((3, 3))
+    Ainv = np.empty((3, 3))
+    for k in range(nf):
+        b = free_idx[k]
+        strain = 0.0
+        for i in range(3):
+            for j in range(3):
+                acc = -1.0 if i == j else 0.0
+                for c in range(3):
+                    acc += q[b, 3 + 3 * i + c] * q[b, 3 + 3 * j + c]
+                strain = max(strain, abs(acc))
+        if not strain <= SCREW_STRAIN:          # far from a rotation: the linear step
+            continue
+        # spin W = skew(ΔA A⁻¹) as the axial vector w; A⁻¹ = adj(A)/det A
+        for i in range(3):
+            for j in range(3):
+                i1, i2, j1, j2 = (j + 1) % 3, (j + 2) % 3, (i + 1) % 3, (i + 2) % 3
+                Ainv[i, j] = (q[b, 3 + 3 * i1 + j1] * q[b, 3 + 3 * i2 + j2]
+                              - q[b, 3 + 3 * i1 + j2] * q[b, 3 + 3 * i2 + j1])
+        det = q[b, 3] * Ainv[0, 0] + q[b, 4] * Ainv[1, 0] + q[b, 5] * Ainv[2, 0]
+        S = np.zeros((3, 3))
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for c in range(3):
+                    acc += dq[b, 3 + 3 * i + c] * Ainv[c, j]
+                S[i, j] = alpha * acc / det
+        w0 = 0.5 * (S[2, 1] - S[1, 2])
+        w1 = 0.5 * (S[0, 2] - S[2, 0])
+        w2 = 0.5 * (S[1, 0] - S[0, 1])
+        W[0, 0] = W[1, 1] = W[2, 2] = 0.0
+        W[2, 1], W[1, 2] = w0, -w0
+        W[0, 2], W[2, 0] = w1, -w1
+        W[1, 0], W[0, 1] = w2, -w2
+        th2 = w0 * w0 + w1 * w1 + w2 * w2
+        th = math.sqrt(th2)
+        cs, cc, cb = screw_coefficients(th)
+        # exp(W)(A + D) − (A + ΔA) = −b W A + s W D + c W²(A + D), D = ΔA − W A: added to
+        # q + αΔq (retraction.py: a tiny step rounds like the linear one)
+        for i in range(3):
+            for j in range(3):
+                wa = 0.0
+                for c in range(3):
+                    wa += W[i, c] * q[b, 3 + 3 * c + j]
+                R[i, j] = wa                                          # W A
+                AD[i, j] = alpha * dq[b, 3 + 3 * i + j] - wa          # D
+        for i in range(3):
+            for j in range(3):
+                wd = 0.0
+                for c in range(3):
+                    wd += W[i, c] * AD[c, j]
+                corr_wd[i, j] = wd                                    # W D
+                Y[i, j] = R[i, j] + wd                                # W (A + D)
+        for i in range(3):
+            for j in range(3):
+                wwad = 0.0
+                for c in range(3):
+                    wwad += W[i, c] * Y[c, j]
+                out[b, 3 + 3 * i + j] += -cb * R[i, j] + cs * corr_wd[i, j] + cc * wwad
+        t0, t1, t2 = alpha * dq[b, 0], alpha * dq[b, 1], alpha * dq[b, 2]
+        wt = w0 * t0 + w1 * t1 + w2 * t2
+        f = wt / th2 if th2 > 0.0 else 0.0
+        u0 = cc * (w1 * t2 - w2 * t1) - cb * (t0 - w0 * f)
+        u1 = cc * (w2 * t0 - w0 * t2) - cb * (t1 - w1 * f)
+        u2 = cc * (w0 * t1 - w1 * t0) - cb * (t2 - w2 * f)
+        out[b, 0] += u0
+        out[b, 1] += u1
+        out[b, 2] += u2
+        g = group[b]
+        if g >= 0:
+            mean[g, 0] += share[b] * u0
+            mean[g, 1] += share[b] * u1
+            mean[g, 2] += share[b] * u2
+    if ngroups > 0:
+        for k in range(nf):
+            b = free_idx[k]
+            g = group[b]
+            if g >= 0:
+                for r in range(3):
+                    out[b, r] -= mean[g, r]

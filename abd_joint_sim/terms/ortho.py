@@ -1,79 +1,101 @@
-"""OrthoPotential (libuipc UID 1): the affine body's shape energy, PHYSICS.md §1-2.
+"""Orthogonality potential, libuipc UID 1 (docs/physics.md "Shape energy (UID 1)"):
 
-    E = h² κ v̄ ‖A Aᵀ − I‖²_F                        (h² because it is a potential)
-    ∂E/∂A = 4 h² κ v̄ C A,  C = A Aᵀ − I
-    ∂²E/∂A_ik ∂A_jl = 4 h² κ v̄ [δ_ij (AᵀA)_lk + A_il A_jk + C_ij δ_kl]
+    E = h² Σ_free κ v̄ ‖A Aᵀ − I‖²_F,   C = A Aᵀ − I,   ∇_A E = 4 h² κ v̄ C A
 
-The energy is non-convex (it has saddles where A is not near SO(3)), so its 9x9 Hessian is
-projected to PSD by eigenvalue clamping before use. E depends on A only through its singular
-values, E = h²κv̄ Σ_k (σ_k² − 1)², so its eigensystem is analytic (Smith et al. 2019, "Analytic
-eigensystems for isotropic distortion energies"): with A = U Σ Vᵀ and P_ij = u_i v_jᵀ,
-    scaling P_kk:              λ = 4w (3σ_k² − 1)
-    flip   (P_ij + P_ji)/√2:   λ = 4w (σ_i² + σ_iσ_j + σ_j² − 1)
-    twist  (P_ij − P_ji)/√2:   λ = 4w (σ_i² − σ_iσ_j + σ_j² − 1)
-(w = h²κv̄). Clamping these needs a batched 3x3 SVD instead of a 9x9 eigendecomposition;
-test_terms.py checks the result against the raw Hessian and its eigenvalues. Built over free bodies only: fixed bodies
-never move, so their shape energy is a constant.
+Hessian (vec A row-major, index 3i+k): 4h²κv̄ [δ_ij (AᵀA)_lk + A_il A_jk + C_ij δ_kl]. It is
+indefinite away from SO(3); its PSD projection comes from the analytic eigensystem of
+A = U Σ Vᵀ: eigenvectors vec(u_i v_iᵀ) with λ = 3σ_i² − 1, and (u_i v_jᵀ ± u_j v_iᵀ)/√2 with
+λ = σ_i² + σ_j² − 1 ± σ_i σ_j (i < j), times 4h²κv̄; negative λ are clamped to 0.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
-from .base import EnergyTerm
-
-
-class OrthoPotential(EnergyTerm):
-    name = 'ortho_potential'
-    uid = 1
-
-    def __init__(self, model, bodies):
-        self.bodies = bodies
-        self.weight = model.body_kappa[bodies] * model.body_volume[bodies]   # κ v̄
-
-    @classmethod
-    def build(cls, model):
-        free = np.flatnonzero(~model.body_fixed)
-        return cls(model, free) if len(free) else None
-
-    def _A(self, q):
-        return q[self.bodies, 3:12].reshape(-1, 3, 3)
-
-    def energy(self, q, ctx):
-        A = self._A(q)
-        C = A @ A.transpose(0, 2, 1) - np.eye(3)
-        return ctx.h ** 2 * float(np.dot(self.weight, (C * C).sum(axis=(1, 2))))
-
-    def accumulate(self, q, ctx, grad, diag, pair, project=True):
-        A = self._A(q)
-        C = A @ A.transpose(0, 2, 1) - np.eye(3)
-        w = 4.0 * ctx.h ** 2 * self.weight
-        grad[self.bodies, 3:12] += (w[:, None, None] * (C @ A)).reshape(-1, 9)
-        if project:
-            H = projected_hessian(A)
-        else:
-            AtA = A.transpose(0, 2, 1) @ A
-            eye = np.eye(3)
-            H = (np.einsum('ij,blk->bikjl', eye, AtA)
-                 + np.einsum('bil,bjk->bikjl', A, A)
-                 + np.einsum('bij,kl->bikjl', C, eye)).reshape(-1, 9, 9)
-        diag[self.bodies, 3:12, 3:12] += w[:, None, None] * H
+from ..smallmat import svd3
 
 
-_PAIRS = ((0, 1), (0, 2), (1, 2))
+@njit(cache=True, error_model='numpy')
+def energy(q, m, ctx):
+    weight = m.ortho_weight
+    E = 0.0
+    for b in m.free_bodies:
+        acc = 0.0
+        for r in range(3):
+            for c in range(3):
+                x = (q[b, 3 + 3 * r] * q[b, 3 + 3 * c] + q[b, 4 + 3 * r] * q[b, 4 + 3 * c]
+                     + q[b, 5 + 3 * r] * q[b, 5 + 3 * c])
+                if r == c:
+                    x -= 1.0
+                acc += x * x
+        E += weight[b] * acc
+    return ctx.h * ctx.h * E
 
 
-def projected_hessian(A):
-    """PSD projection of ∂²‖AAᵀ − I‖²/∂A² / 4 for a batch of A (b,3,3) -> (b,9,9)."""
-    U, S, Vh = np.linalg.svd(A)
-    # P[b,i,j] = vec(u_i v_jᵀ), by broadcasting (einsum is slow for such small batches)
-    P = (U.transpose(0, 2, 1)[:, :, None, :, None] * Vh[:, None, :, None, :]).reshape(-1, 3, 3, 9)
-    vecs = [P[:, k, k] for k in range(3)]
-    lam = [3 * S[:, k] ** 2 - 1 for k in range(3)]
-    r2 = np.sqrt(0.5)
-    for i, j in _PAIRS:
-        sq = S[:, i] ** 2 + S[:, j] ** 2 - 1
-        vecs += [r2 * (P[:, i, j] + P[:, j, i]), r2 * (P[:, i, j] - P[:, j, i])]
-        lam += [sq + S[:, i] * S[:, j], sq - S[:, i] * S[:, j]]
-    V = np.stack(vecs, axis=1)                                       # (b,9 modes,9)
-    L = np.maximum(np.stack(lam, axis=1), 0.0)
-    return np.matmul(V.transpose(0, 2, 1) * L[:, None, :], V)
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    A = np.empty((3, 3))
+    C = np.empty((3, 3))
+    vecs = np.empty((9, 9))
+    lam = np.empty(9)
+    U = np.empty((3, 3))
+    S = np.empty(3)
+    V = np.empty((3, 3))
+    r2 = math.sqrt(0.5)
+    hh = ctx.h * ctx.h
+    weight = m.ortho_weight
+    for b in m.free_bodies:
+        for r in range(3):
+            for c in range(3):
+                A[r, c] = q[b, 3 + 3 * r + c]
+        for r in range(3):
+            for c in range(3):
+                C[r, c] = A[r, 0] * A[c, 0] + A[r, 1] * A[c, 1] + A[r, 2] * A[c, 2]
+            C[r, r] -= 1.0
+        w = 4.0 * hh * weight[b]
+        for r in range(3):
+            for c in range(3):
+                grad[b, 3 + 3 * r + c] += w * (C[r, 0] * A[0, c] + C[r, 1] * A[1, c] + C[r, 2] * A[2, c])
+        if not project:
+            for i in range(3):
+                for k in range(3):
+                    for j in range(3):
+                        for l in range(3):
+                            AtA = A[0, l] * A[0, k] + A[1, l] * A[1, k] + A[2, l] * A[2, k]
+                            x = A[i, l] * A[j, k]
+                            if i == j:
+                                x += AtA
+                            if k == l:
+                                x += C[i, j]
+                            diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
+            continue
+        svd3(A, U, S, V)
+        # P_ij = vec(u_i v_jᵀ): P_ij[3r + c] = U[r, i] V[c, j]
+        n = 0
+        for i in range(3):
+            for r in range(3):
+                for c in range(3):
+                    vecs[n, 3 * r + c] = U[r, i] * V[c, i]
+            lam[n] = 3 * S[i] ** 2 - 1
+            n += 1
+        for pi in range(3):
+            i = 0 if pi < 2 else 1
+            j = 1 if pi == 0 else 2
+            sq = S[i] ** 2 + S[j] ** 2 - 1
+            for r in range(3):
+                for c in range(3):
+                    pij = U[r, i] * V[c, j]
+                    pji = U[r, j] * V[c, i]
+                    vecs[n, 3 * r + c] = r2 * (pij + pji)
+                    vecs[n + 1, 3 * r + c] = r2 * (pij - pji)
+            lam[n] = sq + S[i] * S[j]
+            lam[n + 1] = sq - S[i] * S[j]
+            n += 2
+        for a in range(9):
+            for c in range(9):
+                acc = 0.0
+                for k in range(9):
+                    acc += vecs[k, a] * max(lam[k], 0.0) * vecs[k, c]
+                diag[b, 3 + a, 3 + c] += w * acc

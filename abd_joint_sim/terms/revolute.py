@@ -1,69 +1,121 @@
-"""Revolute joint (libuipc UID 18), PHYSICS.md §3.
+"""Revolute joint, libuipc UID 18 (docs/physics.md "Revolute joint (UID 18)"): the two
+anchors P0, P1 stored in each body's rest frame (x̄0_k, x̄1_k, same order on both bodies)
+are pulled together by
 
-    E = K/2 (‖J(x̄0_i) q_i − J(x̄0_j) q_j‖² + ‖J(x̄1_i) q_i − J(x̄1_j) q_j‖²),  K = γ (m_i + m_j)
+    E = K/2 Σ_{a ∈ {P0, P1}} |x_i^a − x_j^a|²,   x_k^a = A_k x̄_k^a + p_k = J(x̄_k^a) q_k,
+    K = γ (m_i + m_j)   (γ = strength_ratio)
 
-No h² factor: its physical spring constant is γ(m_i+m_j)/h². E is quadratic in q, so its
-24x24 Hessian on [q_i, q_j] is constant and PSD; it is precomputed in the Model
-(`joint_hessian`) and the gradient is one batched mat-vec.
+computed from the separations (no cancellation, docs/decisions.md). ∇E = K Σ_a D_aᵀ d_a
+with d_a = x_i^a − x_j^a, D_a = [J(x̄_i^a), −J(x̄_j^a)]; the Hessian K Σ_a D_aᵀD_a is
+constant and PSD (model.joint_hessian). It carries no h²: its physical potential is E/h².
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
-
-from ..model import point_jacobian
-from .base import EnergyTerm, PairScatter
-
-ALL = tuple(range(12))
+from numba import njit
 
 
-class RevoluteJoint(EnergyTerm):
-    name = 'revolute_joint'
-    uid = 18
-
-    def __init__(self, model):
-        self.model = model
-        self.joints = np.arange(model.joint_count)
-        # rest anchors per side k: (J, anchor a, 3)
-        self.xbar = [np.stack([model.joint_anchor0[:, k], model.joint_anchor1[:, k]], axis=1) for k in (0, 1)]
-        self.scatter = PairScatter(model, self.joints, ALL)
-
-    @classmethod
-    def build(cls, model):
-        return cls(model) if model.joint_count else None
-
-    def _separations(self, q):
-        """x_i − x_j of both anchor pairs, x = A x̄ + p: (J,2,3). Computed as differences of
-        positions, not as zᵀHz, whose terms (K|x|²) cancel catastrophically."""
-        m = self.model
-        out = []
-        for k, body in enumerate((m.joint_parent, m.joint_child)):
-            A = q[body, 3:12].reshape(-1, 3, 3)
-            out.append(np.matmul(self.xbar[k], A.transpose(0, 2, 1)) + q[body, None, :3])
-        return out[0] - out[1]
-
-    def energy(self, q, ctx):
-        d = self._separations(q)
-        return 0.5 * float(np.dot(self.model.joint_K, (d * d).sum(axis=(1, 2))))
-
-    def accumulate(self, q, ctx, grad, diag, pair, project=True):
-        d = self.model.joint_K[:, None, None] * self._separations(q)      # K (x_i − x_j)
-        n = len(self.joints)
-        g = np.empty((n, 24))
-        for k, sign in ((0, 1.0), (1, -1.0)):
-            # ∂/∂p = Σ_a K d_a,  ∂/∂A = Σ_a K d_a x̄_aᵀ
-            g[:, 12 * k:12 * k + 3] = sign * d.sum(axis=1)
-            g[:, 12 * k + 3:12 * k + 12] = sign * np.matmul(d.transpose(0, 2, 1), self.xbar[k]).reshape(n, 9)
-        self.scatter.gradient(g, grad)
-        self.scatter.hessian(self.model.joint_hessian, diag, pair)
+@njit(cache=True, error_model='numpy')
+def separation(q, i_body, j_body, x_bar, j, a, d):
+    """d = x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body
+    (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor). [m]"""
+    for r in range(3):
+        xi = q[i_body, r]
+        xj = q[j_body, r]
+        for c in range(3):
+            xi += q[i_body, 3 + 3 * r + c] * x_bar[j, 0, a, c]
+            xj += q[j_body, 3 + 3 * r + c] * x_bar[j, 1, a, c]
+        d[r] = xi - xj
 
 
-def joint_separation(model, q) -> np.ndarray:
-    """Largest distance between the two bodies' copies of P0 or P1, per joint. [m] (J,)"""
-    if model.joint_count == 0:
-        return np.zeros(0)
-    out = []
-    for anchors in (model.joint_anchor0, model.joint_anchor1):
-        xi = np.einsum('jrk,jk->jr', point_jacobian(anchors[:, 0]), q[model.joint_parent])
-        xj = np.einsum('jrk,jk->jr', point_jacobian(anchors[:, 1]), q[model.joint_child])
-        out.append(np.linalg.norm(xi - xj, axis=1))
-    return np.maximum(*out)
+@njit(cache=True, error_model='numpy')
+def joint_separation(q, m, j):
+    """max_a |x_i^a − x_j^a| of joint j (NaN wins). [m]"""
+    return _joint_separation(q, m.joint_parent[j], m.joint_child[j], m.joint_x_bar, j, np.empty(3))
+
+
+@njit(cache=True, error_model='numpy')
+def _joint_separation(q, i_body, j_body, x_bar, j, d):
+    out = 0.0
+    for a in range(2):
+        separation(q, i_body, j_body, x_bar, j, a, d)
+        n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if n > out or n != n:
+            out = n
+    return out
+
+
+@njit(cache=True, error_model='numpy')
+def max_separation(q, m):
+    """The largest joint separation over all joints (0 without joints; NaN wins). [m]"""
+    parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
+    d = np.empty(3)
+    out = 0.0
+    for j in range(parent.size):
+        n = _joint_separation(q, parent[j], child[j], x_bar, j, d)
+        if n > out or n != n:
+            out = n
+    return out
+
+
+@njit(cache=True, error_model='numpy')
+def check_separations(q, m):
+    """(largest separation, whether a joint exceeds m.joint_warn_separation, the first joint
+    beyond m.joint_fault_separation or -1). [m]"""
+    parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
+    warn, fault = m.joint_warn_separation, m.joint_fault_separation
+    d = np.empty(3)
+    largest = 0.0
+    overloaded = False
+    apart = -1
+    for j in range(parent.size):
+        n = _joint_separation(q, parent[j], child[j], x_bar, j, d)
+        if n > largest or n != n:
+            largest = n
+        if n > warn[j]:
+            overloaded = True
+        if not n <= fault[j] and apart < 0:
+            apart = j
+    return largest, overloaded, apart
+
+
+@njit(cache=True, error_model='numpy')
+def energy(q, m, ctx):
+    parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
+    d = np.empty(3)
+    E = 0.0
+    for j in range(parent.size):
+        acc = 0.0
+        for a in range(2):
+            separation(q, parent[j], child[j], x_bar, j, a, d)
+            acc += d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+        E += K[j] * acc
+    return 0.5 * E
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    Kd = np.empty((2, 3))
+    d = np.empty(3)
+    parent, child, x_bar, H, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_hessian, m.joint_K
+    for j in range(parent.size):
+        i_body, j_body = parent[j], child[j]
+        for a in range(2):
+            separation(q, i_body, j_body, x_bar, j, a, d)
+            for r in range(3):
+                Kd[a, r] = K[j] * d[r]
+        for side in range(2):
+            b = i_body if side == 0 else j_body
+            sign = 1.0 if side == 0 else -1.0
+            for r in range(3):
+                grad[b, r] += sign * (Kd[0, r] + Kd[1, r])
+                for c in range(3):
+                    grad[b, 3 + 3 * r + c] += sign * (Kd[0, r] * x_bar[j, side, 0, c]
+                                                      + Kd[1, r] * x_bar[j, side, 1, c])
+        for r in range(12):
+            for c in range(12):
+                diag[i_body, r, c] += H[j, r, c]
+                diag[j_body, r, c] += H[j, 12 + r, 12 + c]
+                pair[j, r, c] += H[j, r, 12 + c]

@@ -1,0 +1,111 @@
+"""Where numba keeps the compiled physics kernels, so they compile once per install.
+
+numba's default cache sits beside each source file (`__pycache__`), keyed on the file's
+directory: the source tree (tests) and a colcon install space (sim_node) are two copies of
+the same files, so each compiled the kernels again. Here the kernels of this package are
+cached in one directory per user, numba version and Python version
+(`$ABD_KERNEL_CACHE`, else `$XDG_CACHE_HOME/abd_joint_sim/…` or `~/.cache/abd_joint_sim/…`),
+by path inside the package, and stamped with a hash of ALL kernel sources: any edit to any
+kernel file makes every entry stale (numba alone would not notice an edit in a callee that
+lives in another file). A directory that cannot be written leaves numba's own locators
+in charge.
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import platform
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parent
+#: where the compiled kernels live; the files among them that define any (`njit(`) make the
+#: cache stamp, so editing pure-Python modules there does not force a recompile
+KERNEL_SOURCES = ('smallmat.py', 'angles.py', 'terms', 'solver')
+
+
+@functools.lru_cache(maxsize=None)
+def sources_hash() -> str:
+    h = hashlib.sha256()
+    for entry in KERNEL_SOURCES:
+        path = PACKAGE / entry
+        files = sorted(path.glob('*.py')) if path.is_dir() else [path]
+        for f in files:
+            text = f.read_bytes()
+            if b'njit(' in text:
+                h.update(f.relative_to(PACKAGE).as_posix().encode())
+                h.update(text)
+    return h.hexdigest()[:20]
+
+
+@functools.lru_cache(maxsize=None)
+def directory() -> Path:
+    import numba
+    root = os.environ.get('ABD_KERNEL_CACHE')
+    if not root:
+        base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
+        root = os.path.join(base, 'abd_joint_sim')
+    tag = f'numba{numba.__version__}-py{sys.version_info[0]}{sys.version_info[1]}-{platform.machine()}'
+    return Path(root) / tag
+
+
+def marker() -> Path:
+    """Exists once every kernel has been compiled for these sources."""
+    return directory() / f'compiled-{sources_hash()}'
+
+
+def mark_compiled() -> None:
+    try:
+        marker().write_text('all kernels compiled for these sources\n')
+    except OSError:
+        pass
+
+
+def _writable(path: Path) -> bool:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f'.probe-{os.getpid()}'
+        probe.write_text('')
+        probe.unlink()
+        return True
+    except OSError:
+        return False
+
+
+_installed = False
+
+
+def install() -> None:
+    """Put the package locator first in numba's list (idempotent)."""
+    global _installed
+    if _installed:
+        return
+    from numba.core import caching
+
+    class PackageCacheLocator(caching._SourceFileBackedLocatorMixin, caching._CacheLocator):
+        def __init__(self, py_func, py_file):
+            self._py_file = py_file
+            self._lineno = py_func.__code__.co_firstlineno
+            rel = Path(py_file).resolve().parent.relative_to(PACKAGE)
+            self._cache_path = str(directory() / rel)
+
+        def get_cache_path(self):
+            return self._cache_path
+
+        def get_source_stamp(self):
+            return sources_hash()
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            try:
+                Path(py_file).resolve().relative_to(PACKAGE)
+            except (ValueError, OSError):
+                return None
+            return cls(py_func, py_file) if _writable(directory()) else None
+
+    caching.CacheImpl._locator_classes.insert(0, PackageCacheLocator)
+    _installed = True
+
+
+install()

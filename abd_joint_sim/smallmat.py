@@ -1,0 +1,209 @@
+"""Small dense matrices inside compiled code: 3x3 SVD, symmetric eigen-decomposition,
+Cholesky and triangular solves, 3x3 inverse.
+
+Written as scalar loops for numba: a LAPACK call on a 3x3 or 12x12 matrix costs more in
+call overhead than the arithmetic, and these compile quickly. All functions work in place
+on caller-owned arrays and allocate nothing but small scratch.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, error_model='numpy')
+def svd3(A, U, S, V):
+    """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
+    AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
+    keep full absolute accuracy. ~50x cheaper than a LAPACK call for a 3x3."""
+    Bm = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            Bm[r, c] = A[0, r] * A[0, c] + A[1, r] * A[1, c] + A[2, r] * A[2, c]
+            V[r, c] = 1.0 if r == c else 0.0
+    for sweep in range(12):
+        off = Bm[0, 1] * Bm[0, 1] + Bm[0, 2] * Bm[0, 2] + Bm[1, 2] * Bm[1, 2]
+        dia = Bm[0, 0] * Bm[0, 0] + Bm[1, 1] * Bm[1, 1] + Bm[2, 2] * Bm[2, 2]
+        if off <= 1e-32 * dia:
+            break
+        for pq in range(3):
+            p = 0 if pq < 2 else 1
+            qq = 1 if pq == 0 else 2
+            apq = Bm[p, qq]
+            if apq == 0.0:
+                continue
+            tau = (Bm[qq, qq] - Bm[p, p]) / (2.0 * apq)
+            t = 1.0 / (abs(tau) + math.sqrt(1.0 + tau * tau))
+            if tau < 0.0:
+                t = -t
+            c = 1.0 / math.sqrt(1.0 + t * t)
+            sn = t * c
+            for k in range(3):                       # B <- Jᵀ B J, V <- V J
+                bkp, bkq = Bm[k, p], Bm[k, qq]
+                Bm[k, p] = c * bkp - sn * bkq
+                Bm[k, qq] = sn * bkp + c * bkq
+            for k in range(3):
+                bpk, bqk = Bm[p, k], Bm[qq, k]
+                Bm[p, k] = c * bpk - sn * bqk
+                Bm[qq, k] = sn * bpk + c * bqk
+            for k in range(3):
+                vkp, vkq = V[k, p], V[k, qq]
+                V[k, p] = c * vkp - sn * vkq
+                V[k, qq] = sn * vkp + c * vkq
+            Bm[p, qq] = 0.0
+            Bm[qq, p] = 0.0
+    # order by decreasing eigenvalue (insertion sort of 3, columns of V follow)
+    for i in range(1, 3):
+        k = i
+        while k > 0 and Bm[k, k] > Bm[k - 1, k - 1]:
+            tmp = Bm[k, k]
+            Bm[k, k] = Bm[k - 1, k - 1]
+            Bm[k - 1, k - 1] = tmp
+            for r in range(3):
+                tmp = V[r, k]
+                V[r, k] = V[r, k - 1]
+                V[r, k - 1] = tmp
+            k -= 1
+    b = np.empty((3, 3))                              # columns A v_k
+    for k in range(3):
+        for r in range(3):
+            b[r, k] = A[r, 0] * V[0, k] + A[r, 1] * V[1, k] + A[r, 2] * V[2, k]
+    s0 = math.sqrt(b[0, 0] * b[0, 0] + b[1, 0] * b[1, 0] + b[2, 0] * b[2, 0])
+    if s0 > 0.0:
+        for r in range(3):
+            U[r, 0] = b[r, 0] / s0
+    else:
+        U[0, 0], U[1, 0], U[2, 0] = 1.0, 0.0, 0.0
+    d = U[0, 0] * b[0, 1] + U[1, 0] * b[1, 1] + U[2, 0] * b[2, 1]
+    for r in range(3):
+        b[r, 1] -= d * U[r, 0]
+    s1 = math.sqrt(b[0, 1] * b[0, 1] + b[1, 1] * b[1, 1] + b[2, 1] * b[2, 1])
+    if s1 > 1e-300:
+        for r in range(3):
+            U[r, 1] = b[r, 1] / s1
+    else:                                             # any unit vector ⟂ u1
+        k = 0
+        if abs(U[1, 0]) < abs(U[k, 0]):
+            k = 1
+        if abs(U[2, 0]) < abs(U[k, 0]):
+            k = 2
+        e0, e1, e2 = (1.0 if k == 0 else 0.0), (1.0 if k == 1 else 0.0), (1.0 if k == 2 else 0.0)
+        w0 = U[1, 0] * e2 - U[2, 0] * e1
+        w1 = U[2, 0] * e0 - U[0, 0] * e2
+        w2 = U[0, 0] * e1 - U[1, 0] * e0
+        wn = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        U[0, 1], U[1, 1], U[2, 1] = w0 / wn, w1 / wn, w2 / wn
+    U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
+    U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
+    U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
+    s2 = U[0, 2] * b[0, 2] + U[1, 2] * b[1, 2] + U[2, 2] * b[2, 2]
+    if s2 < 0.0:
+        s2 = -s2
+        for r in range(3):
+            U[r, 2] = -U[r, 2]
+    S[0], S[1], S[2] = s0, s1, s2
+
+
+@njit(cache=True, error_model='numpy')
+def jacobi_eigh(S, w, V):
+    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi
+    (S is destroyed). Accurate to round-off like LAPACK's syevd, and cheap to compile."""
+    n = S.shape[0]
+    for r in range(n):
+        for c in range(n):
+            V[r, c] = 1.0 if r == c else 0.0
+    for sweep in range(50):
+        off = 0.0
+        dia = 0.0
+        for p in range(n):
+            dia += S[p, p] * S[p, p]
+            for q in range(p + 1, n):
+                off += S[p, q] * S[p, q]
+        if off <= 1e-32 * dia:
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = S[p, q]
+                if apq == 0.0:
+                    continue
+                tau = (S[q, q] - S[p, p]) / (2.0 * apq)
+                t = 1.0 / (abs(tau) + math.sqrt(1.0 + tau * tau))
+                if tau < 0.0:
+                    t = -t
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                sn = t * c
+                for k in range(n):
+                    skp, skq = S[k, p], S[k, q]
+                    S[k, p] = c * skp - sn * skq
+                    S[k, q] = sn * skp + c * skq
+                for k in range(n):
+                    spk, sqk = S[p, k], S[q, k]
+                    S[p, k] = c * spk - sn * sqk
+                    S[q, k] = sn * spk + c * sqk
+                S[p, q] = 0.0
+                S[q, p] = 0.0
+                for k in range(n):
+                    vkp, vkq = V[k, p], V[k, q]
+                    V[k, p] = c * vkp - sn * vkq
+                    V[k, q] = sn * vkp + c * vkq
+    for p in range(n):
+        w[p] = S[p, p]
+
+
+@njit(cache=True, error_model='numpy')
+def cholesky(A, n):
+    """Lower Cholesky factor of A[:n,:n] in place (upper part untouched); False if not PD."""
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= A[j, k] * A[j, k]
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        A[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= A[i, k] * A[j, k]
+            A[i, j] = s / d
+    return True
+
+
+@njit(cache=True, error_model='numpy')
+def lower_solve(L, x, n):
+    """Solve L y = x in place (L lower triangular, the first n rows)."""
+    for i in range(n):
+        s = x[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+
+
+@njit(cache=True, error_model='numpy')
+def upper_solve(L, x, n):
+    """Solve Lᵀ y = x in place."""
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+
+
+@njit(cache=True, error_model='numpy')
+def det_inv3(A, inv):
+    """det A, and inv = A⁻¹ (adjugate / det)."""
+    det = (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
+           - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+           + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+    inv[0, 0] = (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) / det
+    inv[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) / det
+    inv[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) / det
+    inv[1, 0] = (A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]) / det
+    inv[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) / det
+    inv[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) / det
+    inv[2, 0] = (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]) / det
+    inv[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
+    inv[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
+    return det

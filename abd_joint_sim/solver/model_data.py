@@ -1,0 +1,156 @@
+"""`ModelData`: the Model as the compiled step reads it, built once per Solver.
+
+A numba structref (a reference to a struct of named arrays): compiled code reads
+`m.joint_parent`, `m.body_M`, ..., and Python passes one object per call. Why not a
+namedtuple: numba unboxes every field of a namedtuple on every call (~0.5 µs per array
+on this machine, ~15 µs for this model), a structref is one pointer (measured in
+docs/physics-code.md). The field list below is the only place the layout is written.
+
+Names follow the Model (`body_*`, `joint_*`, `torque_*`, `drive_*`, `limit_*`) plus what the
+solver derives from it once: the free bodies, the linear solve's elimination order, the
+screw retraction's floating groups and Newton's settings.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba.core import types
+from numba.experimental import structref
+
+from . import linsolve, retraction
+
+# Joint anchors further apart than SEPARATION_WARN x the smaller body's size: the step warns
+# (an overloaded joint: torque or speed too large for strength_ratio and dt). Further than
+# SEPARATION_FAULT x the larger body's size, the joint has come apart: no joint force of
+# UID 18 is stiff enough to make that a valid state, so the step fails.
+SEPARATION_WARN = 0.01
+SEPARATION_FAULT = 1e3
+
+#: (name, meaning) of every field; the values come from `build`.
+FIELDS = (
+    ('body_fixed', '(B,) bool'),
+    ('free_bodies', '(F,) int64: indices of the free bodies'),
+    ('body_M', '(B,12,12) mass matrices'),
+    ('body_Minv', '(B,12,12) their inverses'),
+    ('body_mass', '[kg] (B,)'),
+    ('ortho_weight', '(B,) κ v̄ of UID 1 [Pa m³]'),
+    ('body_corners', '[m] (B,8,3) rest bounding-box corners (convergence test)'),
+    ('gravity', '[m/s²] (3,)'),
+    ('has_gravity', 'bool'),
+    ('joint_parent', '(J,) body i'),
+    ('joint_child', '(J,) body j'),
+    ('joint_x_bar', '[m] (J,2,2,3) anchors x̄: [joint, side (i, j), anchor (P0, P1), xyz]'),
+    ('joint_K', '[kg] (J,) UID 18 stiffness K = γ (m_i + m_j)'),
+    ('joint_hessian', '(J,24,24) constant Hessian of the UID 18 energy'),
+    ('joint_nbar', '(J,2,3) n̄ per side'),
+    ('joint_bbar', '(J,2,3) b̄ per side'),
+    ('joint_init_angle', '[rad] (J,)'),
+    ('joint_warn_separation', '[m] (J,) anchor separation above which a step warns (overloaded joint)'),
+    ('joint_fault_separation', '[m] (J,) anchor separation above which a joint has come apart (a fault)'),
+    ('torque_joints', '(T,) joints with UID 668'),
+    ('drive_joints', '(D,) joints with UID 19'),
+    ('drive_K', '(D,) UID 19 stiffness γ (m_i + m_j)'),
+    ('limit_joints', '(L,) joints with UID 670'),
+    ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),
+    ('limit_upper', '[rad] (L,) upper bound relative to init_angle'),
+    ('limit_strength', '(L,) s of UID 670'),
+    ('solve_kind', 'linsolve.TREE or linsolve.DENSE'),
+    ('tree_order', '(F,) elimination order over free-body slots, leaves first'),
+    ('tree_parent', '(F,) elimination parent slot, -1 at a root'),
+    ('tree_edge_ptr', '(F+1,) CSR pointer into tree_edge_joints per slot'),
+    ('tree_edge_joints', '(E,) joints on the edge slot -> tree_parent[slot]'),
+    ('body_slot', '(B,) slot of a free body in free_bodies, -1 if fixed'),
+    ('joint_between_free', '(J,) bool: both bodies free (an off-diagonal block)'),
+    ('body_group', '(B,) floating group of the screw retraction, -1: anchored'),
+    ('group_share', '(B,) m_b / Σ m of its floating group'),
+    ('group_count', 'int'),
+    ('velocity_tol', '[m/s] Newton'),
+    ('transrate_tol', '[1/s] Newton'),
+    ('max_iterations', 'int Newton'),
+    ('line_search_max', 'int Newton'),
+    ('max_step_rotation', '[rad] sub-stepping threshold'),
+    ('free_mass', '[kg] Σ m over free bodies (Newton energy tolerance)'),
+)
+
+
+@structref.register
+class ModelDataType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class ModelData(structref.StructRefProxy):
+    """Python handle of the compiled model. Python reads the fields from the instance's
+    __dict__ (the same arrays the struct refers to: no copy); compiled code from the struct."""
+
+
+structref.define_proxy(ModelData, ModelDataType, [name for name, _ in FIELDS])
+
+
+def _arr(x, dtype):
+    # writable C-contiguous copies: read-only arrays would be a different numba type
+    return np.ascontiguousarray(np.array(x, dtype=dtype, copy=True))
+
+
+def build(model, force_dense: bool = False) -> ModelData:
+    """The ModelData of a Model (raises ValueError for a linear system too large to solve
+    densely that is not a forest; see linsolve.structure)."""
+    m = model
+    J = m.joint_count
+    fixed = m.body_fixed
+    free = np.flatnonzero(~fixed)
+    st = linsolve.structure(m, force_dense)
+    group, share, groups = retraction.floating_groups_and_shares(m)
+    init = m.joint_init_angle
+    size = m.body_size
+    lj = m.limit_joints
+    values = dict(
+        body_fixed=_arr(fixed, np.bool_),
+        free_bodies=_arr(free, np.int64),
+        body_M=_arr(m.body_M, np.float64),
+        body_Minv=_arr(m.body_Minv, np.float64),
+        body_mass=_arr(m.body_mass, np.float64),
+        ortho_weight=_arr(m.body_kappa * m.body_volume, np.float64),
+        body_corners=_arr(m.body_corners, np.float64),
+        gravity=_arr(m.gravity, np.float64),
+        has_gravity=bool(m.has_gravity),
+        joint_parent=_arr(m.joint_parent, np.int64),
+        joint_child=_arr(m.joint_child, np.int64),
+        joint_x_bar=_arr(np.stack([m.joint_anchor0, m.joint_anchor1], axis=2).reshape(J, 2, 2, 3),
+                         np.float64),
+        joint_K=_arr(m.joint_K, np.float64),
+        joint_hessian=_arr(m.joint_hessian, np.float64),
+        joint_nbar=_arr(m.joint_nbar, np.float64),
+        joint_bbar=_arr(m.joint_bbar, np.float64),
+        joint_init_angle=_arr(init, np.float64),
+        joint_warn_separation=_arr(SEPARATION_WARN * np.minimum(size[m.joint_parent], size[m.joint_child]),
+                                   np.float64),
+        joint_fault_separation=_arr(SEPARATION_FAULT * np.maximum(size[m.joint_parent], size[m.joint_child]),
+                                    np.float64),
+        torque_joints=_arr(m.torque_joints, np.int64),
+        drive_joints=_arr(m.drive_joints, np.int64),
+        drive_K=_arr(m.drive_K, np.float64),
+        limit_joints=_arr(lj, np.int64),
+        limit_lower=_arr(m.limit_lower - init[lj], np.float64),
+        limit_upper=_arr(m.limit_upper - init[lj], np.float64),
+        limit_strength=_arr(m.limit_strength, np.float64),
+        solve_kind=int(st.kind),
+        tree_order=_arr(st.order, np.int64),
+        tree_parent=_arr(st.parent, np.int64),
+        tree_edge_ptr=_arr(st.edge_ptr, np.int64),
+        tree_edge_joints=_arr(st.edge_joints, np.int64),
+        body_slot=_arr(st.slot, np.int64),
+        joint_between_free=_arr(st.between_free, np.bool_),
+        body_group=_arr(group, np.int64),
+        group_share=_arr(share, np.float64),
+        group_count=int(groups),
+        velocity_tol=float(m.newton.velocity_tol),
+        transrate_tol=float(m.newton.transrate_tol),
+        max_iterations=int(m.newton.max_iterations),
+        line_search_max=int(m.newton.line_search_max),
+        max_step_rotation=float(m.newton.max_step_rotation),
+        # as numpy sums it (np.sum's pairwise order): the tolerance must not depend on layout
+        free_mass=float(np.sum(m.body_mass[free])),
+    )
+    data = ModelData(*(values[name] for name, _ in FIELDS))
+    data.__dict__.update(values)
+    return data

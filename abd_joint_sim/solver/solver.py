@@ -1,0 +1,282 @@
+"""`Solver`: built once per Model, steps a State under a Control (docs/physics.md).
+
+`Solver.step(state, control)` takes one step of the model's dt and returns the new State and
+a StepReport; the State passed in is never written (a State is replaced, not mutated).
+Recovery: a step whose Newton solve fails, whose state is not finite, in which a joint turns
+more than `max_step_rotation` (or is predicted to, before solving) or comes apart, is retried
+as two half steps, recursively up to 2**max_substep_depth sub-steps. If even that leaves a
+non-finite state or a joint apart, `SimulationError` is raised (the caller keeps its State:
+time stays a multiple of dt); a merely unconverged result is kept and reported.
+`Solver.advance(state, control, n)` takes up to n such steps, the clean ones in one compiled
+call (`step.steps`), with the same results bit for bit; `Solver.clean_steps` is the compiled part
+alone, for callers that publish every step (sim_node).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SimulationError
+from ..state import Control, State
+from ..terms.context import StepContext
+from ..terms.revolute import joint_separation
+from ..terms.torque import SINGULAR_RATIO
+from . import model_data, step as kernel
+from .model_data import SEPARATION_FAULT, SEPARATION_WARN
+from .report import STATUS_BY_CODE, Status, StepReport
+
+# Rotation per step above which the integrator's numerical damping of it is reported
+# (measured on the free-spinning reference hinge, loss of angular speed per step).
+ACCURACY_ROTATION = {'bdf1': 0.1, 'bdf2': 0.3}
+ACCURACY_NOTE = {
+    'bdf1': 'implicit Euler (bdf1) damps rotation this fast (measured: ~0.9 % of the speed per '
+            'step at 0.1 rad/step, ~5 % at 0.3): reduce dt or use bdf2 for accuracy',
+    'bdf2': 'bdf2 damps rotation this fast (measured: ~0.1 % of the speed per step at 0.3 '
+            'rad/step, ~1 % at 0.6): reduce dt for accuracy'}
+
+
+@dataclass(frozen=True)
+class CleanSteps:
+    """Result of `Solver.clean_steps`."""
+
+    count: int
+    state: State                #: after the last clean step (the input state if count is 0)
+    report: StepReport | None   #: of the last clean step
+    times: list                 #: [s] (count,) time after each step
+    joint_angles: np.ndarray    #: [rad] (count, J)
+    joint_velocities: np.ndarray  #: [rad/s] (count, J)
+
+
+class _Tally:
+    """A StepReport being filled over the sub-steps of one step."""
+
+    __slots__ = ('status', 'converged', 'newton_iterations', 'line_search_iterations', 'substeps',
+                 'max_step_rotation', 'max_joint_separation', 'overloaded', 'warnings')
+
+    def __init__(self):
+        self.status, self.converged = Status.CONVERGED, True
+        self.newton_iterations = self.line_search_iterations = 0
+        self.substeps = 1
+        self.max_step_rotation = 0.0
+        self.max_joint_separation = 0.0
+        self.overloaded = False         #: a joint beyond its warning separation
+        self.warnings = []
+
+    def freeze(self, time) -> StepReport:
+        return StepReport(time=time, status=self.status, converged=self.converged,
+                          newton_iterations=self.newton_iterations,
+                          line_search_iterations=self.line_search_iterations,
+                          substeps=self.substeps, max_joint_separation=self.max_joint_separation,
+                          max_step_rotation=self.max_step_rotation, warnings=tuple(self.warnings))
+
+
+class Solver:
+    """The compiled step of one Model."""
+
+    def __init__(self, model, force_dense: bool = False):
+        """`force_dense`: solve Newton's system densely whatever its structure (for tests)."""
+        self.model = model
+        self.data = model_data.build(model, force_dense)    # ValueError for an unsupported loop
+        B, J = model.body_count, model.joint_count
+        self._skipped = np.zeros(max(2 * len(model.torque_joints), 1), dtype=np.int64)
+        self._outcome = np.zeros(kernel.OUT_COLUMNS)
+        self._clean_rotation = min(model.newton.max_step_rotation, ACCURACY_ROTATION[model.integrator])
+        self._shape = (B, J)
+        self._qvw_shape, self._aw_shape = (3, B, 12), (2, J)
+        self._bdf2 = model.integrator == 'bdf2'
+        self._may_split = model.newton.max_substep_depth > 0
+        # the terms this model uses (energy terms, then forces), named as in World.terms
+        uses = (('ortho_potential', B > int(model.body_fixed.sum())), ('revolute_joint', J > 0),
+                ('driving', len(model.drive_joints) > 0), ('limit', len(model.limit_joints) > 0),
+                ('gravity', model.has_gravity), ('external_torque', len(model.torque_joints) > 0))
+        self.terms = tuple(name for name, used in uses if used)
+
+    def context(self, state: State, control: Control, h: float, q_tilde=None) -> StepContext:
+        """The StepContext of a step from `state` (q̃ = state.q unless given), for the energy
+        functions of terms/ called from Python (World.mechanical_energy, tests)."""
+        m = self.model
+        start = state.joint_angle - m.joint_init_angle
+        init = m.joint_init_angle[m.drive_joints]
+        target = np.where(control.drive_passive, start[m.drive_joints], control.drive_aim - init)
+        return StepContext(float(h), 1.0, state.q if q_tilde is None else q_tilde, start,
+                           np.ascontiguousarray(target, dtype=float),
+                           np.ascontiguousarray(control.drive_enabled, dtype=bool))
+
+    # -- one step, with recovery ---------------------------------------------------------
+    def step(self, state: State, control: Control) -> tuple[State, StepReport]:
+        """One step of dt; raises SimulationError when even sub-steps cannot finish it."""
+        h = self.model.dt
+        computed = self._compute(state, control, h, self._may_split)
+        status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = computed[2].tolist()
+        # the common case, a step with nothing to report but its numbers, built directly
+        # (the general path below gives the same report, at a few µs more Python)
+        if (failure == kernel.FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
+                and rotation <= self._clean_rotation):
+            new = self._state(state, h, computed[0], computed[1])
+            return new, StepReport(new.time, Status.CONVERGED, True, int(newton_its), int(halvings), 1,
+                                   separation, max(0.0, rotation))
+        tally = _Tally()
+        state = self._advance(state, control, h, 0, tally, computed)
+        return state, self._finish(state, tally)
+
+    def _advance(self, state, control, h, depth, tally, computed=None):
+        max_depth = self.model.newton.max_substep_depth
+        if computed is None:
+            computed = self._compute(state, control, h, depth < max_depth)
+        new_state, failure = self._decode(state, h, *computed, tally)
+        if failure is None:
+            return new_state
+        if depth < max_depth:
+            tally.status, tally.converged = Status.CONVERGED, True
+            tally.warnings.append(f't={state.time:.6g}s: {failure}; retrying as 2 sub-steps of {h / 2:.3g}s')
+            tally.substeps += 1
+            half = self._advance(state, control, h / 2, depth + 1, tally)
+            return self._advance(half, control, h / 2, depth + 1, tally)
+        if new_state is None:       # not finite, or a joint came apart: nothing to keep
+            raise SimulationError(f't={state.time:.6g}s: {failure} even with {2 ** depth} sub-steps of '
+                                  f'{h:.3g}s; state kept at the last good step')
+        tally.warnings.append(f't={state.time:.6g}s: {failure} with {2 ** depth} sub-steps; result kept')
+        return new_state
+
+    def _single(self, s, c, h, tally, may_split):
+        """One (sub-)step: (new State or None, None or a failure description). The new State
+        is returned with an unconverged or over-rotated result, which the caller keeps at the
+        deepest level."""
+        return self._decode(s, h, *self._compute(s, c, h, may_split), tally)
+
+    def _compute(self, s, c, h, may_split):
+        """The compiled step: (q/v/warm_start (3,B,12), angle/velocity (2,J), outcome row)."""
+        qvw = np.empty(self._qvw_shape)
+        aw = np.empty(self._aw_shape)
+        out = self._outcome
+        kernel.step(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
+                    c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive,
+                    h, self._bdf2 and s.history_dt == h, may_split, qvw, aw, self._skipped, out)
+        return qvw, aw, out
+
+    def _state(self, s, h, qvw, aw):
+        """The State after a step from s."""
+        return State(time=s.time + h, q=qvw[0], v=qvw[1], q_prev=s.q, v_prev=s.v,
+                     joint_angle=aw[0], joint_velocity=aw[1] if self._shape[1] else s.joint_velocity,
+                     step_count=s.step_count + 1, history_dt=h, warm_start=qvw[2])
+
+    def _decode(self, s, h, qvw, aw, out, tally):
+        m = self.model
+        for b in self._skipped[:int(out[kernel.OUT_SKIPPED])]:
+            tally.warnings.append(f'body {m.body_names[b]!r}: affine matrix near-singular '
+                                  f'(|det A|/(|a1||a2||a3|) < {SINGULAR_RATIO}); joint torque not applied')
+        failure = int(out[kernel.OUT_FAILURE])
+        rotation = float(out[kernel.OUT_ROTATION])
+        limit = m.newton.max_step_rotation
+        if failure == kernel.FAIL_PREDICTED_ROTATION:
+            return None, f'a joint is predicted to turn {rotation:.3g} rad in one step (limit {limit:.3g})'
+        status, iterations = STATUS_BY_CODE[int(out[kernel.OUT_STATUS])], int(out[kernel.OUT_NEWTON])
+        tally.newton_iterations += iterations
+        tally.line_search_iterations += int(out[kernel.OUT_LINE_SEARCH])
+        if failure == kernel.FAIL_NEWTON_NONFINITE:
+            return None, 'Newton produced a non-finite state'
+        if failure == kernel.FAIL_STEP_NONFINITE:
+            return None, 'step produced a non-finite state'
+        if failure == kernel.FAIL_JOINT_APART:
+            j = int(out[kernel.OUT_APART_JOINT])
+            apart = float(joint_separation(qvw[0], self.data, j))
+            return None, (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
+                          f"(> {SEPARATION_FAULT:g} x the bodies' size)")
+        tally.max_step_rotation = max(tally.max_step_rotation, rotation)
+        new = self._state(s, h, qvw, aw)
+        tally.max_joint_separation = float(out[kernel.OUT_SEPARATION])
+        tally.overloaded = bool(out[kernel.OUT_OVERLOADED])
+        if rotation > limit:
+            return new, f'a joint turned {rotation:.3g} rad in one step (limit {limit:.3g})'
+        if status is not Status.CONVERGED:
+            tally.status, tally.converged = status, False
+            return new, f'Newton stopped: {status.value} after {iterations} iterations'
+        return new, None
+
+    def _finish(self, state, tally) -> StepReport:
+        """The accuracy and overloaded-joint warnings of a finished step, then the report."""
+        m = self.model
+        if tally.overloaded:
+            for j in range(m.joint_count):
+                sep = float(joint_separation(state.q, self.data, j))
+                if sep > self.data.joint_warn_separation[j]:
+                    tally.warnings.append(
+                        f't={state.time:.6g}s: joint {m.joint_names[j]!r} anchors {sep:.3g} m apart '
+                        f'(> {SEPARATION_WARN:.0%} of the smaller body): the joint is overloaded; '
+                        'lower the torque or dt, or raise strength_ratio')
+        x = tally.max_step_rotation
+        if x > ACCURACY_ROTATION[m.integrator]:
+            tally.warnings.append(f't={state.time:.6g}s: a joint turned {x:.3g} rad in one step; '
+                                  f'{ACCURACY_NOTE[m.integrator]}')
+        return tally.freeze(state.time)
+
+    # -- several steps -------------------------------------------------------------------
+    def clean_steps(self, state: State, control: Control, n: int) -> CleanSteps:
+        """Up to n steps in one compiled call, stopping before the first step on which `step`
+        would sub-step, warn or fail; bit-identical to `count` calls of `step`."""
+        count, qvw, aw, out = self._batch(state, control, n)
+        return self._clean_result(state, count, qvw, aw, out)
+
+    def advance(self, state: State, control: Control, n: int) -> tuple[State, StepReport, int]:
+        """At least one and at most n steps: (State, report of the last step, count). The clean
+        steps run in one compiled call; the step that stopped them was computed already and is
+        kept when it needs no recovery (it then only adds warnings); one that needs recovery
+        is left to the next call, which takes it through `step` (and may raise
+        SimulationError, having taken nothing). Bit-identical to `count` calls of `step`."""
+        if n <= 1:
+            state, report = self.step(state, control)
+            return state, report, 1
+        count, qvw, aw, out = self._batch(state, control, n)
+        report = None
+        if count:
+            batch = self._clean_result(state, count, qvw, aw, out)
+            state, report = batch.state, batch.report
+        if count < n:
+            o = out[count]
+            simple = (int(o[kernel.OUT_FAILURE]) == kernel.FAIL_NONE and int(o[kernel.OUT_STATUS]) == 0
+                      and o[kernel.OUT_ROTATION] <= self.model.newton.max_step_rotation)
+            if simple:
+                tally = _Tally()
+                state, _ = self._decode(state, self.model.dt, qvw[count], aw[count], o, tally)
+                return state, self._finish(state, tally), count + 1
+            if count == 0:
+                state, report = self.step(state, control)
+                return state, report, 1
+        return state, report, count
+
+    def _batch(self, s, c, n):
+        m = self.model
+        B, J = self._shape
+        qvw = np.empty((n, 3, B, 12))
+        aw = np.empty((n, 2, J))
+        out = np.empty((n, kernel.OUT_COLUMNS))
+        bdf2 = m.integrator == 'bdf2'
+        count = kernel.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
+                             c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
+                             c.drive_passive, m.dt, bdf2 and s.history_dt == m.dt, bdf2,
+                             self._may_split, int(n), self._clean_rotation,
+                             qvw, aw, self._skipped, out)
+        return int(count), qvw, aw, out
+
+    def _clean_result(self, s, count, qvw, aw, out) -> CleanSteps:
+        if count == 0:
+            return CleanSteps(0, s, None, [], aw[:0, 0], aw[:0, 1])
+        h = self.model.dt
+        times = []
+        t = s.time
+        for _ in range(count):
+            t = t + h                                  # as `step` accumulates it
+            times.append(t)
+        k = count - 1
+        J = self.model.joint_count
+        state = State(time=t, q=qvw[k, 0], v=qvw[k, 1],
+                      q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,
+                      joint_angle=aw[k, 0], joint_velocity=aw[k, 1] if J else s.joint_velocity,
+                      step_count=s.step_count + count, history_dt=h, warm_start=qvw[k, 2])
+        o = out[k]
+        report = StepReport(time=t, newton_iterations=int(o[kernel.OUT_NEWTON]),
+                            line_search_iterations=int(o[kernel.OUT_LINE_SEARCH]),
+                            max_joint_separation=float(o[kernel.OUT_SEPARATION]),
+                            max_step_rotation=max(0.0, float(o[kernel.OUT_ROTATION])))
+        return CleanSteps(count, state, report, times, aw[:count, 0], aw[:count, 1])

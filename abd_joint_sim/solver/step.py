@@ -1,0 +1,174 @@
+"""One (sub-)step, compiled (docs/physics.md "Time integration", "Newton"):
+
+    1. forces: a = g_q + M⁻¹F at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2)     terms/gravity, terms/torque
+    2. prediction q̃ (bdf.predict); may_split: refuse a step whose linearised joint rotation
+       ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (BDF1 saturates the solved rotation below
+       any limit, so only the prediction can see a too-large step)
+    3. Newton minimises Π from q̃ + c h² warm_start (c = 1 BDF1, β BDF2)     newton.minimize
+    4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), unwrapped joint angles and
+       θ̇ = ∇θ·v, the largest joint rotation of the step, joint separations.
+
+`step` reads its inputs only and writes the new state into the caller's arrays; what
+happened goes into a row `outcome` whose columns are named below (solver.py turns it into a
+StepReport). `steps` runs up to n steps in one call, stopping before the first one that
+needs Python (a failure, a sub-step or a warning), bit-identical to n calls of `step`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .. import angles
+from ..terms import gravity, revolute, torque
+from ..terms.context import StepContext
+from . import bdf, newton
+
+# columns of a step's outcome row
+OUT_STATUS = 0           #: newton status code
+OUT_NEWTON = 1           #: Newton iterations
+OUT_LINE_SEARCH = 2      #: line-search halvings
+OUT_ROTATION = 3         #: [rad] largest joint rotation (or the predicted one when refused)
+OUT_FAILURE = 4          #: one of the FAIL_* codes
+OUT_SKIPPED = 5          #: bodies the torque's singular guard skipped (listed in `skipped`)
+OUT_SEPARATION = 6       #: [m] largest joint separation after the step
+OUT_OVERLOADED = 7       #: 1 if a joint's separation exceeds its warning limit
+OUT_APART_JOINT = 8      #: the first joint that came apart (FAIL_JOINT_APART), else -1
+OUT_COLUMNS = 9
+FAIL_NONE, FAIL_NEWTON_NONFINITE, FAIL_STEP_NONFINITE, FAIL_PREDICTED_ROTATION, FAIL_JOINT_APART = 0, 1, 2, 3, 4
+
+
+@njit(cache=True, error_model='numpy')
+def predicted_rotation(m, q, q_tilde):
+    """max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| (NaN wins, and then no split is asked)."""
+    grad = np.empty(18)
+    scratch = np.empty((1, 1))
+    work = np.empty(angles.WORK_SHAPE)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    out = 0.0
+    for j in range(parent.size):
+        angles.theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
+        i_body, j_body = parent[j], child[j]
+        x = 0.0
+        for a in range(9):
+            x += (grad[a] * (q_tilde[i_body, 3 + a] - q[i_body, 3 + a])
+                  + grad[9 + a] * (q_tilde[j_body, 3 + a] - q[j_body, 3 + a]))
+        x = abs(x)
+        if x != x:
+            out = np.nan
+        elif out == out:
+            out = max(out, x)
+    return out
+
+
+@njit(cache=True, error_model='numpy')
+def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
+         drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, new_qvw, new_angles,
+         skipped, outcome):
+    """One step of size h. new_qvw (3,B,12) = new q, v, warm_start; new_angles (2,J) = joint
+    angle, joint velocity; skipped[:outcome[OUT_SKIPPED]] = bodies without torque."""
+    B, J = q.shape[0], m.joint_parent.size
+    outcome[:] = 0.0
+    outcome[OUT_APART_JOINT] = -1.0
+    # 1. forces
+    q_force = np.empty((B, 12))
+    bdf.force_point(q, q_prev, bdf2, q_force)
+    acc = np.zeros((B, 12))
+    gravity.add_acceleration(q_force, m, acc)
+    outcome[OUT_SKIPPED] = torque.add_acceleration(q_force, m, torque_value, torque_enabled, acc, skipped)
+    # 2. prediction
+    q_tilde = np.empty((B, 12))
+    scale = bdf.predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde)
+    if may_split and J > 0:
+        predicted = predicted_rotation(m, q, q_tilde)
+        if predicted > m.max_step_rotation:
+            outcome[OUT_ROTATION], outcome[OUT_FAILURE] = predicted, FAIL_PREDICTED_ROTATION
+            return
+    # 3. Newton
+    init_angle = m.joint_init_angle
+    angle_start = np.empty(J)
+    for j in range(J):
+        angle_start[j] = joint_angle[j] - init_angle[j]
+    drive_joints = m.drive_joints
+    drive_target = np.empty(drive_joints.size)
+    for k in range(drive_joints.size):
+        j = drive_joints[k]
+        drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
+    ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled)
+    cw = h * h / scale
+    q_new = np.empty((B, 12))
+    for b in range(B):
+        for r in range(12):
+            q_new[b, r] = q_tilde[b, r] + cw * warm_start[b, r]
+    status, iterations, halvings = newton.minimize(m, ctx, q_new)
+    outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
+    if status == newton.NONFINITE or not newton.all_finite(q_new):
+        outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
+        return
+    # 4. velocities, joint angles, checks
+    v_new = new_qvw[1]
+    bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
+    grad = np.empty(18)
+    scratch = np.empty((1, 1))
+    work = np.empty(angles.WORK_SHAPE)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    rotation = 0.0
+    finite = True
+    for j in range(J):
+        th, rate = angles.theta_and_rate_at(q_new, v_new, parent, child, nbar, bbar, j, grad, scratch, work)
+        rel = angles.unwrap(th, angle_start[j])
+        new_angles[0, j] = rel + init_angle[j]
+        new_angles[1, j] = rate
+        if not math.isfinite(rel):
+            finite = False
+        turn, swept = abs(rel - angle_start[j]), abs(rate) * h     # NaN wins
+        if turn != turn or swept != swept:
+            rotation = np.nan
+        elif rotation == rotation:
+            rotation = max(rotation, turn, swept)
+    if not finite or not newton.all_finite(v_new):
+        outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
+        return
+    outcome[OUT_ROTATION] = rotation
+    separation, overloaded, apart = revolute.check_separations(q_new, m)
+    outcome[OUT_SEPARATION] = separation
+    outcome[OUT_OVERLOADED] = 1.0 if overloaded else 0.0
+    if apart >= 0:
+        outcome[OUT_APART_JOINT], outcome[OUT_FAILURE] = apart, FAIL_JOINT_APART
+    for b in range(B):
+        for r in range(12):
+            new_qvw[0, b, r] = q_new[b, r]
+            new_qvw[2, b, r] = (q_new[b, r] - q_tilde[b, r]) / cw
+
+
+@njit(cache=True, error_model='numpy')
+def steps(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
+          drive_aim, drive_enabled, drive_passive, h, bdf2_first, bdf2_next, may_split, n,
+          clean_rotation, new_qvw, new_angles, skipped, outcome):
+    """Up to n consecutive steps, each `step` on the previous one's output, stopping before the
+    first that is not clean: a failure, an unconverged Newton, a skipped torque, a rotation
+    above `clean_rotation` or an overloaded joint (the steps on which the Solver sub-steps or
+    warns; the caller redoes that one alone). Step k writes new_qvw[k], new_angles[k],
+    outcome[k]. Returns the number of clean steps."""
+    done = 0
+    for k in range(n):
+        if k == 0:
+            step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
+                 drive_aim, drive_enabled, drive_passive, h, bdf2_first, may_split,
+                 new_qvw[0], new_angles[0], skipped, outcome[0])
+        elif k == 1:
+            step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], new_angles[0, 0],
+                 torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
+                 bdf2_next, may_split, new_qvw[1], new_angles[1], skipped, outcome[1])
+        else:
+            step(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], new_qvw[k - 2, 0], new_qvw[k - 2, 1],
+                 new_qvw[k - 1, 2], new_angles[k - 1, 0], torque_value, torque_enabled,
+                 drive_aim, drive_enabled, drive_passive, h, bdf2_next, may_split,
+                 new_qvw[k], new_angles[k], skipped, outcome[k])
+        o = outcome[k]
+        if (o[OUT_FAILURE] != FAIL_NONE or o[OUT_STATUS] != newton.CONVERGED or o[OUT_SKIPPED] != 0.0
+                or not o[OUT_ROTATION] <= clean_rotation or o[OUT_OVERLOADED] != 0.0):
+            break
+        done += 1
+    return done

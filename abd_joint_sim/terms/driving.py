@@ -1,0 +1,50 @@
+"""Joint driving, libuipc UID 19 (docs/physics.md "Driving (UID 19)"): a spring on the joint
+angle toward a target,
+
+    E = K/2 (θ − θ_target)²,   K = γ (m_i + m_j),   E' = K (θ − θ_target),   E'' = K
+
+for each enabled drive; θ is the unwrapped angle relative to init_angle (angles.py) and
+θ_target the aim (relative to init_angle), or the angle at the start of the step when the
+drive is passive. Like UID 18 it carries no h² (physical potential E/h²). Gradient and
+PSD-projected Hessian via angles.accumulate_angle_hessian.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .. import angles
+
+
+@njit(cache=True, error_model='numpy')
+def energy(q, m, ctx):
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
+    E = 0.0
+    for k in range(joints.size):
+        if on[k]:
+            j = joints[k]
+            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+            e = x - target[k]
+            E += 0.5 * K[k] * e * e
+    return E
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
+    D = drive_joints.size
+    joints = np.empty(D, dtype=np.int64)
+    d1s = np.empty(D)
+    d2s = np.empty(D)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    n = 0
+    for k in range(D):
+        if on[k]:
+            j = drive_joints[k]
+            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+            joints[n] = j
+            d1s[n] = K[k] * (x - target[k])
+            d2s[n] = K[k]
+            n += 1
+    angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)

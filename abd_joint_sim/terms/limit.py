@@ -1,0 +1,72 @@
+"""Joint limit, libuipc UID 670 (docs/physics.md "Limit (UID 670)"): a cubic barrier outside
+[l, u] on the unwrapped joint angle x (relative to init_angle), with w = u − l and strength s:
+
+    x > u:  E = s ((x − u)/w)³          x < l:  E = s ((l − x)/w)³          inside: E = 0
+    w = 0:  E = s |x − l|³ (a locked joint)
+
+E' and E'' follow; gradient and PSD-projected Hessian via angles.accumulate_angle_hessian.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .. import angles
+
+
+@njit(cache=True, error_model='numpy')
+def phi(x, lower, upper, s):
+    """(E, E', E'') of the limit at angle x."""
+    w = upper - lower
+    if w == 0.0:
+        e = x - lower
+        return s * abs(e) ** 3, 3 * s * abs(e) * e, 6 * s * abs(e)
+    if x > upper:
+        a = (x - upper) / w
+        return s * a ** 3, 3 * s * a * a / w, 6 * s * a / w ** 2
+    if x < lower:
+        b = (lower - x) / w
+        return s * b ** 3, -3 * s * b * b / w, 6 * s * b / w ** 2
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True, error_model='numpy')
+def active(x, lower, upper):
+    """Outside the range, or off a zero-width limit."""
+    return x > upper or x < lower or (lower == upper and x != lower)
+
+
+@njit(cache=True, error_model='numpy')
+def energy(q, m, ctx):
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
+    start = ctx.angle_start
+    E = 0.0
+    for k in range(joints.size):
+        j = joints[k]
+        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+        if active(x, lower[k], upper[k]):
+            E += phi(x, lower[k], upper[k], strength[k])[0]
+    return E
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
+    start = ctx.angle_start
+    L = limit_joints.size
+    joints = np.empty(L, dtype=np.int64)
+    d1s = np.empty(L)
+    d2s = np.empty(L)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    n = 0
+    for k in range(L):
+        j = limit_joints[k]
+        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+        if active(x, lower[k], upper[k]):
+            _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
+            joints[n] = j
+            d1s[n] = d1
+            d2s[n] = d2
+            n += 1
+    angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)

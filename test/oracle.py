@@ -1,0 +1,103 @@
+"""A small, independent test oracle: the energies, the joint angle and the UID 668 force
+written densely in numpy straight from docs/physics.md, unoptimised and without the
+compiled code's helpers. The compiled terms (abd_joint_sim/terms/, angles.py) are checked
+against it; it is not a second simulator (no Hessians, no Newton, no step)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def affine(q, b):
+    """(p (3,), A (3,3)) of body b: q = [p, rows of A]."""
+    return q[b, :3], q[b, 3:12].reshape(3, 3)
+
+
+def point(q, b, x_bar):
+    p, A = affine(q, b)
+    return A @ x_bar + p
+
+
+def theta(model, q, j):
+    """docs/physics.md "Joint angle": cos = (n_i·n_j + b_i·b_j)/2, sin = (b_i·n_j − n_i·b_j)/2."""
+    _, Ai = affine(q, model.joint_parent[j])
+    _, Aj = affine(q, model.joint_child[j])
+    ni, nj = Ai @ model.joint_nbar[j, 0], Aj @ model.joint_nbar[j, 1]
+    bi, bj = Ai @ model.joint_bbar[j, 0], Aj @ model.joint_bbar[j, 1]
+    return np.arctan2(0.5 * (bi @ nj - ni @ bj), 0.5 * (ni @ nj + bi @ bj))
+
+
+def unwrap(x, ref):
+    return ref + np.remainder(x - ref + np.pi, 2 * np.pi) - np.pi
+
+
+def inertia_energy(model, q, q_tilde, scale):
+    E = 0.0
+    for b in np.flatnonzero(~model.body_fixed):
+        d = q[b] - q_tilde[b]
+        E += 0.5 * scale * d @ model.body_M[b] @ d
+    return E
+
+
+def ortho_energy(model, q, h):
+    """UID 1: h² Σ κ v̄ ‖A Aᵀ − I‖²_F over the free bodies."""
+    E = 0.0
+    for b in np.flatnonzero(~model.body_fixed):
+        _, A = affine(q, b)
+        E += model.body_kappa[b] * model.body_volume[b] * np.sum((A @ A.T - np.eye(3)) ** 2)
+    return h * h * E
+
+
+def revolute_energy(model, q):
+    """UID 18: K/2 Σ_{P0, P1} |x_i − x_j|², K = γ (m_i + m_j)."""
+    E = 0.0
+    for j in range(model.joint_count):
+        i_b, j_b = model.joint_parent[j], model.joint_child[j]
+        for anchors in (model.joint_anchor0[j], model.joint_anchor1[j]):
+            d = point(q, i_b, anchors[0]) - point(q, j_b, anchors[1])
+            E += 0.5 * model.joint_K[j] * d @ d
+    return E
+
+
+def driving_energy(model, q, angle_start, target, on):
+    """UID 19: K/2 (θ − θ_target)² per enabled drive."""
+    E = 0.0
+    for k, j in enumerate(model.drive_joints):
+        if on[k]:
+            x = unwrap(theta(model, q, j), angle_start[j])
+            E += 0.5 * model.drive_K[k] * (x - target[k]) ** 2
+    return E
+
+
+def limit_energy(model, q, angle_start):
+    """UID 670: s((x − u)/w)³ above u, s((l − x)/w)³ below l, s|x − l|³ for w = 0."""
+    E = 0.0
+    for k, j in enumerate(model.limit_joints):
+        x = unwrap(theta(model, q, j), angle_start[j])
+        lo = model.limit_lower[k] - model.joint_init_angle[j]
+        up = model.limit_upper[k] - model.joint_init_angle[j]
+        s, w = model.limit_strength[k], up - lo
+        if w == 0:
+            E += s * abs(x - lo) ** 3
+        elif x > up:
+            E += s * ((x - up) / w) ** 3
+        elif x < lo:
+            E += s * ((lo - x) / w) ** 3
+    return E
+
+
+def torque_force(model, q, taus):
+    """UID 668: F_k = [0; vec((τ/2)[ê_k]× A_k^{−T})], ê_j = ½(ẽ_i + ẽ_j), ê_i = −ê_j."""
+    F = np.zeros((model.body_count, 12))
+    for k, j in enumerate(model.torque_joints):
+        i_b, j_b = model.joint_parent[j], model.joint_child[j]
+        raw = []
+        for side, b in ((0, i_b), (1, j_b)):
+            _, A = affine(q, b)
+            e = A @ (model.joint_anchor1[j, side] - model.joint_anchor0[j, side])
+            raw.append(e / np.linalg.norm(e))
+        e_j = 0.5 * (raw[0] + raw[1])
+        for b, e in ((i_b, -e_j), (j_b, e_j)):
+            _, A = affine(q, b)
+            E = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+            F[b, 3:12] += (0.5 * taus[k] * E @ np.linalg.inv(A).T).ravel()
+    return F

@@ -1,0 +1,414 @@
+"""The Solver's behaviour (abd_joint_sim/solver/): the linear-solve choice, small dense
+kernels against LAPACK, the refusal of a step predicted to turn too far, the degenerate
+torque-axis guard, states never written in place, batching bit-identical to single steps,
+round-off staying round-off, the joint-came-apart fault, the compile-once cache and the
+import layering."""
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from abd_joint_sim import Scene, SimulationError, World
+from abd_joint_sim.smallmat import jacobi_eigh, svd3
+from abd_joint_sim.solver import linsolve
+
+from physics_helpers import box, hinge_dict, random_rotation, scene_dict
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _report_key(r):
+    return (r.newton_iterations, r.line_search_iterations, r.status, r.converged, r.substeps,
+            tuple(r.warnings))
+
+
+def _torques(value):
+    def setup(w):
+        for j in w.actuated_joint_names:
+            w.set_torque(j, value)
+    return setup
+
+
+def _drive_limit_hinge(**kw):
+    d = hinge_dict(dt=0.005, **kw)
+    d['joints'][0]['driving'] = dict(aim_angle=0.6, enabled=True)
+    d['joints'][0]['limit'] = dict(lower=-0.2, upper=0.3, strength=1e4)
+    return d
+
+
+def _ring(n_free):
+    """A fixed base and n free boxes joined in a closed loop (not a forest)."""
+    bodies = [box('base', (0.0, 0.0, -1.0), fixed=True)]
+    joints = []
+    for k in range(n_free):
+        ang = 2 * np.pi * k / n_free
+        bodies.append(box(f'b{k}', (np.cos(ang), np.sin(ang), 0.0), (0.2, 0.2, 0.2)))
+    for k in range(n_free):
+        a, b = 2 * np.pi * k / n_free, 2 * np.pi * (k + 1) / n_free
+        mid = 0.5 * (np.array([np.cos(a), np.sin(a), 0]) + np.array([np.cos(b), np.sin(b), 0]))
+        joints.append(dict(name=f'j{k}', parent=f'b{k}', child=f'b{(k + 1) % n_free}',
+                           p0=list(mid - [0, 0, 0.1]), p1=list(mid + [0, 0, 0.1]),
+                           external_torque=dict(torque=0.5 * (-1) ** k, enabled=True)))
+    joints.append(dict(name='anchor', parent='base', child='b0', p0=[1.0, 0, -0.6], p1=[1.0, 0, -0.4]))
+    return dict(dt=0.002, gravity=[0.0, 0.0, -9.81], bodies=bodies, joints=joints)
+
+
+def _tree():
+    """A fixed base with two branches of 3 links each (a tree, not a chain)."""
+    bodies = [box('base', (0.0, 0.0, 0.0), (0.2, 0.2, 0.2), fixed=True)]
+    joints = []
+    for side, sgn in (('l', -1), ('r', 1)):
+        prev = 'base'
+        for k in range(1, 4):
+            name = f'{side}{k}'
+            bodies.append(box(name, (sgn * 0.2 * k, 0.0, 0.0), (0.2, 0.1, 0.1)))
+            x = sgn * 0.2 * (k - 0.5)
+            joints.append(dict(name=f'j{name}', parent=prev, child=name, p0=[x, 0, -0.1], p1=[x, 0, 0.1],
+                               external_torque=dict(torque=0.3 * k * sgn, enabled=True)))
+            prev = name
+    return dict(dt=0.001, gravity=[0.0, 0.0, -9.81], bodies=bodies, joints=joints)
+
+
+def _world(d):
+    return World(Scene.from_dict(d))
+
+
+# -- linear solve and small kernels -----------------------------------------------------------
+def test_a_large_loop_is_refused_with_a_message_and_a_small_one_runs_dense():
+    with pytest.raises(ValueError, match='closed loop.*at most 64'):
+        _world(_ring(70))
+    small = _world(_ring(4))
+    assert small.solver.data.solve_kind == linsolve.DENSE
+    small.step(5)
+    assert small.last_step.converged
+    tree = _world(_tree())
+    assert tree.solver.data.solve_kind == linsolve.TREE
+
+
+def test_svd3_matches_lapack():
+    rng = np.random.default_rng(2)
+    cases = [random_rotation(rng), np.diag([1.0, 1.0, 1e-9]), np.diag([2.0, 0.0, 0.0]),
+             -random_rotation(rng)] + [rng.normal(size=(3, 3)) for _ in range(20)]
+    for A in cases:
+        U, S, V = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+        svd3(A, U, S, V)
+        assert np.abs(S - np.linalg.svd(A, compute_uv=False)).max() <= 1e-13 * max(1.0, np.abs(A).max())
+        assert np.abs(U * S @ V.T - A).max() <= 1e-13 * max(1.0, np.abs(A).max())
+        assert np.abs(U.T @ U - np.eye(3)).max() < 1e-13 and np.abs(V.T @ V - np.eye(3)).max() < 1e-13
+
+
+def test_jacobi_eigh_matches_lapack():
+    rng = np.random.default_rng(5)
+    for n in (3, 12):
+        X = rng.normal(size=(n, n))
+        S = X + X.T
+        w, V = np.empty(n), np.empty((n, n))
+        jacobi_eigh(S.copy(), w, V)
+        assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * np.abs(S).max()
+        assert np.abs(V * w @ V.T - S).max() <= 1e-13 * np.abs(S).max()
+
+
+# -- single steps -------------------------------------------------------------------------------
+def test_predicted_rotation_is_refused_before_solving_and_sub_stepped():
+    """dt = 1e-2, τ = 1e5: ∇θ·(q̃ − qⁿ) predicts 5.9 rad for the first step, which is refused
+    before solving (state untouched, no Newton iteration) and sub-stepped."""
+    from abd_joint_sim.solver.solver import _Tally
+    w = _world(hinge_dict(dt=1e-2))
+    w.set_torque('hinge', 1e5)
+    start = w.state
+    q0 = start.q.copy()
+    tally = _Tally()
+    new, failure = w.solver._single(start, w.control, w.model.dt, tally, True)
+    assert new is None and failure == 'a joint is predicted to turn 5.86 rad in one step (limit 1.57)'
+    assert np.array_equal(start.q, q0)
+    assert (tally.newton_iterations, tally.line_search_iterations, tally.warnings) == (0, 0, [])
+    new, failure = w.solver._single(start, w.control, w.model.dt, _Tally(), False)
+    assert new is not None and 'predicted' not in str(failure)      # without the flag: solved
+    r = w.step()
+    assert r.substeps > 1
+    assert 'a joint is predicted to turn' in r.warnings[0] and 'retrying as 2 sub-steps' in r.warnings[0]
+
+
+@pytest.mark.parametrize('bodies', [(1,), (0,), (0, 1)], ids=['child', 'parent', 'both'])
+def test_degenerate_torque_axis_keeps_the_healthy_body_torqued(bodies):
+    """A body whose A maps x̄1 − x̄0 to 0 has no usable raw axis: the other body's is used for
+    both, so the healthy body keeps its torque (no NaN); with neither the torque is 0. The
+    degenerate body is also singular, so it is skipped, with a warning naming it."""
+    from physics_helpers import torque_force
+    w = _world(scene_dict('free_pair'))
+    w.set_torque('hinge', 2.0)
+    for b in bodies:
+        w.state.q[b, 3:12] = np.diag([1.0, 1.0, 0.0]).ravel()
+    F, skipped = torque_force(w, w.state.q, [2.0])
+    assert np.all(np.isfinite(F)) and sorted(skipped) == sorted(bodies)
+    healthy = [k for k in (0, 1) if k not in bodies]
+    for k in healthy:
+        assert np.abs(F[k, 3:12]).max() > 0.0
+    if not healthy:
+        assert not F.any()
+    r = w.step()            # the first step is taken from the singular state (ortho then restores A)
+    assert sum('near-singular' in m for m in r.warnings) == len(bodies)
+    for _ in range(3):
+        w.step()
+        assert np.all(np.isfinite(w.state.q))
+    if healthy:
+        k = healthy[0]
+        w_z = w.state.v[k, 4] - w.state.v[k, 6]   # Ȧ[0,1] − Ȧ[1,0] ≈ −2 ω_z
+        assert (w_z < 0) == (k == 1)
+
+
+def test_a_step_never_writes_into_the_previous_state():
+    """World keeps the old State by reference to undo a step: nothing may write into it
+    (plain, bdf2, sub-stepped and predicted-split steps, single and batched)."""
+    for d, tau in ((hinge_dict(integrator='bdf2'), 1000.0), (hinge_dict(dt=1e-2), 1e5),
+                   (_drive_limit_hinge(), 0.0), (scene_dict('default'), 5.0)):
+        w = _world(d)
+        for j in w.actuated_joint_names:
+            w.set_torque(j, tau)
+        for n in (1, 1, 3, 1, 4):
+            old = w.state
+            saved = {k: getattr(old, k).copy() for k in
+                     ('q', 'v', 'q_prev', 'v_prev', 'joint_angle', 'joint_velocity', 'warm_start')}
+            w.step(n)
+            assert w.state is not old
+            for k, x in saved.items():
+                assert np.array_equal(getattr(old, k), x), k
+
+
+def test_reset_restarts_exactly():
+    d = hinge_dict(integrator='bdf2')
+    a, b = _world(d), _world(d)
+    a.set_torque('hinge', 500.0)
+    a.step(10)
+    a.reset()
+    for w in (a, b):
+        w.set_torque('hinge', -300.0)
+        w.step(10)
+    assert np.array_equal(a.state.q, b.state.q) and a.last_step == b.last_step
+
+
+def test_resting_limit_does_not_amplify_roundoff():
+    """The drive+limit hinge at the default tolerance against itself with a 1e-15 nudge: a
+    warm start from the last correction alone kept the resting body jittering at the
+    tolerance level; starting from the lower-energy guess it stays at round-off."""
+    scene = Scene.from_dict(_drive_limit_hinge())
+    a, b = World(scene), World(scene)
+    b.state.q[1, 0] += 1e-15
+    worst = 0.0
+    for _ in range(400):
+        a.step()
+        b.step()
+        worst = max(worst, float(np.abs(a.state.q - b.state.q).max()))
+    assert worst < 1e-12
+
+
+def test_no_line_search_wandering_at_the_roundoff_floor():
+    """ring4's 2nd Newton iteration has a decrement ~1e-19 against a rounding slack
+    ROUNDOFF·|Π| ~1e-19. Once the tolerances hold only the full step is tried, so a step
+    never wanders there (it used to take up to 10 Newton iterations and 215 halvings)."""
+    scene = Scene.from_dict(_ring(4))
+    a, b = World(scene), World(scene)
+    b.state.q[1, 0] += 1e-15
+    for _ in range(60):
+        for r in (a.step(), b.step()):
+            assert r.converged and r.newton_iterations <= 2 and r.line_search_iterations <= 1, r
+    assert np.abs(a.state.q - b.state.q).max() < 1e-6
+
+
+# -- batching -----------------------------------------------------------------------------------
+BATCH_CASES = {
+    'default_torques': (scene_dict('default'), 300, _torques(3.0)),
+    'default_bdf2': (dict(scene_dict('default'), integrator='bdf2'), 300, _torques(-4.0)),
+    'default_idle': (scene_dict('default'), 100, None),
+    'hinge_substeps': (hinge_dict(dt=0.01), 20, _torques(1e5)),
+    'hinge_fast_warns': (hinge_dict(dt=0.01), 30, _torques(3000.0)),
+}
+
+
+def _state_fields(w):
+    s = w.state
+    return [s.time, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle, s.joint_velocity,
+            s.step_count, s.history_dt]
+
+
+@pytest.mark.parametrize('case', sorted(BATCH_CASES))
+def test_step_clean_is_bit_identical_to_single_steps(case):
+    """World.step_clean (sim_node's batches) leaves the same state, bit for bit, as the same
+    number of World.step calls, reports each step's joint angles, and stops before a step
+    World.step would sub-step or warn on, which the caller then takes with World.step."""
+    d, n, setup = BATCH_CASES[case]
+    one, batched = _world(d), _world(d)
+    for w in (one, batched):
+        if setup:
+            setup(w)
+    angles_one, angles_batched, fallbacks, steps = [], [], 0, 0
+    for _ in range(n):
+        one.step()
+        angles_one.append(one.state.joint_angle.copy())
+    while steps < n:
+        count, times, angles, _ = batched.step_clean(min(7, n - steps))
+        assert len(times) == count == len(angles)
+        angles_batched += [a.copy() for a in angles]
+        steps += count
+        if count == 0:
+            batched.step()
+            angles_batched.append(batched.state.joint_angle.copy())
+            fallbacks += 1
+            steps += 1
+    for x, y in zip(_state_fields(one), _state_fields(batched)):
+        assert np.array_equal(x, y)
+    assert np.array_equal(np.array(angles_one), np.array(angles_batched))
+    assert _report_key(one.last_step) == _report_key(batched.last_step)
+    if case == 'hinge_substeps':
+        assert fallbacks == n                   # every step sub-steps: none is clean
+    elif case == 'hinge_fast_warns':
+        assert 0 < fallbacks < n                # clean until it turns > 0.1 rad per step
+        assert 'damps rotation' in one.last_step.warnings[-1]
+    else:
+        assert fallbacks == 0
+
+
+@pytest.mark.parametrize('case', sorted(BATCH_CASES))
+def test_step_n_is_bit_identical_to_n_single_steps(case):
+    """World.step(n) runs the clean steps in one compiled call; the result (state and the
+    last report, warnings included) is that of n calls of World.step()."""
+    d, n, setup = BATCH_CASES[case]
+    one, many = _world(d), _world(d)
+    for w in (one, many):
+        if setup:
+            setup(w)
+    for _ in range(n):
+        last = one.step()
+    assert many.step(n) == last
+    for x, y in zip(_state_fields(one), _state_fields(many)):
+        assert np.array_equal(x, y)
+
+
+# -- faults ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize('distance', [1e16, 1e10])
+def test_a_joint_that_came_apart_is_a_fault_and_the_state_is_kept(distance):
+    """Anchors > 1e3 x the bodies' size apart: no valid state, SimulationError naming the
+    joint, the World keeps the last good state (not only a warning, issue 14)."""
+    w = _world(scene_dict('default'))
+    w.step(2)
+    w.state.q[2, :3] += distance                       # the forearm flies off
+    good = w.state
+    with pytest.raises(SimulationError, match=r"joint '(elbow|shoulder)' came apart: anchors .* m apart"):
+        w.step(3)
+    assert w.state is good and w.time == pytest.approx(2 * w.dt)
+
+
+def test_a_moderately_overloaded_joint_only_warns():
+    d = hinge_dict()
+    d['joints'][0]['strength_ratio'] = 1e-4            # a weak joint keeps its separation
+    w = _world(d)
+    w.state.q[1, :3] += 0.05 * w.model.body_size[1]   # 5 % of the body: overloaded, not apart
+    r = w.step()
+    assert any("joint 'hinge' anchors" in m and 'overloaded' in m for m in r.warnings)
+    assert r.max_joint_separation > 0.0
+
+
+# -- compile once, and layering ---------------------------------------------------------------
+def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
+    """`python -m abd_joint_sim.warmup` succeeds; the cache lives outside the source tree, in
+    one directory keyed on the kernel sources, so an install (another copy of the same
+    files) finds it (cache.py)."""
+    from abd_joint_sim import cache
+    proc = subprocess.run([sys.executable, '-m', 'abd_joint_sim.warmup'], cwd=REPO, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert 'physics kernels' in proc.stdout
+    assert cache.marker().exists()
+    assert REPO not in cache.directory().parents
+    copy = tmp_path / 'abd_joint_sim'
+    import shutil
+    shutil.copytree(REPO / 'abd_joint_sim', copy, ignore=shutil.ignore_patterns('__pycache__'))
+    code = ('import abd_joint_sim, abd_joint_sim.cache as c, sys; '
+            'assert abd_joint_sim.__file__.startswith(sys.argv[1]), abd_joint_sim.__file__; '
+            'print(c.marker())')
+    out = subprocess.run([sys.executable, '-c', code, str(copy)], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(tmp_path)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == str(cache.marker())     # same sources, same cache entry
+
+
+def _imports(path: Path, module: str, package: str = 'abd_joint_sim'):
+    """Modules of `package` imported by the file of `module` (relative imports resolved)."""
+    is_init = path.name == '__init__.py'
+    base = module.split('.') if is_init else module.split('.')[:-1]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = base[:len(base) - node.level + 1]
+                name = '.'.join(parts + ([node.module] if node.module else []))
+            else:
+                name = node.module or ''
+            if name.startswith(package):
+                out.add(name)
+                out.update(f'{name}.{a.name}' for a in node.names)
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.startswith(package))
+    return out
+
+
+def _module(path: Path) -> str:
+    mod = '.'.join(path.relative_to(REPO).with_suffix('').parts)
+    return mod[:-len('.__init__')] if mod.endswith('.__init__') else mod
+
+
+def _layer_violations(files):
+    """(file, bad imports) for modules below World that import World, the node, the tools or
+    the warm-up, and for terms/, angles, smallmat importing the solver."""
+    bad = []
+    for path, module in files:
+        imported = _imports(path, module)
+        up = {m for m in imported if m.startswith(('abd_joint_sim.world', 'abd_joint_sim.ros',
+                                                   'abd_joint_sim.tools', 'abd_joint_sim.warmup'))}
+        if module.startswith('abd_joint_sim.terms') or module in ('abd_joint_sim.angles', 'abd_joint_sim.smallmat'):
+            up |= {m for m in imported if m.startswith('abd_joint_sim.solver')}
+        if up:
+            bad.append((path.name, up))
+    return bad
+
+
+def test_physics_layers_import_downward_only():
+    """terms/ and angles know nothing of the solver, the solver nothing of World, and no
+    module below World imports it (or the node): no cycle, nothing reaches up."""
+    pkg = REPO / 'abd_joint_sim'
+    below_world = [*sorted((pkg / 'terms').glob('*.py')), *sorted((pkg / 'solver').glob('*.py')),
+                   pkg / 'angles.py', pkg / 'smallmat.py', pkg / 'model.py', pkg / 'state.py']
+    assert _layer_violations([(f, _module(f)) for f in below_world]) == []
+
+
+def test_import_layer_check_can_fail(tmp_path):
+    probe = tmp_path / 'probe.py'
+    probe.write_text('from ..world import World\nfrom ..solver.step import step\n')
+    bad = _layer_violations([(probe, 'abd_joint_sim.terms.probe')])
+    assert bad and bad[0][1] == {'abd_joint_sim.world', 'abd_joint_sim.world.World', 'abd_joint_sim.solver.step',
+                                 'abd_joint_sim.solver.step.step'}
+
+
+def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, capsys):
+    """Without the compiled-marker, ensure_compiled prints its line to stderr BEFORE the
+    kernels run (a first run never waits in silence); with it, nothing is printed."""
+    from abd_joint_sim import cache, warmup
+    seen = []
+
+    def fake_run():
+        seen.append(capsys.readouterr().err)      # what was printed before compiling
+    monkeypatch.setattr(warmup, '_run_kernels', fake_run)
+    monkeypatch.setattr(warmup, '_done', False)
+    monkeypatch.setattr(cache, 'marker', lambda: tmp_path / 'compiled-marker')
+    monkeypatch.setattr(cache, 'mark_compiled', lambda: (tmp_path / 'compiled-marker').write_text(''))
+    out = warmup.ensure_compiled()
+    assert out['compiled'] and 'compiling the physics kernels (first run on this machine' in seen[0]
+    monkeypatch.setattr(warmup, '_done', False)
+    out = warmup.ensure_compiled()
+    assert not out['compiled'] and seen[1] == '' and capsys.readouterr().err == ''
