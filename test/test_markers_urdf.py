@@ -1,0 +1,206 @@
+"""Markers of real URDF robots (ros/markers.py on Scene.from_urdf), checked against PyBullet.
+
+Robot files come from the pybullet wheel (`pybullet_data`, never copied here). Each robot is
+loaded at a non-zero configuration, driven by torques and gravity for some steps; then
+
+* there is one marker per URDF ``<visual>`` (of every link, merged fixed links included), of
+  the visual's kind and size (meshes as MESH_RESOURCE with the file's URI and scale);
+* each marker's pose equals the pose of its link's frame composed with the visual's
+  ``<origin>``, where the link frame comes from PyBullet's forward kinematics
+  (``getLinkState``, worldLinkFrame) at the joint angles our world reports, and the visual
+  origin is read from the XML by this test (not by abd_joint_sim.urdf).
+
+The tolerance (0.5 mm, 1e-3 in the rotation's Frobenius norm) is far above the affine
+bodies' deformation and the joints' compliance (~1e-5 here) and far below what a wrong
+sign, frame or composition order moves a visual (centimetres).
+"""
+from __future__ import annotations
+
+import os
+import warnings
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial.transform import Rotation
+
+from abd_joint_sim import Scene, World
+from abd_joint_sim.ros.markers import MarkerBuilder
+
+pybullet = pytest.importorskip('pybullet', reason='pybullet not installed (requirements-test.txt)')
+pybullet_data = pytest.importorskip('pybullet_data', reason='pybullet_data not installed')
+
+POS_TOL = 5e-4      # m
+ROT_TOL = 1e-3      # Frobenius norm of the rotation difference
+
+
+def _transform(position, quat_xyzw) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
+    T[:3, 3] = position
+    return T
+
+
+def _origin(el) -> np.ndarray:
+    """<origin xyz rpy> of an element as a 4x4 (URDF rpy: extrinsic x, y, z)."""
+    T = np.eye(4)
+    o = el.find('origin')
+    if o is not None:
+        T[:3, 3] = [float(v) for v in o.get('xyz', '0 0 0').split()]
+        T[:3, :3] = Rotation.from_euler('xyz', [float(v) for v in
+                                                o.get('rpy', '0 0 0').split()]).as_matrix()
+    return T
+
+
+def expected_visuals(path: str) -> list[dict]:
+    """Every <visual> of the file: link, geometry tag, size/scale, filename, origin."""
+    out = []
+    for link in ET.parse(path).getroot().findall('link'):
+        for vis in link.findall('visual'):
+            geom = vis.find('geometry')
+            if geom is None or len(geom) == 0:
+                continue
+            g = geom[0]
+            if g.tag == 'box':
+                scale = [float(v) for v in g.get('size').split()]
+            elif g.tag == 'sphere':
+                scale = [2 * float(g.get('radius'))] * 3
+            elif g.tag == 'cylinder':
+                r = float(g.get('radius'))
+                scale = [2 * r, 2 * r, float(g.get('length'))]
+            else:
+                scale = [float(v) for v in g.get('scale', '1 1 1').split()]
+            out.append({'link': link.get('name'), 'kind': g.tag, 'scale': scale,
+                        'uri': g.get('filename', ''), 'origin': _origin(vis)})
+    return out
+
+
+def pybullet_link_frames(path: str, angles: dict) -> dict:
+    """World pose (4x4) of every link frame at joint positions `angles` (PyBullet FK)."""
+    p = pybullet
+    cid = p.connect(p.DIRECT)
+    try:
+        rid = p.loadURDF(path, useFixedBase=True, physicsClientId=cid)
+        link_index = {}
+        for k in range(p.getNumJoints(rid, physicsClientId=cid)):
+            info = p.getJointInfo(rid, k, physicsClientId=cid)
+            link_index[info[12].decode()] = k
+            if info[1].decode() in angles:
+                p.resetJointState(rid, k, angles[info[1].decode()], physicsClientId=cid)
+        # The base pose PyBullet reports is its inertial frame: back to the link frame.
+        pos, orn = p.getBasePositionAndOrientation(rid, physicsClientId=cid)
+        dyn = p.getDynamicsInfo(rid, -1, physicsClientId=cid)
+        frames = {None: _transform(pos, orn) @ np.linalg.inv(_transform(dyn[3], dyn[4]))}
+        for name, k in link_index.items():
+            state = p.getLinkState(rid, k, computeForwardKinematics=True, physicsClientId=cid)
+            frames[name] = _transform(state[4], state[5])
+    finally:
+        p.disconnect(cid)
+    return frames
+
+
+def run_robot(rel_path: str, q0: dict, lock=(), steps: int = 150):
+    """(path, scene, world, MarkerArray) after `steps` of alternating torques and gravity."""
+    path = os.path.join(pybullet_data.getDataPath(), rel_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')        # repaired inertias etc.: test_urdf_engines
+        scene = Scene.from_urdf(path, dt=1e-3, initial_positions=q0, lock=list(lock))
+    world = World(scene)
+    for k, name in enumerate(scene.joint_names):
+        world.set_torque(name, (-1) ** k * 1.0)
+    world.step(steps)
+    msg = MarkerBuilder(scene).build(123, world.body_pose)
+    return path, scene, world, msg
+
+
+def _marker_pose(m) -> np.ndarray:
+    o, q = m.pose.orientation, m.pose.position
+    return _transform([q.x, q.y, q.z], [o.x, o.y, o.z, o.w])
+
+
+def match_markers(path: str, scene, world, msg) -> tuple[list, list, float, float]:
+    """Pair every expected visual with one marker (minimum total pose error); returns the
+    pairs (visual, marker), and the worst position and rotation errors."""
+    angles = dict(zip(scene.joint_names, world.joint_angles()))
+    frames = pybullet_link_frames(path, angles)
+    visuals = expected_visuals(path)
+    for v in visuals:
+        v['world'] = frames.get(v['link'], frames[None]) @ v['origin']
+    markers = list(msg.markers)
+    assert len(markers) == len(visuals), 'one marker per <visual>'
+    cost = np.zeros((len(visuals), len(markers)))
+    for a, v in enumerate(visuals):
+        for b, m in enumerate(markers):
+            T = _marker_pose(m)
+            cost[a, b] = np.linalg.norm(T[:3, 3] - v['world'][:3, 3]) + \
+                np.linalg.norm(T[:3, :3] - v['world'][:3, :3])
+    rows, cols = linear_sum_assignment(cost)
+    pairs = [(visuals[a], markers[b]) for a, b in zip(rows, cols)]
+    dpos = max(np.linalg.norm(_marker_pose(m)[:3, 3] - v['world'][:3, 3]) for v, m in pairs)
+    drot = max(np.linalg.norm(_marker_pose(m)[:3, :3] - v['world'][:3, :3]) for v, m in pairs)
+    return pairs, dpos, drot
+
+
+def check_kinds(pairs) -> None:
+    from visualization_msgs.msg import Marker
+    kinds = {'box': Marker.CUBE, 'sphere': Marker.SPHERE, 'cylinder': Marker.CYLINDER,
+             'mesh': Marker.MESH_RESOURCE}
+    for v, m in pairs:
+        assert m.type == kinds[v['kind']], (v['link'], v['kind'], m.type)
+        np.testing.assert_allclose([m.scale.x, m.scale.y, m.scale.z], v['scale'], rtol=1e-12,
+                                   err_msg=v['link'])
+        assert m.mesh_resource == v['uri'], v['link']
+        assert m.ns.startswith('bodies/') and m.header.frame_id == 'world'
+
+
+@pytest.mark.parametrize('rel_path, q0, lock', [
+    # meshes, 7 revolute joints, from a bent pose
+    ('kuka_iiwa/model.urdf', {'lbr_iiwa_joint_2': 0.5, 'lbr_iiwa_joint_4': -1.0,
+                              'lbr_iiwa_joint_6': 0.8, 'lbr_iiwa_joint_7': 0.6}, ()),
+    # boxes, cylinders with rotated origins, a sphere, meshes; fixed joints merged
+    ('r2d2.urdf', {'head_swivel': 0.9, 'right_front_wheel_joint': 1.2,
+                   'left_gripper_joint': 0.3}, ('gripper_extension',)),
+    # cylinders and boxes on links merged by fixed joints
+    ('TwoJointRobot_w_fixedJoints.urdf', {'joint_1': 0.7, 'joint_2': -0.9}, ()),
+])
+def test_markers_of_real_robots_follow_pybullet_forward_kinematics(rel_path, q0, lock):
+    path, scene, world, msg = run_robot(rel_path, q0, lock)
+    moved = np.abs(world.joint_angles() - [q0.get(n, 0.0) for n in scene.joint_names])
+    assert moved.max() > 1e-3, 'the robot must have moved from its initial pose'
+    pairs, dpos, drot = match_markers(path, scene, world, msg)
+    check_kinds(pairs)
+    assert dpos < POS_TOL and drot < ROT_TOL, (dpos, drot)
+    # stable ids: index of the visual within its body, per body namespace
+    ids: dict = {}
+    for m in msg.markers:
+        ids.setdefault(m.ns, []).append(m.id)
+    assert all(v == list(range(len(v))) for v in ids.values())
+    assert all(m.header.stamp.nanosec == 123 for m in msg.markers)
+
+
+def test_a_wrong_configuration_is_caught():
+    """The check can fail: markers of the same robot at other joint angles do not match
+    PyBullet's FK at the reported angles."""
+    q0 = {'lbr_iiwa_joint_2': 0.5, 'lbr_iiwa_joint_4': -1.0}
+    path, scene, world, _ = run_robot('kuka_iiwa/model.urdf', q0, steps=50)
+    other = {n: q + (0.05 if n == 'lbr_iiwa_joint_2' else 0.0)
+             for n, q in zip(scene.joint_names, world.joint_angles())}
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        scene2 = Scene.from_urdf(path, initial_positions=other)
+    wrong = MarkerBuilder(scene2).build(0, World(scene2).body_pose)
+    _, dpos, _ = match_markers(path, scene, world, wrong)
+    assert dpos > 10 * POS_TOL
+
+
+def test_mesh_scale_and_uri_of_a_scaled_mesh():
+    """cube_small.urdf: one link, a mesh with scale 0.05 (no joints)."""
+    from visualization_msgs.msg import Marker
+    path, scene, world, msg = run_robot('cube_small.urdf', {}, steps=1)
+    (m,) = msg.markers
+    assert m.type == Marker.MESH_RESOURCE and m.mesh_resource == 'cube.obj'
+    assert (m.scale.x, m.scale.y, m.scale.z) == (0.05, 0.05, 0.05)
+    pairs, dpos, drot = match_markers(path, scene, world, msg)
+    check_kinds(pairs)
+    assert dpos < 1e-12 and drot < 1e-12
