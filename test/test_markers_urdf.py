@@ -204,3 +204,72 @@ def test_mesh_scale_and_uri_of_a_scaled_mesh():
     pairs, dpos, drot = match_markers(path, scene, world, msg)
     check_kinds(pairs)
     assert dpos < 1e-12 and drot < 1e-12
+
+
+# ------------------------------------------------------------ pictures of a robot bag ----
+R2D2_BODIES = {'left_gripper': ('left_gripper', 'left_tip'),       # fixed joints merged
+               'right_gripper': ('right_gripper', 'right_tip')}
+
+
+def _pybullet_body_coms(path: str, angles: dict) -> dict:
+    """World COM of each r2d2 gripper body (its links lumped by mass), PyBullet FK."""
+    p = pybullet
+    cid = p.connect(p.DIRECT)
+    try:
+        rid = p.loadURDF(path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+                         physicsClientId=cid)
+        index = {}
+        for k in range(p.getNumJoints(rid, physicsClientId=cid)):
+            info = p.getJointInfo(rid, k, physicsClientId=cid)
+            index[info[12].decode()] = k
+            if info[1].decode() in angles:
+                p.resetJointState(rid, k, angles[info[1].decode()], physicsClientId=cid)
+        out = {}
+        for body, links in R2D2_BODIES.items():
+            m = np.array([p.getDynamicsInfo(rid, index[n], physicsClientId=cid)[0]
+                          for n in links])
+            c = np.array([p.getLinkState(rid, index[n], computeForwardKinematics=True,
+                                         physicsClientId=cid)[0] for n in links])
+            out[body] = (m[:, None] * c).sum(axis=0) / m.sum()
+    finally:
+        p.disconnect(cid)
+    return out
+
+
+def test_plot_bag_draws_meshes_as_their_bodies_equal_inertia_box(tmp_path, capsys):
+    """A robot with mesh visuals (r2d2's grippers, rotated visual origins) recorded by
+    run_headless: plot_bag stands in each mesh body's box of equal inertia, centred at the
+    body's COM (checked against PyBullet's link COMs at the recorded angles), and says so."""
+    pytest.importorskip('matplotlib', reason='matplotlib not installed (requirements-test.txt)')
+    from abd_joint_sim.tools import plot_bag, run_headless
+    from visualization_msgs.msg import Marker
+    path = os.path.join(pybullet_data.getDataPath(), 'r2d2.urdf')
+    q0 = {'left_gripper_joint': 0.4, 'right_gripper_joint': 0.2, 'head_swivel': 0.5}
+    (tmp_path / 'r2d2.yaml').write_text(
+        f'dt: 0.001\nrobot:\n  urdf: {path}\n  lock: [gripper_extension]\n'
+        f'  initial_positions: {q0}\n')
+    (tmp_path / 'sched.yaml').write_text(
+        'duration: 0.3\nevents:\n  - t: 0.0\n    torque: {left_gripper_joint: 0.5, '
+        'right_gripper_joint: -0.5}\n')
+    bag = tmp_path / 'bag'
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        assert run_headless.main(['--scene', str(tmp_path / 'r2d2.yaml'), '--schedule',
+                                  str(tmp_path / 'sched.yaml'), '--out', str(bag),
+                                  '-q']) == 0
+    run = plot_bag.read_run(bag)
+    assert set(R2D2_BODIES) <= set(run.mesh_boxes)
+    t, last = run.markers[-1]
+    k = int(np.argmin(np.abs(np.array(run.t) - t)))      # the joint state at that time
+    angles = dict(zip(run.joint_names, run.position[k]))
+    assert abs(angles['left_gripper_joint'] - 0.4) > 1e-3, 'the gripper must have moved'
+    coms = _pybullet_body_coms(path, angles)
+    for m in last.markers:
+        if m.type != Marker.MESH_RESOURCE:
+            continue
+        body = m.ns.split('/', 1)[1]
+        centre = plot_bag._mesh_box_points(run, m).mean(axis=0)
+        np.testing.assert_allclose(centre, coms[body], atol=5e-4, err_msg=f'{body} {m.id}')
+    out = tmp_path / 'png'
+    assert plot_bag.main([str(bag), '--out', str(out), '-q']) == 0
+    assert (out / 'poses.png').stat().st_size > 20_000
