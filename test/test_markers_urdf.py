@@ -273,3 +273,26 @@ def test_plot_bag_draws_meshes_as_their_bodies_equal_inertia_box(tmp_path, capsy
     out = tmp_path / 'png'
     assert plot_bag.main([str(bag), '--out', str(out), '-q']) == 0
     assert (out / 'poses.png').stat().st_size > 20_000
+
+
+def test_massless_world_root_is_marked_not_drawn_as_a_made_up_box():
+    """pendulum5.urdf's root link `world` has neither mass nor visual: the importer gives
+    it a made-up inertia (it is fixed), whose equal-inertia box would be drawn as a 25 cm
+    cube; a small sphere marks the frame instead. The five links keep their spheres."""
+    from visualization_msgs.msg import Marker
+    from abd_joint_sim.urdf import FRAME_MARK_RADIUS
+    path, scene, world, msg = run_robot('pendulum5.urdf', {'joint0': 0.3}, steps=20)
+    by_ns = {m.ns: m for m in msg.markers}
+    root = by_ns['bodies/world']
+    assert root.type == Marker.SPHERE
+    assert root.scale.x == root.scale.z == 2 * FRAME_MARK_RADIUS
+    spheres = [m for m in msg.markers if m.ns != 'bodies/world']
+    assert len(spheres) == 5 and all(m.type == Marker.SPHERE for m in spheres)
+    # the link spheres are the file's and sit where PyBullet's FK puts them
+    visuals = expected_visuals(path)
+    angles = dict(zip(scene.joint_names, world.joint_angles()))
+    frames = pybullet_link_frames(path, angles)
+    for v in visuals:
+        T = frames[v['link']] @ v['origin']
+        d = min(np.linalg.norm(_marker_pose(m)[:3, 3] - T[:3, 3]) for m in spheres)
+        assert d < POS_TOL, (v['link'], d)
