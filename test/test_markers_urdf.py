@@ -296,3 +296,35 @@ def test_massless_world_root_is_marked_not_drawn_as_a_made_up_box():
         T = frames[v['link']] @ v['origin']
         d = min(np.linalg.norm(_marker_pose(m)[:3, 3] - T[:3, 3]) for m in spheres)
         assert d < POS_TOL, (v['link'], d)
+
+
+def test_joint_axis_arrows_of_a_urdf_robot_fit_the_robot():
+    """A URDF joint's p1 is p0 + the unit axis (1 m); its arrow starts at the joint origin,
+    along the URDF axis in the world, 0.2 x the robot's extent long: demo_arm's joint
+    and link origins span 0.4 m in x and 0.3 m in z (diagonal 0.5 m), so 0.1 m, carried by
+    the parent body."""
+    from abd_joint_sim.ros.markers import robot_axis_length
+    from abd_joint_sim.ros.params import resolve_scene
+    scene = Scene.from_file(resolve_scene('demo_arm'))
+    world = World(scene)
+    world.set_torque('shoulder_lift', 12.0)
+    world.step(200)
+    msg = MarkerBuilder(scene, joint_axes=True).build(0, world.body_pose)
+    arrows = {m.id: m for m in msg.markers if m.ns == 'joint_axes'}
+    length = robot_axis_length(scene)
+    assert length == pytest.approx(0.2 * 0.5, rel=1e-12)
+    assert len(arrows) == 3
+    # elbow (from the URDF): origin (0.4, 0, 0) and axis (0, -1, 0) in the upper arm's link
+    # frame, which is its body frame (rpy 0 at the zero pose)
+    upper = next(bd for bd in scene.bodies if bd.name == 'upper_arm')
+    assert np.allclose(upper.rpy, 0.0)
+    p, A = world.body_pose('upper_arm')
+    U, _, Vt = np.linalg.svd(A)
+    R = U @ Vt                                              # polar factor of A
+    assert np.linalg.norm(R - np.eye(3)) > 0.5, 'the arm must have lifted'
+    a, b = ([q.x, q.y, q.z] for q in arrows[scene.joint_names.index('elbow')].points)
+    np.testing.assert_allclose(a, p + A @ [0.4, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(np.subtract(b, a), length * (R @ [0.0, -1.0, 0.0]),
+                               atol=1e-3 * length)
+    # the YAML scenes keep their p0 -> p1 arrows
+    assert robot_axis_length(Scene.from_file(resolve_scene('default'))) is None
