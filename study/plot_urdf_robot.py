@@ -16,9 +16,7 @@ import math
 from pathlib import Path
 import sys
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import REPO, pyplot    # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 KAPPA_DEFAULT = 1e8
 STYLE = {'ours bdf1': dict(color='tab:orange', marker='s'),
@@ -93,8 +91,11 @@ def main(argv=None) -> int:
     parser.add_argument('--csv', default=str(REPO / 'docs/results/urdf_robot.csv'))
     parser.add_argument('--out', default=str(REPO / 'docs/img/urdf_robot_lag.png'))
     args = parser.parse_args(argv)
-    plt = pyplot()
-    if plt is None:
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
         print('plot_urdf_robot: matplotlib is not installed (it is optional); '
               '`python -m pip install -r requirements-study.txt`', file=sys.stderr)
         return 2
