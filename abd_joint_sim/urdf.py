@@ -234,7 +234,15 @@ class _Reader:
             else:
                 continue        # capsule etc.: no effect on the physics, nothing to draw
             mat = vis.find('material')
-            rgba = None if mat is None else self.material_rgba(mat, materials, f'{where} <material>')
+            rgba, mname = None, None if mat is None else mat.get('name')
+            if mname and mname in materials:
+                rgba = materials[mname]     # as urdfdom: a known name wins over an inline colour
+            elif mat is not None:
+                rgba = self.material_rgba(mat, materials, f'{where} <material>')
+                if mname and rgba is not None:
+                    # urdfdom (and so RViz, PyBullet) registers a link's named colour for
+                    # the links after it: r2d2 and laikago name one once and reuse it.
+                    materials[mname] = rgba
             link.visuals.append((kind, size, uri, self.origin(vis, f'{where} <visual>'), rgba))
         return link
 

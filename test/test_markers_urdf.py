@@ -17,6 +17,7 @@ sign, frame or composition order moves a visual (centimetres).
 from __future__ import annotations
 
 import os
+from types import SimpleNamespace
 import warnings
 import xml.etree.ElementTree as ET
 
@@ -328,3 +329,43 @@ def test_joint_axis_arrows_of_a_urdf_robot_fit_the_robot():
                                atol=1e-3 * length)
     # the YAML scenes keep their p0 -> p1 arrows
     assert robot_axis_length(Scene.from_file(resolve_scene('default'))) is None
+
+
+@pytest.mark.parametrize('rel_path, lock', [
+    ('r2d2.urdf', ('gripper_extension',)),      # colours named once in a link, reused after
+    ('kuka_iiwa/model.urdf', ()),               # robot-level named materials
+    ('pendulum5.urdf', ()),                     # 'Red' referenced but never defined
+])
+def test_marker_colours_are_pybullets(rel_path, lock):
+    """Each visual's colour is the one PyBullet (its own URDF reader) gives it; where the
+    file defines none (PyBullet's default white) the marker has our palette colour."""
+    path, scene, world, msg = run_robot(rel_path, {}, lock, steps=1)
+    p = pybullet
+    cid = p.connect(p.DIRECT)
+    try:
+        rid = p.loadURDF(path, useFixedBase=True, physicsClientId=cid)
+        names = {-1: p.getBodyInfo(rid, physicsClientId=cid)[0].decode()}   # the root link
+        for k in range(p.getNumJoints(rid, physicsClientId=cid)):
+            names[k] = p.getJointInfo(rid, k, physicsClientId=cid)[12].decode()
+        theirs: dict = {}
+        for v in p.getVisualShapeData(rid, physicsClientId=cid):
+            theirs.setdefault(names[v[1]], []).append(tuple(v[7]))
+    finally:
+        p.disconnect(cid)
+    defined = {}          # link -> [(origin, marker)], in the file's order
+    # (pendulum5's massless root gets a frame sphere that is no <visual>: not compared)
+    drawn = SimpleNamespace(markers=[m for m in msg.markers if m.ns != 'bodies/world'])
+    pairs, _, _ = match_markers(path, scene, world, drawn)
+    for v, m in pairs:
+        defined.setdefault(v['link'], []).append((v['origin'][:3, 3].tolist(), m))
+    checked = 0
+    for link, entries in defined.items():
+        pb = theirs[link]
+        assert len(pb) == len(entries), link
+        for (_, m), rgba in zip(entries, pb):
+            ours = (m.color.r, m.color.g, m.color.b, m.color.a)
+            if rgba == (1.0, 1.0, 1.0, 1.0) and ours != rgba:
+                continue               # undefined in the file: our palette, their white
+            np.testing.assert_allclose(ours, rgba, atol=1e-6, err_msg=link)
+            checked += 1
+    assert checked >= {'r2d2.urdf': 12, 'kuka_iiwa/model.urdf': 8, 'pendulum5.urdf': 1}[rel_path]
