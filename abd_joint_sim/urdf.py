@@ -35,6 +35,7 @@ from .errors import SceneError
 DEFAULT_DT = 1e-3                      # s, from_urdf / robot: scenes
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)    # m/s^2: a robot description assumes Earth's gravity
 FIXED_ROOT_MASS = 1.0                  # kg given to a massless fixed root (it never moves)
+FRAME_MARK_RADIUS = 0.02               # m: the sphere drawn for such a root without visuals
 WATER_DENSITY = 1000.0                 # kg/m^3: volume (for kappa) and the sphere repair
 
 ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints', 'kappa',
@@ -233,7 +234,15 @@ class _Reader:
             else:
                 continue        # capsule etc.: no effect on the physics, nothing to draw
             mat = vis.find('material')
-            rgba = None if mat is None else self.material_rgba(mat, materials, f'{where} <material>')
+            rgba, mname = None, None if mat is None else mat.get('name')
+            if mname and mname in materials:
+                rgba = materials[mname]     # as urdfdom: a known name wins over an inline colour
+            elif mat is not None:
+                rgba = self.material_rgba(mat, materials, f'{where} <material>')
+                if mname and rgba is not None:
+                    # urdfdom (and so RViz, PyBullet) registers a link's named colour for
+                    # the links after it: r2d2 and laikago name one once and reuse it.
+                    materials[mname] = rgba
             link.visuals.append((kind, size, uri, self.origin(vis, f'{where} <visual>'), rgba))
         return link
 
@@ -549,7 +558,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         rpy = matrix_rpy(T[:3, :3])
         R0 = rpy_matrix(rpy)            # the frame the scene will use, to round-off
         is_root = top == roots[0]
-        if m <= 0.0:
+        invented = m <= 0.0
+        if invented:
             if not (is_root and opt.fixed_base):
                 raise SceneError(f'{source}: link {top!r} has no mass: a free body needs '
                                  'an <inertial> with mass > 0')
@@ -576,6 +586,10 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 if rgba is not None:
                     v['rgba'] = list(rgba)
                 visuals.append(v)
+        if not visuals and invented:
+            # The markers' fallback for a body without visuals is its box of equal inertia;
+            # this inertia is made up (a massless world frame), so mark the frame instead.
+            visuals.append({'kind': 'sphere', 'size': [FRAME_MARK_RADIUS]})
         if visuals:
             body['visuals'] = visuals
         bodies.append(body)

@@ -20,7 +20,10 @@ fixed so R is proper). A visual with origin (t, R_v) in the body frame sits at
 position A t + p (where that body point really is) with orientation R R_v.
 
 Optional joint axes: one ``ARROW`` per joint from the joint's first to its second point
-(``p0``, ``p1`` of the scene), carried by the parent body (x = A x̄ + p).
+(``p0``, ``p1`` of the scene), carried by the parent body (x = A x̄ + p). A URDF robot's
+``p1`` is ``p0`` + the unit axis, 1 m long whatever the robot's size, so its arrows start
+at the joint origin with length L = 0.2 x the extent of the robot (the diagonal of the box
+around its joint origins and body origins), clipped to [0.05, 1] m.
 
 Ids and namespaces are stable for a scene: namespace ``bodies/<body>`` with id = the
 visual's index in that body; namespace ``joint_axes`` with id = the joint's index. Every
@@ -107,6 +110,17 @@ def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray
     return sides, axes
 
 
+def robot_axis_length(scene: Any) -> Optional[float]:
+    """Length [m] of a URDF robot's joint-axis arrows (module docstring), None for a scene
+    written in YAML (its arrows are p0 -> p1 as given)."""
+    if not getattr(scene, 'robot_description', ''):
+        return None
+    pts = [np.asarray(j.p0, dtype=float) for j in scene.joints] + \
+        [np.asarray(b.position, dtype=float) for b in scene.bodies]
+    extent = float(np.linalg.norm(np.ptp(np.array(pts), axis=0))) if pts else 0.0
+    return min(max(0.2 * extent, 0.05), 1.0)
+
+
 class _Part:
     """One marker of a body: type, scale, colour, mesh URI, origin in the body frame."""
 
@@ -140,12 +154,17 @@ class MarkerBuilder:
         self.axes: list[tuple[int, str, str, np.ndarray, np.ndarray]] = []
         if joint_axes:
             bodies = {b.name: b for b in scene.bodies}
+            length = robot_axis_length(scene)
             for j, joint in enumerate(scene.joints):
                 parent = bodies[joint.parent]
                 R0 = rpy_to_matrix(parent.rpy)
                 p0 = np.asarray(parent.position, dtype=float)
-                a = R0.T @ (np.asarray(joint.p0, dtype=float) - p0)
-                b = R0.T @ (np.asarray(joint.p1, dtype=float) - p0)
+                q0 = np.asarray(joint.p0, dtype=float)
+                q1 = np.asarray(joint.p1, dtype=float)
+                if length is not None:
+                    q1 = q0 + length * (q1 - q0) / np.linalg.norm(q1 - q0)
+                a = R0.T @ (q0 - p0)
+                b = R0.T @ (q1 - p0)
                 self.axes.append((j, joint.name, joint.parent, a, b))
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None

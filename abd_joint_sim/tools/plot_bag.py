@@ -12,9 +12,16 @@ writes
 * ``DIR/poses.png``: a strip of the bodies at chosen times, drawn from the recorded
   ``markers`` (docs/bag-format.md): each box, cylinder or sphere projected on a plane
   (boxes and cylinders as the convex hull of their projected outline, spheres as
-  circles, meshes as a cross at their origin), joint-axis arrows as lines, and a thin
-  line for the path each body's marker took up to that time. Without markers
-  in the bag (recorded with ``marker_rate`` 0) only joints.png is written.
+  circles), joint-axis arrows as lines, and a thin line for the path each body's marker
+  took up to that time. Without markers in the bag (recorded with ``marker_rate`` 0)
+  only joints.png is written.
+
+Meshes (URDF ``<mesh>`` visuals, ``MESH_RESOURCE`` markers) are not loaded: a body with
+mesh visuals is drawn as its box of equal inertia (``markers.equal_inertia_box``: sides
+a_i = sqrt(6 (I_j + I_k - I_i) / m), at the COM, along the principal axes; hatched, and
+labelled so), from the scene stored in the bag. The body's pose comes from the mesh
+marker: with the visual's origin (t, R_v) in the body frame, R_b = R_m R_vᵀ and
+p_b = p_m - R_b t. Without a readable scene in the bag a mesh is a cross at its origin.
 
 The view plane (``--view xy|xz|yz``) defaults to the one in which the bodies move most.
 matplotlib is optional (requirements-study.txt); without it the command says so in one line
@@ -55,6 +62,32 @@ class Run:
         self.reset_index: list[int] = []   # index into t of the first state after a reset
         self.markers: list[tuple[float, Any]] = []      # (t, MarkerArray)
         self.marker_segment: list[int] = []             # segment (0, 1, ...) of each
+        # body -> (visual origins {index: (t, R_v)}, box sides, centre, axes in the body
+        # frame): the stand-in drawn for mesh visuals (see the module docstring)
+        self.mesh_boxes: dict[str, tuple] = {}
+
+
+def mesh_boxes(bag: str | os.PathLike[str]) -> dict[str, tuple]:
+    """Per body with mesh visuals, what :attr:`Run.mesh_boxes` holds, from the scene
+    stored in the bag; {} when the bag stores none that parses (then meshes are crosses)."""
+    from abd_joint_sim.record import read_custom_data
+    from abd_joint_sim.ros.markers import equal_inertia_box, rpy_to_matrix
+    from abd_joint_sim.tools.bagrun import scene_from_text
+    try:
+        text = read_custom_data(bag).get('abd_joint_sim.scene_yaml', '')
+        scene = scene_from_text(text, 'scene.yaml') if text else None
+    except Exception:  # noqa: BLE001 - optional: the picture falls back to crosses
+        return {}
+    out = {}
+    for body in scene.bodies if scene is not None else ():
+        visuals = getattr(body, 'visuals', ()) or ()
+        if not any(v.kind == 'mesh' for v in visuals) or body.shape.kind != 'inertial':
+            continue
+        sides, axes = equal_inertia_box(body.shape.mass, body.shape.inertia)
+        origins = {i: (np.asarray(v.origin_xyz, dtype=float), rpy_to_matrix(v.origin_rpy))
+                   for i, v in enumerate(visuals)}
+        out[body.name] = (origins, sides, np.asarray(body.shape.com, dtype=float), axes)
+    return out
 
 
 def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
@@ -113,6 +146,8 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
         raise PlotError(str(exc)) from None
     if not run.t:
         raise PlotError(f'{bag}: no sensor_msgs/msg/JointState messages to plot')
+    if run.markers:
+        run.mesh_boxes = mesh_boxes(bag)
     return run
 
 
@@ -200,6 +235,24 @@ def _hull(points: np.ndarray) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1])
 
 
+def _mesh_box_points(run: Run, marker) -> Optional[np.ndarray]:
+    """Corners (8, 3) in the world of the equal-inertia box standing in for the body of a
+    mesh marker, or None (no scene in the bag, or not a body's visual)."""
+    body = marker.ns.split('/', 1)[-1] if marker.ns.startswith('bodies/') else ''
+    entry = run.mesh_boxes.get(body)
+    if entry is None or marker.id not in entry[0]:
+        return None
+    origins, sides, com, axes = entry
+    t_v, R_v = origins[marker.id]
+    R_m = _quat_matrix(marker.pose.orientation)
+    p = marker.pose.position
+    R_b = R_m @ R_v.T
+    p_b = np.array([p.x, p.y, p.z]) - R_b @ t_v
+    local = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)]) \
+        * (sides / 2.0)
+    return (local @ axes.T + com) @ R_b.T + p_b
+
+
 def choose_view(run: Run) -> str:
     """The plane ('xy', 'xz', 'yz') normal to the axis the marker positions vary least
     along: the plane the bodies move in."""
@@ -238,6 +291,8 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
     for _, arr in run.markers:
         for m in arr.markers:
             pts = _outline(m)
+            if pts is None and m.type == Marker.MESH_RESOURCE:
+                pts = _mesh_box_points(run, m)
             if pts is not None:
                 all_pts.append(pts[:, [i, j]])
             p = m.pose.position
@@ -257,6 +312,7 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
         ax.set_visible(False)
     drawn = []
     labelled: set = set()
+    boxed: set = set()
     for ax, k in zip(axes.ravel(), chosen):
         t, arr = run.markers[k]
         drawn.append(t)
@@ -286,7 +342,17 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
                 ax.add_patch(Circle((p[i], p[j]), m.scale.x / 2, facecolor=colour,
                                     edgecolor='k', lw=0.6, alpha=0.85))
             elif m.type == Marker.MESH_RESOURCE:
-                ax.plot(p[i], p[j], 'x', color=colour, ms=8, mew=2)
+                name = m.ns.split('/', 1)[-1]
+                pts = _mesh_box_points(run, m)
+                if pts is None:
+                    ax.plot(p[i], p[j], 'x', color=colour, ms=8, mew=2)
+                elif (t, name) not in boxed:        # one stand-in per body
+                    boxed.add((t, name))
+                    ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
+                                         facecolor=colour, edgecolor='k', lw=0.6,
+                                         alpha=0.6, hatch='//',
+                                         label=None if name in labelled else name))
+                    labelled.add(name)
             else:
                 pts = _outline(m)
                 if pts is not None:
@@ -304,10 +370,15 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
         ax.set_xlabel(f'{view[0]} [m]')
     for row in axes:
         row[0].set_ylabel(f'{view[1]} [m]')
-    if labelled:
+    if len(labelled) > 4:       # many bodies (a robot): beside the strip, not over a panel
+        fig.legend(*axes[0][0].get_legend_handles_labels(), loc='outside right upper',
+                   fontsize=8)
+    elif labelled:
         axes[0][0].legend(loc='best', fontsize=8, framealpha=0.8)
-    fig.suptitle(f'{title}: bodies seen along {"xyz"[3 - i - j]} (from the recorded markers)',
-                 fontsize=11)
+    note = '\nhatched: a mesh visual, drawn as the box of equal inertia of its body' \
+        if boxed else ''
+    fig.suptitle(f'{title}: bodies seen along {"xyz"[3 - i - j]} (from the recorded '
+                 f'markers){note}', fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return drawn
