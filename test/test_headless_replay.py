@@ -409,11 +409,19 @@ def test_live_node_bag_replays(tmp_path):
             sent.append(what)
             probe.spin_for(0.3)
 
+        from sensor_msgs.msg import JointState
+        efforts: list = []
+        n.create_subscription(JointState, '/joint_states',
+                              lambda m: efforts.append(list(m.effort)), 10)
         call('unpause')
         send(torque, Float64(data=800.0), ('torque', 800.0))
         send(enable, Bool(data=False), ('enable', False))
         send(enable_all, Bool(data=True), ('enable', True))
         send(array, Float64MultiArray(data=[-500.0]), ('array', -500.0))
+        # ~/reset drops commands not applied yet (README): on a loaded machine the node may
+        # not have stepped since the array arrived, so wait until it is applied.
+        probe.wait_for(lambda: [-500.0] in efforts, 20.0,
+                       'the array command applied (effort -500 on /joint_states)', log=node)
         call('reset')
         probe.spin_for(0.1)
         send(torque, Float64(data=300.0), ('torque', 300.0))
