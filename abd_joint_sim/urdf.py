@@ -48,7 +48,6 @@ OVERRIDE_KEYS = {'external_torque': ('torque', 'enabled', 'effort_limit'),
                  'driving': ('strength_ratio', 'aim_angle', 'passive', 'enabled'),
                  'limit': ('lower', 'upper', 'strength')}
 MOVABLE = ('revolute', 'continuous')
-UNSUPPORTED = ('prismatic', 'planar', 'floating')
 
 
 class UrdfWarning(UserWarning):
@@ -150,6 +149,9 @@ class _Reader:
         if re.search(r'<!\s*(DOCTYPE|ENTITY)', text):
             self.fail('DOCTYPE/ENTITY declarations are not accepted in a URDF (entity '
                       'expansion is refused); remove the <!DOCTYPE ...> block')
+        # Trailing NUL bytes after the document (pybullet_data's humanoid.urdf ends with one)
+        # are ignored by the tinyxml-based parsers of ROS and PyBullet: ignore them too.
+        text = text.rstrip('\x00')
         try:
             root = ET.fromstring(text)
         except ET.ParseError as exc:
@@ -251,8 +253,10 @@ class _Reader:
         if not name:
             self.fail('a <joint> without a name')
         where = f'joint {name!r}'
-        if jtype not in MOVABLE + UNSUPPORTED + ('fixed',):
-            self.fail(f'{where}: unknown type {jtype!r}')
+        if not jtype:
+            self.fail(f'{where}: missing type="..."')
+        # Types beyond URDF's (PyBullet's 'spherical', ...) are refused like prismatic ones
+        # when the scene is built, so that `lock` can still hold them rigid.
         ends = {}
         for key in ('parent', 'child'):
             e = el.find(key)
@@ -423,17 +427,28 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     for name in opt.lock:
         if joints[name].type == 'fixed':
             raise SceneError(f'{source}: robot.lock: joint {name!r} is fixed already')
+    refused = []            # every joint that cannot be simulated, in one error
     for j in joints.values():
         if j.name in opt.lock or j.type == 'fixed':
             continue
-        if j.type in UNSUPPORTED:
-            raise SceneError(f'{source}: joint {j.name!r} is {j.type}: only revolute and '
-                             f'continuous joints are simulated; `lock: [{j.name}]` holds it '
-                             'rigid (the child link is merged into its parent)')
-        if j.mimic is not None:
-            raise SceneError(f'{source}: joint {j.name!r} ({j.type}) mimics joint {j.mimic!r}: '
-                             f'mimic joints are not simulated; `lock: [{j.name}]` holds it '
-                             'rigid (the child link is merged into its parent)')
+        if j.type not in MOVABLE:
+            refused.append((j.name, j.type, None))
+        elif j.mimic is not None:
+            refused.append((j.name, j.type, j.mimic))
+    if len(refused) == 1:
+        name, jtype, mimic = refused[0]
+        why = (f'is {jtype}: only revolute and continuous joints are simulated' if mimic is None
+               else f'({jtype}) mimics joint {mimic!r}: mimic joints are not simulated')
+        raise SceneError(f'{source}: joint {name!r} {why}; `lock: [{name}]` holds it rigid '
+                         '(the child link is merged into its parent)')
+    if refused:
+        names = ', '.join(name for name, _, _ in refused)
+        what = ', '.join(f'{name!r} ({jtype}' + (f', mimics {mimic!r})' if mimic else ')')
+                         for name, jtype, mimic in refused)
+        raise SceneError(f'{source}: {len(refused)} joints cannot be simulated (only revolute '
+                         f'and continuous joints are, and no mimic joints): {what}; '
+                         f'`lock: [{names}]` holds them rigid (each child link is merged into '
+                         'its parent)')
 
     def moving(j):
         return j.type in MOVABLE and j.name not in opt.lock

@@ -159,6 +159,25 @@ def test_unsupported_joint_is_one_clear_error_and_lock_holds_it(jtype):
     assert scene.body_names == ('a', 'b') and scene.bodies[1].shape.mass == 2.0
 
 
+def test_several_unsupported_joints_in_one_error_and_a_trailing_nul():
+    """Every joint that cannot be simulated is named in ONE error (types beyond URDF's, such
+    as PyBullet's 'spherical', included), so a user fixes them in one go; a file ending in a
+    NUL byte (pybullet_data's humanoid.urdf) reads as tinyxml reads it."""
+    text = robot(link('a', inertial(1)), link('b', inertial(1)), link('c', inertial(1)),
+                 link('d', inertial(1)),
+                 joint('ball', 'spherical', 'a', 'b'),
+                 joint('hinge', 'revolute', 'b', 'c', extra='<limit lower="-1" upper="1" effort="1" velocity="1"/>'),
+                 joint('slide', 'prismatic', 'c', 'd', axis='1 0 0',
+                       extra='<limit lower="0" upper="0.1" effort="1" velocity="1"/>')) + '\x00'
+    with pytest.raises(SceneError) as err:
+        Scene.from_urdf(text)
+    msg = str(err.value)
+    assert ("2 joints cannot be simulated" in msg and "'ball' (spherical)" in msg
+            and "'slide' (prismatic)" in msg and 'lock: [ball, slide]' in msg), msg
+    scene = Scene.from_urdf(text, lock=['ball', 'slide'])
+    assert scene.joint_names == ('hinge',) and scene.body_names == ('a', 'c')
+
+
 def test_mimic_joint_refused_naming_it():
     text = robot(link('a', inertial(1)), link('b', inertial(1)), link('c', inertial(1)),
                  joint('j1', 'continuous', 'a', 'b'),
