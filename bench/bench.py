@@ -121,6 +121,7 @@ def node_overhead(steps, backend):
         if backend != 'default':
             params.append(Parameter('backend', value=backend))
         node = SimNode(parameter_overrides=params)
+        node.paused = False       # the loop steps only unpaused; nothing spins, no timer fires
         node._step_once()
         node_t, world_t, batch_t = [], [], []
         batch = 16                        # node.BATCH_STEPS: steps per compiled call

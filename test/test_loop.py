@@ -15,7 +15,6 @@ from __future__ import annotations
 from pathlib import Path
 import re
 
-import numpy as np
 import pytest
 
 from abd_joint_sim import Scene, World
@@ -269,4 +268,3 @@ def test_no_second_diagnostics_key_list(module):
     """The key set is written in ros/loop.py only."""
     text = (ROOT / module).read_text()
     assert "'not_converged_steps_total'" not in text and "'max_joint_separation'" not in text
-    assert np is not None

@@ -22,8 +22,10 @@ runner advances only up to its next scheduled command), so the results are bit-i
 to stepping one at a time.
 
 Where messages go is the :class:`LoopOutput`'s business: the node publishes and records,
-the headless recorder records, the replay checker compares. No rclpy import here (messages
-are built by ``convert`` and ``markers``, which import only message packages).
+the headless recorder records, the replay checker compares. The loop needs no ROS node,
+context or executor; it does not import rclpy itself (``convert``, which builds the
+messages, imports the message packages and ``rclpy.serialization``). Nothing below World
+imports this module.
 """
 from __future__ import annotations
 
