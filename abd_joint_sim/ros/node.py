@@ -1,10 +1,13 @@
-"""sim_node: steps an abd_joint_sim World and talks ROS 2 (see README "Topics & services").
+"""sim_node: runs the simulation loop (:mod:`.loop`) and talks ROS 2 (README "Topics & services").
 
-The node is thin: parameters come from :mod:`.params`, commands are validated, clamped and
-buffered by :mod:`.commands`, messages are built by :mod:`.convert`. Callbacks only fill the
-pending-command buffer; the step timer applies it at the step boundary, steps, publishes
-copies and records. ``rclpy.spin`` runs a single-threaded executor, so callbacks never
-overlap with a step and the buffer needs no lock.
+The node is ROS plumbing only: parameters come from :mod:`.params`; subscription callbacks
+hand commands to the loop's :class:`~.commands.CommandBuffer` (validated, clamped, pending);
+services call the loop (pause, step, reset); the step timer calls ``loop.advance(n)``, which
+applies pending commands at the step boundary, steps (in batches) and hands clock, joint
+states, markers, applied commands and parameter changes to :class:`_NodeOutput`, which
+publishes and records them. Topics, types and QoS come from :mod:`.topics`. ``rclpy.spin``
+runs a single-threaded executor, so callbacks never overlap with a step and the buffer
+needs no lock.
 """
 from __future__ import annotations
 
@@ -185,13 +188,6 @@ class SimNode(Node):
         for text in scene.warnings:
             self.get_logger().warn(text)
         return scene
-
-    def _scene_effort_limits(self) -> dict[str, float]:
-        model = getattr(self.world, 'model', None)
-        limits = getattr(model, 'torque_effort_limit', None)
-        if limits is None:
-            return {}
-        return {j: float(v) for j, v in zip(self.actuated, limits)}
 
     # ---------------------------------------------------------------- parameters ----
     def _declare_parameters(self) -> dict[str, Any]:
