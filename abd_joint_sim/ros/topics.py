@@ -11,6 +11,7 @@ joint's name.
 """
 from __future__ import annotations
 
+import re
 from typing import NamedTuple
 
 from .markers import MARKER_TYPE, TOPIC_MARKERS
@@ -74,3 +75,10 @@ def expand(spec: TopicSpec, joints) -> list[str]:
     if '{joint}' in spec.name:
         return [spec.name.format(joint=j) for j in joints]
     return [spec.name]
+
+
+def pattern(name: str) -> 're.Pattern[str]':
+    """A regex matching the topic `name` as recorded under any namespace (``/arm/joint_states``
+    for ``joint_states``); a ``{joint}`` part is captured as group 1."""
+    body = re.escape(name.lstrip('/')).replace(re.escape('{joint}'), '([^/]+)')
+    return re.compile(r'(?:^|/)' + body + '$')
