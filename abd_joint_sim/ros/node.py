@@ -488,7 +488,7 @@ class SimNode(Node):
                   or 'none')
         ns = self.get_namespace().rstrip('/')
         self.get_logger().info(
-            f'scene {c.scene} | dt {self.world.dt:g} s | {getattr(self.world, "backend", "numba")} backend | '
+            f'scene {c.scene} | dt {self.world.dt:g} s | {self.world.backend} backend | '
             f'joints {self.joint_names} | '
             f'actuated {self.actuated} (torque enabled: {enabled or "none"}) | '
             f'publishing {ns}/{TOPIC_JOINT_STATES} '
