@@ -115,6 +115,7 @@ def node_overhead(steps):
         params = [Parameter('real_time_factor', value=0.0), Parameter('start_paused', value=True),
                   Parameter('record', value='')]
         node = SimNode(parameter_overrides=params)
+        node.paused = False       # the loop steps only unpaused; nothing spins, no timer fires
         node._step_once()
         node_t, world_t, batch_t = [], [], []
         batch = 16                        # node.BATCH_STEPS: steps per compiled call

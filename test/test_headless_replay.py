@@ -249,12 +249,12 @@ def test_publish_every_and_dt(tmp_path, capsys):
 
 # -------------------------------------------------------------------------- bad input ----
 BAD_SCHEDULES = [
-    ('- {t: 0.0, torque: {wrist: 1.0}}', "'wrist' is not an actuated joint"),
+    ('- {t: 0.0, torque: {wrist: 1.0}}', "joint 'wrist': 1.0 rejected: not an actuated joint"),
     ('- {t: 0.0, torque: {shoulder: .nan}}', 'torque.shoulder: nan is not finite'),
     ('- {t: -0.1, torque: {shoulder: 1.0}}', 'events[0].t: -0.1 is negative'),
     ('- {t: 0.2, torque: {shoulder: 1.0}}\n- {t: 0.1, torque: {shoulder: 2.0}}',
      'events[1].t: 0.1 is not after'),
-    ('- {t: 0.0, torque: [1.0]}', '1 values, expected 2'),
+    ('- {t: 0.0, torque: [1.0]}', "expected 2 values (joints ['shoulder', 'elbow']), got 1"),
     ('- {t: 0.0, enable: {elbow: 1}}', 'enable.elbow: expected true or false'),
     ('- {t: 0.0, torgue: {elbow: 1.0}}', 'events[0].torgue: unknown key'),
     ('- {t: 0.0}', 'has neither torque nor enable'),

@@ -260,6 +260,7 @@ def test_unknown_packaged_scene_lists_them_and_suggests():
     msg = str(err.value)
     assert "'hinj' is no packaged scene (did you mean 'hinge'?" in msg, msg
     assert 'default, free_pair, hinge' in msg, msg
+    # Packaged scenes, then packaged URDF robots (demo_arm).
     with pytest.raises(SceneError, match=r'packaged: default, free_pair, hinge, demo_arm; or give'):
         resolve_scene('zzzz')
     with pytest.raises(SceneError):

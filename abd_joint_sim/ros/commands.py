@@ -341,6 +341,15 @@ class CommandBuffer:
                         out.timed_out.append(joint)
         return out
 
+    def next_timeout(self) -> float:
+        """Earliest simulated time [s] at which `apply` would time a joint out (inf: none
+        while nothing new arrives). Boundaries before it change nothing, so a caller may
+        step past them in one batch."""
+        if self.command_timeout <= 0.0:
+            return math.inf
+        times = [t for j, t in self._last_command_time.items() if j not in self._timed_out]
+        return min(times) + self.command_timeout - 1e-9 if times else math.inf
+
     def seconds_since_command(self, joint: str, now: float) -> Optional[float]:
         t = self._last_command_time.get(joint)
         return None if t is None else now - t

@@ -1,10 +1,13 @@
-"""sim_node: steps an abd_joint_sim World and talks ROS 2 (see README "Topics & services").
+"""sim_node: runs the simulation loop (:mod:`.loop`) and talks ROS 2 (README "Topics & services").
 
-The node is thin: parameters come from :mod:`.params`, commands are validated, clamped and
-buffered by :mod:`.commands`, messages are built by :mod:`.convert`. Callbacks only fill the
-pending-command buffer; the step timer applies it at the step boundary, steps, publishes
-copies and records. ``rclpy.spin`` runs a single-threaded executor, so callbacks never
-overlap with a step and the buffer needs no lock.
+The node is ROS plumbing only: parameters come from :mod:`.params`; subscription callbacks
+hand commands to the loop's :class:`~.commands.CommandBuffer` (validated, clamped, pending);
+services call the loop (pause, step, reset); the step timer calls ``loop.advance(n)``, which
+applies pending commands at the step boundary, steps (in batches) and hands clock, joint
+states, markers, applied commands and parameter changes to :class:`_NodeOutput`, which
+publishes and records them. Topics, types and QoS come from :mod:`.topics`. ``rclpy.spin``
+runs a single-threaded executor, so callbacks never overlap with a step and the buffer
+needs no lock.
 """
 from __future__ import annotations
 
@@ -17,7 +20,6 @@ import time
 from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
-import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 import rclpy
 from rclpy.clock import Clock as RclpyClock, ClockType
@@ -30,30 +32,30 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from . import convert
-from .commands import Applied, CommandBuffer
-from .markers import MarkerBuilder, TOPIC_MARKERS
-from .params import (check_live_value, coerce, config_from_values,
-                     conflicting_parameter_sources, default_scene_path, NODE_NAME, PARAMS,
-                     PARAMS_BY_NAME, undeclared_parameters)
-from .recording import (add_node_topics, bag_custom_data, markers_due, parameter_event_msg,
-                        PublishSchedule, RECORDED_PARAMETERS, record_applied,
-                        TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
-                        TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES, TOPIC_PARAMETER_EVENTS,
-                        TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT)
+from .loop import LoopOutput, SimLoop
+from .markers import TOPIC_MARKERS
+from .params import (check_live_value, config_from_values, conflicting_parameter_sources,
+                     default_scene_path, NODE_NAME, PARAMS, PARAMS_BY_NAME,
+                     undeclared_parameters)
+from .recording import (add_node_topics, bag_custom_data, parameter_event_msg,
+                        record_applied)
+from .topics import (BEST_EFFORT, TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL,
+                     TOPIC_ENABLE_JOINT, TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
+                     TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT,
+                     TOPICS_BY_NAME, TopicSpec)
 
-JOINT_STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.VOLATILE)
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.BEST_EFFORT,
-                       durability=DurabilityPolicy.VOLATILE)
-COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+
+def _qos(spec: TopicSpec) -> QoSProfile:
+    """The rclpy QoS of a topic-table row (keep-last, volatile)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=spec.depth,
+                      reliability=(ReliabilityPolicy.BEST_EFFORT if spec.reliability ==
+                                   BEST_EFFORT else ReliabilityPolicy.RELIABLE),
+                      durability=DurabilityPolicy.VOLATILE)
+
 
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
-BATCH_STEPS = 16              # clean steps per compiled call while no command is pending
+BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 
@@ -68,68 +70,54 @@ class SimNode(Node):
         self._check_parameter_sources(kwargs)       # before a bad value ends the start
         self.config = config_from_values(values)
 
-        # Scene and world. Imported here so that `--help`-like failures stay cheap.
-        from abd_joint_sim import Scene, World
+        # Scene, and the loop that owns the world (ros/loop.py, shared with the headless
+        # tools). Imported here so that `--help`-like failures stay cheap.
+        from abd_joint_sim import Scene
         self.scene = self._load_scene(Scene)
-        self.world = World(self.scene, dt=self.config.time_step or None)
-        self.joint_names = list(self.world.joint_names)
-        self.actuated = list(self.world.actuated_joint_names)
-        self.commands = CommandBuffer(self.actuated, self.config.joints,
-                                      self.config.effort_limits, self.config.command_timeout,
-                                      scene_limits=self._scene_effort_limits(),
-                                      driven=[j.name for j in self.scene.joints
-                                              if j.driving is not None])
-        self.config.joints = list(self.commands.order)
+        self._output = _NodeOutput(self)
+        self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,
+                            paused=bool(self.config.start_paused))
+        self.world = self.loop.world
+        self.commands = self.loop.commands
+        self.joint_names = list(self.loop.joint_names)
+        self.actuated = list(self.loop.actuated)
+        self.markers = self.loop.markers
 
-        self.paused = bool(self.config.start_paused)
-        self.steps = 0
-        self.publish_schedule = PublishSchedule()
-        self.fault: Optional[str] = None
-        """Why stepping stopped (a failed step, a non-finite state); None while healthy."""
         self.recording_error: Optional[str] = None
         self._anchor_wall = time.monotonic()
         self._anchor_sim = self.world.time
         self._stats_wall = time.monotonic()
         self._stats_steps = 0
-        self._not_converged = 0
-        self._warned_disabled: set[str] = set()
         self._throttle: dict = {}
         self._closed = False
 
-        # Publishers.
-        self.joint_state_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES,
-                                                     JOINT_STATE_QOS)
-        self.clock_pub = self.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS)
+        # Publishers (topic table: ros/topics.py).
+        self.joint_state_pub = self._publisher(JointState, TOPIC_JOINT_STATES)
+        self.clock_pub = self._publisher(Clock, TOPIC_CLOCK)
         self.clock_encoder = convert.ClockEncoder()      # /clock as checked CDR bytes
         zeros = [0.0] * len(self.joint_names)
         self._joint_state = convert.joint_state_msg(0, self.joint_names, zeros, zeros, zeros)
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
         # the run is recorded.
-        self.markers = None
         self.marker_pub = None
-        self.marker_schedule = PublishSchedule()
-        if self.config.marker_rate > 0.0:
+        if self.markers is not None:
             from visualization_msgs.msg import MarkerArray
-            self.markers = MarkerBuilder(self.scene, self.config.marker_frame_id,
-                                         self.config.marker_joint_axes)
-            self.marker_pub = self.create_publisher(MarkerArray, TOPIC_MARKERS, JOINT_STATE_QOS)
+            self.marker_pub = self._publisher(MarkerArray, TOPIC_MARKERS)
 
         # Subscriptions: only actuated joints get command topics.
         self.command_subs = [
-            self.create_subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY,
-                                     self._on_torque_array, COMMAND_QOS),
-            self.create_subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all, COMMAND_QOS),
-            self.create_subscription(JointState, TOPIC_JOINT_COMMANDS,
-                                     self._on_joint_commands, COMMAND_QOS),
+            self._subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY, self._on_torque_array),
+            self._subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all),
+            self._subscription(JointState, TOPIC_JOINT_COMMANDS, self._on_joint_commands),
         ]
         for joint in self.actuated:
-            self.command_subs.append(self.create_subscription(
-                Float64, TOPIC_TORQUE_JOINT.format(joint=joint),
-                lambda msg, j=joint: self._on_torque_joint(j, msg), COMMAND_QOS))
-            self.command_subs.append(self.create_subscription(
-                Bool, TOPIC_ENABLE_JOINT.format(joint=joint),
-                lambda msg, j=joint: self._on_enable_joint(j, msg), COMMAND_QOS))
+            self.command_subs.append(self._subscription(
+                Float64, TOPIC_TORQUE_JOINT, lambda msg, j=joint: self._on_torque_joint(j, msg),
+                joint))
+            self.command_subs.append(self._subscription(
+                Bool, TOPIC_ENABLE_JOINT, lambda msg, j=joint: self._on_enable_joint(j, msg),
+                joint))
 
         # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
         self.service_handles = [
@@ -165,7 +153,25 @@ class SimNode(Node):
         self._warn_undeclared_parameters()          # all parameters are declared by now
         self._log_start()
         # The initial state, so subscribers see t = 0 even when starting paused.
-        self._publish_state(force=True)
+        self.loop.publish_state(force=True)
+
+    # The loop's state, under the names the node has always had.
+    paused = property(lambda self: self.loop.paused,
+                      lambda self, value: setattr(self.loop, 'paused', bool(value)))
+    fault = property(lambda self: self.loop.fault)
+    steps = property(lambda self: self.loop.steps)
+    publish_schedule = property(lambda self: self.loop.publish_schedule)
+    marker_schedule = property(lambda self: self.loop.marker_schedule)
+
+    def _publisher(self, msg_type, name: str):
+        """A publisher for a row of the topic table (its QoS from there)."""
+        return self.create_publisher(msg_type, name, _qos(TOPICS_BY_NAME[name]))
+
+    def _subscription(self, msg_type, name: str, callback, joint: Optional[str] = None):
+        """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
+        spec = TOPICS_BY_NAME[name]
+        topic = name.format(joint=joint) if joint is not None else name
+        return self.create_subscription(msg_type, topic, callback, _qos(spec))
 
     def _load_scene(self, Scene):
         """robot_description (URDF text) if set, else the scene file (.urdf or YAML); URDF
@@ -182,13 +188,6 @@ class SimNode(Node):
         for text in scene.warnings:
             self.get_logger().warn(text)
         return scene
-
-    def _scene_effort_limits(self) -> dict[str, float]:
-        model = getattr(self.world, 'model', None)
-        limits = getattr(model, 'torque_effort_limit', None)
-        if limits is None:
-            return {}
-        return {j: float(v) for j, v in zip(self.actuated, limits)}
 
     # ---------------------------------------------------------------- parameters ----
     def _declare_parameters(self) -> dict[str, Any]:
@@ -244,27 +243,12 @@ class SimNode(Node):
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params) -> None:
-        for p in params:
-            if p.name not in PARAMS_BY_NAME:
-                continue
-            value = coerce(p.name, p.value)
-            setattr(self.config, p.name, value)
-            if p.name == 'real_time_factor':
+        values = self.loop.set_parameters({p.name: p.value for p in params
+                                           if p.name in PARAMS_BY_NAME})
+        for name, value in values.items():
+            if name == 'real_time_factor':
                 self._make_step_timer()
-            elif p.name == 'publish_rate':
-                self.publish_schedule.restart()
-            elif p.name == 'command_timeout':
-                self.commands.command_timeout = value
-            elif p.name == 'effort_limits':
-                self.commands.set_effort_limits(value)
-            self.get_logger().info(f'parameter {p.name} = {value!r}')
-        changes = {p.name: coerce(p.name, p.value) for p in params
-                   if p.name in RECORDED_PARAMETERS}
-        if changes and self.recorder is not None:
-            # Applies from the next step boundary on: log time = the current sim time.
-            t_ns = convert.seconds_to_ns(self.world.time)
-            self._record(self._abs(TOPIC_PARAMETER_EVENTS), t_ns, parameter_event_msg(
-                t_ns, self.get_fully_qualified_name(), changes))
+            self.get_logger().info(f'parameter {name} = {value!r}')
 
     # ------------------------------------------------------------------- timing ----
     def _make_step_timer(self) -> None:
@@ -286,7 +270,7 @@ class SimNode(Node):
         if rtf == 0.0:
             deadline = time.monotonic() + AFAP_BATCH_WALL
             while not self.paused and time.monotonic() < deadline and self.context.ok():
-                if not self._step_batch(BATCH_STEPS) and not self._step_once():
+                if not self._advance(BATCH_STEPS):
                     break
             return
         now = time.monotonic()
@@ -306,175 +290,38 @@ class SimNode(Node):
         while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
                and time.monotonic() < deadline and self.context.ok()):
             due = int((target - self.world.time) / dt + 1e-6)       # whole steps behind
-            if not self._step_batch(min(due, BATCH_STEPS)) and not self._step_once():
+            if not self._advance(max(1, min(due, BATCH_STEPS))):
                 break
 
     # -------------------------------------------------------------------- steps ----
+    def _advance(self, n: int) -> int:
+        """Up to n steps of the loop (batched; commands at their step boundaries)."""
+        taken = self.loop.advance(n)
+        self._stats_steps += taken
+        return taken
+
     def _step_once(self, force_publish: bool = False) -> bool:
         """Apply pending commands at the boundary, take one step, publish. False on failure."""
-        applied = self.commands.apply(self.world)
-        if applied:
-            self._on_applied(applied)
-        try:
-            report = self.world.step()
-        except Exception as exc:  # noqa: BLE001 - keep the node alive, say why, pause
-            self._stop_on_fault(
-                f'step at t={self.world.time:.6f} s failed: {type(exc).__name__}: {exc}')
-            return False
-        self.fault = None
-        self.steps += 1
-        self._stats_steps += 1
-        if not report.converged:
-            self._not_converged += 1
-            self.get_logger().warn(
-                f'Newton did not converge at t={self.world.time:.6f} s '
-                f'({report.newton_iterations} iterations)', throttle_duration_sec=LOG_THROTTLE)
-        for text in report.warnings:
-            self.get_logger().warn(f'step: {text}', throttle_duration_sec=LOG_THROTTLE)
-        self._publish_state(force=force_publish)
-        return True
+        ok = self.loop.step_once(force_publish=force_publish)
+        if ok:
+            self._stats_steps += 1
+        return ok
 
     def _step_batch(self, max_steps: int) -> int:
-        """Up to max_steps steps in one compiled call (World.step_clean) while no command is
-        pending: ~30 µs of Python saved per step. Commands are applied at every boundary
-        all the same, since none is pending (and the executor only delivers new ones between
-        timer rounds). Stops before any step that would sub-step, warn or fail, which
-        _step_once then takes. Returns the number of steps taken (0: none)."""
-        if self.markers is not None and (self.recorder is not None
-                                         or self.marker_pub.get_subscription_count() > 0):
-            # End the batch on the step the markers are due at: only then does the world
-            # hold the poses they show (not needed while nobody gets markers).
-            dt_ns = max(1, convert.seconds_to_ns(self.world.dt))
-            ahead = self.marker_schedule.next_ns - convert.seconds_to_ns(self.world.time)
-            max_steps = min(max_steps, max(1, -(-ahead // dt_ns)))
-        if max_steps < 2 or not self.commands.idle:
-            return 0
-        count, times, angles, velocities = self.world.step_clean(max_steps)
-        if count:
-            self.fault = None
-            self.steps += count
-            self._stats_steps += count
-            for t, position, velocity in zip(times, angles, velocities):
-                self._publish_state(t=t, position=position, velocity=velocity)
-                if self.fault:              # the publish guard stopped it: say so once
-                    break
-        return count
-
-    def _on_applied(self, applied: Applied) -> None:
-        for joint in applied.timed_out:
-            self.get_logger().warn(
-                f'joint {joint!r}: no torque command for {self.commands.command_timeout:g} s '
-                f'(simulated) -> torque set to 0 until the next command')
-        for joint, value in applied.torques.items():
-            if value != 0.0 and not self.world.torque_enabled(joint):
-                if joint not in self._warned_disabled:
-                    self._warned_disabled.add(joint)
-                    # Throttled too: a sender toggling the enable would re-arm it each time.
-                    self._warn_throttled(
-                        ('disabled', joint),
-                        f'joint {joint!r}: torque {value:g} N m stored but the torque is '
-                        f'disabled; publish true on '
-                        f'{TOPIC_ENABLE_JOINT.format(joint=joint)} to apply it')
-        for joint, flag in applied.enables.items():
-            if flag:
-                self._warned_disabled.discard(joint)
-        if self.recorder is not None:
-            record_applied(self._record, self._abs, applied)
-
-    def _stop_on_fault(self, why: str) -> None:
-        """Pause, say why on the log and (at once) on /diagnostics, flush the bag."""
-        self.fault = why
-        self.paused = True
-        self.get_logger().error(
-            f'{why}; simulation paused, nothing non-finite was published or recorded '
-            '(call ~/reset, or ~/unpause to retry)')
-        self._publish_diagnostics()
-        self._flush_recorder()
-
-    def _publish_state(self, force: bool = False, t: Optional[float] = None,
-                       position=None, velocity=None) -> None:
-        """/clock after every step, /joint_states when due; never a non-finite value. A
-        batch (_step_batch) passes each step's time and joint angles and velocities; by
-        default they are the world's current ones."""
-        if t is None:
-            t = self.world.time
-        if not math.isfinite(t):
-            self._stop_on_fault(f'non-finite time {t!r} s not published')
-            return
-        t_ns = convert.seconds_to_ns(t)
-        # /clock after every step: 12 bytes of CDR published and recorded as they are
-        # (convert.ClockEncoder; a Clock message costs ~10 µs to serialise, twice when
-        # recording, against ~40 µs for a whole batched step of the default scene).
-        clock = self.clock_encoder.encode(t_ns)
-        self.clock_pub.publish(clock)
-        if self.recorder is not None:
-            self._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
-        if self.markers is not None and (position is None or t == self.world.time):
-            self._publish_markers(t_ns, force)
-        if not self.publish_schedule.due(t_ns, self.config.publish_rate, force):
-            return
-        w = self.world
-        if position is None:
-            position, velocity = w.joint_angles(), w.joint_velocities()
-        position = np.asarray(position, dtype=float).tolist()
-        velocity = np.asarray(velocity, dtype=float).tolist()
-        effort = np.asarray(w.applied_torques(), dtype=float).tolist()
-        if not all(map(math.isfinite, position + velocity + effort)):
-            bad = [f'{name} {arr}' for name, arr in
-                   (('position', position), ('velocity', velocity), ('effort', effort))
-                   if not all(map(math.isfinite, arr))]
-            self._stop_on_fault(f'non-finite state at t={t!r} s ({"; ".join(bad)}) not published')
-            return
-        msg = self._joint_state
-        convert.fill_joint_state(msg, t_ns, position, velocity, effort, self.config.frame_id)
-        self.joint_state_pub.publish(msg)
-        self._record(self._abs(TOPIC_JOINT_STATES), t_ns, msg)
-
-    def _publish_markers(self, t_ns: int, force: bool) -> None:
-        """The body markers when due (markers_due), from the world's current poses."""
-        if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
-            return
-        if self.recorder is None and self.marker_pub.get_subscription_count() == 0:
-            return
-        msg = self.markers.build(t_ns, self.world.body_pose)
-        if msg is None:       # a non-finite pose: the joint-state guard reports the fault
-            return
-        self.marker_pub.publish(msg)
-        self._record(self._abs(TOPIC_MARKERS), t_ns, msg)
+        """Up to max_steps steps (the loop batches them). Returns the number taken."""
+        return self._advance(max_steps)
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
         wall = max(now - self._stats_wall, 1e-9)
         achieved_rtf = self._stats_steps * self.world.dt / wall
         self._stats_wall, self._stats_steps = now, 0
-        last = getattr(self.world, 'last_step', None)
-        converged = bool(getattr(last, 'converged', True)) if last is not None else True
-        values = {
-            'sim_time': float(self.world.time),
-            'steps': self.steps,
-            'paused': self.paused,
-            'time_step': float(self.world.dt),
-            'real_time_factor_requested': float(self.config.real_time_factor),
-            'real_time_factor_achieved': float(achieved_rtf),
-            'newton_iterations': getattr(last, 'newton_iterations', 0),
-            'line_search_iterations': getattr(last, 'line_search_iterations', 0),
-            'converged': converged,
-            'not_converged_steps_total': self._not_converged,
-            'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
-            'substeps': getattr(last, 'substeps', 1),
-            'recording': self.recorder is not None,
-            'fault': self.fault or '',
-            'recording_error': self.recording_error or '',
-        }
-        ok = converged and not (getattr(last, 'warnings', None) or [])
-        if self.fault:
-            level, message = convert.ERROR, f'stopped: {self.fault}'
-        else:
-            level = convert.OK if ok else convert.WARN
-            message = 'paused' if self.paused else ('running' if ok else 'solver warnings')
         t_ns = convert.seconds_to_ns(self.world.time)
-        msg = convert.diagnostics_msg(t_ns, f'{self.get_name()}: solver', NODE_NAME, ok,
-                                      message, values, level=level)
+        msg = self.loop.diagnostics_msg(
+            t_ns, f'{self.get_name()}: solver',
+            real_time_factor_requested=self.config.real_time_factor,
+            real_time_factor_achieved=achieved_rtf, recording=self.recorder is not None,
+            recording_error=self.recording_error or '')
         self.diagnostics_pub.publish(msg)
         self._record(TOPIC_DIAGNOSTICS, t_ns, msg)
 
@@ -552,15 +399,8 @@ class SimNode(Node):
         return response
 
     def _srv_reset(self, request, response):
-        self.world.reset()
-        self.commands.clear()
-        for joint in self.actuated:
-            self.world.set_torque(joint, 0.0)
-        self._warned_disabled.clear()
-        self.publish_schedule.restart()
-        self.fault = None
+        self.loop.reset()
         self._reanchor()
-        self._publish_state(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
         response.success = True
         response.message = f'reset to t={self.world.time:.6f} s'
@@ -669,6 +509,61 @@ class SimNode(Node):
         self._closed = True
         self.paused = True
         self._close_recorder()
+
+
+class _NodeOutput(LoopOutput):
+    """The loop's output in the node: publishers, the recorder and the log."""
+
+    def __init__(self, node: SimNode):
+        self.node = node
+
+    @property
+    def markers_wanted(self) -> bool:
+        node = self.node
+        return node.marker_pub is not None and (
+            node.recorder is not None or node.marker_pub.get_subscription_count() > 0)
+
+    def clock(self, t_ns: int) -> None:
+        # /clock after every step: 12 bytes of CDR published and recorded as they are
+        # (convert.ClockEncoder), serialised once instead of once per use.
+        node = self.node
+        clock = node.clock_encoder.encode(t_ns)
+        node.clock_pub.publish(clock)
+        if node.recorder is not None:
+            node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
+
+    def joint_state(self, t_ns: int, position, velocity, effort) -> None:
+        node = self.node
+        msg = node._joint_state
+        convert.fill_joint_state(msg, t_ns, position, velocity, effort, node.config.frame_id)
+        node.joint_state_pub.publish(msg)
+        node._record(node._abs(TOPIC_JOINT_STATES), t_ns, msg)
+
+    def markers(self, t_ns: int, msg) -> None:
+        node = self.node
+        node.marker_pub.publish(msg)
+        node._record(node._abs(TOPIC_MARKERS), t_ns, msg)
+
+    def applied(self, applied) -> None:
+        if self.node.recorder is not None:
+            record_applied(self.node._record, self.node._abs, applied)
+
+    def parameters(self, t_ns: int, changes) -> None:
+        node = self.node
+        if node.recorder is not None:
+            # Applies from the next step boundary on: log time = the current sim time.
+            node._record(node._abs(TOPIC_PARAMETER_EVENTS), t_ns, parameter_event_msg(
+                t_ns, node.get_fully_qualified_name(), changes))
+
+    def log(self, level: str, text: str, key=None) -> None:
+        if key is not None and level == 'warn':
+            self.node._warn_throttled(key, text)
+        else:
+            getattr(self.node.get_logger(), level)(text)
+
+    def faulted(self, why: str) -> None:
+        self.node._publish_diagnostics()
+        self.node._flush_recorder()
 
 
 def _shutdown_on_signal(signum, frame):

@@ -99,6 +99,12 @@ class SimConfig:
         return {p.name: getattr(self, p.name) for p in PARAMS}
 
 
+def world_dt(time_step: float) -> Optional[float]:
+    """World's ``dt`` argument for the ``time_step`` parameter: 0 means the scene's dt
+    (None); the one place that rule is written."""
+    return float(time_step) if time_step else None
+
+
 def packaged_scenes_dir() -> str:
     """Directory of the packaged scenes: beside the Python package, else the ament share."""
     here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'scenes')

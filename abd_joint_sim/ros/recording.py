@@ -35,18 +35,11 @@ import yaml
 
 from . import convert
 from .commands import Applied
-from .markers import MARKER_TYPE, TOPIC_MARKERS
+from .markers import TOPIC_MARKERS
 from .params import NODE_NAME, packaged_scenes_dir, SimConfig
-
-TOPIC_JOINT_STATES = 'joint_states'
-TOPIC_CLOCK = '/clock'
-TOPIC_DIAGNOSTICS = '/diagnostics'
-TOPIC_PARAMETER_EVENTS = '/parameter_events'
-TOPIC_TORQUE_ARRAY = 'joint_torque_commands'
-TOPIC_TORQUE_JOINT = 'joint_torque/{joint}'
-TOPIC_ENABLE_ALL = 'joint_torque_enable'
-TOPIC_ENABLE_JOINT = 'joint_torque_enable/{joint}'
-TOPIC_JOINT_COMMANDS = 'joint_commands'
+from .topics import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL,  # noqa: F401 (re-exported)
+                     TOPIC_ENABLE_JOINT, TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
+                     TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT, TOPICS)
 
 RECORDED_PARAMETERS = ('real_time_factor', 'publish_rate', 'command_timeout',
                        'effort_limits')
@@ -109,26 +102,22 @@ def bag_custom_data(config: SimConfig, scene_path: str, scene_text: str, dt: flo
 
 def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
                     markers: bool = False) -> None:
-    """Register every topic the node records on `writer` (a ``BagWriter``); `markers`: the
-    body markers too (``marker_rate`` > 0)."""
-    writer.add_topic(resolve(TOPIC_JOINT_STATES), 'sensor_msgs/msg/JointState', qos='reliable')
-    writer.add_topic(resolve(TOPIC_CLOCK), 'rosgraph_msgs/msg/Clock', qos='best_effort')
-    writer.add_topic(resolve(TOPIC_DIAGNOSTICS), 'diagnostic_msgs/msg/DiagnosticArray',
-                     qos='reliable')
-    writer.add_topic(resolve(TOPIC_PARAMETER_EVENTS), 'rcl_interfaces/msg/ParameterEvent',
-                     qos='reliable', depth=1000)
-    writer.add_topic(resolve(TOPIC_TORQUE_ARRAY), 'std_msgs/msg/Float64MultiArray',
-                     qos='reliable')
-    writer.add_topic(resolve(TOPIC_ENABLE_ALL), 'std_msgs/msg/Bool', qos='reliable')
-    writer.add_topic(resolve(TOPIC_JOINT_COMMANDS), 'sensor_msgs/msg/JointState',
-                     qos='reliable')
+    """Register every recorded topic of the node's table (``ros/topics.py``) on `writer` (a
+    ``BagWriter``), with the QoS the node publishes it with; a ``{joint}`` topic once per
+    actuated joint; `markers`: the body markers too (``marker_rate`` > 0)."""
+    actuated = list(actuated)
+    specs = [t for t in TOPICS if t.recorded and (markers or t.name != TOPIC_MARKERS)]
+    for spec in [t for t in specs if '{joint}' not in t.name]:
+        if spec.name != TOPIC_MARKERS:
+            writer.add_topic(resolve(spec.name), spec.type, qos=spec.reliability,
+                             depth=spec.depth)
+    per_joint = [t for t in specs if '{joint}' in t.name]
     for joint in actuated:
-        writer.add_topic(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)),
-                         'std_msgs/msg/Float64', qos='reliable')
-        writer.add_topic(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), 'std_msgs/msg/Bool',
-                         qos='reliable')
-    if markers:
-        writer.add_topic(resolve(TOPIC_MARKERS), MARKER_TYPE, qos='reliable')
+        for spec in per_joint:
+            writer.add_topic(resolve(spec.name.format(joint=joint)), spec.type,
+                             qos=spec.reliability, depth=spec.depth)
+    for spec in [t for t in specs if t.name == TOPIC_MARKERS]:
+        writer.add_topic(resolve(spec.name), spec.type, qos=spec.reliability, depth=spec.depth)
 
 
 def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,

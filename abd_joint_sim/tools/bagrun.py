@@ -18,24 +18,28 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
-import re
 from typing import Any, Optional
 
 import yaml
 
 from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.params import NODE_NAME
+from abd_joint_sim.ros.topics import (pattern, TOPIC_CLOCK, TOPIC_ENABLE_ALL, TOPIC_ENABLE_JOINT,
+                                      TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
+                                      TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY,
+                                      TOPIC_TORQUE_JOINT)
 
 from .schedule import Command, Plan, Segment
 
-_ARRAY = re.compile(r'(?:^|/)joint_torque_commands$')
-_TORQUE = re.compile(r'(?:^|/)joint_torque/([^/]+)$')
-_ENABLE = re.compile(r'(?:^|/)joint_torque_enable/([^/]+)$')
-_ENABLE_ALL = re.compile(r'(?:^|/)joint_torque_enable$')
-_JOINT_COMMANDS = re.compile(r'(?:^|/)joint_commands$')
-_STATES = re.compile(r'(?:^|/)joint_states$')
-_CLOCK = re.compile(r'(?:^|/)clock$')
-_PARAMETERS = re.compile(r'(?:^|/)parameter_events$')
+# Recorded topics under any namespace, from the node's topic table (ros/topics.py).
+_ARRAY = pattern(TOPIC_TORQUE_ARRAY)
+_TORQUE = pattern(TOPIC_TORQUE_JOINT)
+_ENABLE = pattern(TOPIC_ENABLE_JOINT)
+_ENABLE_ALL = pattern(TOPIC_ENABLE_ALL)
+_JOINT_COMMANDS = pattern(TOPIC_JOINT_COMMANDS)
+_STATES = pattern(TOPIC_JOINT_STATES)
+_CLOCK = pattern(TOPIC_CLOCK)
+_PARAMETERS = pattern(TOPIC_PARAMETER_EVENTS)
 
 
 class BagInputError(RuntimeError):
@@ -234,6 +238,10 @@ def config_for(run_parameters: dict[str, Any], overrides: Optional[dict[str, Any
     values = {k: v for k, v in run_parameters.items() if k in PARAMS_BY_NAME}
     values.update(overrides or {})
     values['scene'] = scene_path or values.get('scene') or ''
+    if values['scene'] == 'robot_description':
+        # sim_node's name for a scene given as URDF text: no file to resolve; the bag's
+        # stored (lowered) scene is what replays it.
+        values['scene'] = ''
     values['record'] = ''
     values['real_time_factor'] = 0.0
     values['start_paused'] = False

@@ -22,6 +22,8 @@ import sys
 import time
 from typing import Optional, Sequence
 
+from abd_joint_sim.ros.loop import LoopOutput
+
 PROG = 'replay_check'
 
 DEFAULT_ATOL = {'position': 1e-6, 'velocity': 1e-5, 'effort': 1e-9}
@@ -105,30 +107,29 @@ class ReplayResult:
         return '\n'.join(lines)
 
 
-class _Comparer:
-    """Observer for HeadlessSim: compares each produced state with the recorded ones."""
+class _Comparer(LoopOutput):
+    """Loop output: compares the state after every step with the ones recorded then."""
 
-    def __init__(self, result: ReplayResult, recorded):
+    every_state = True
+
+    def __init__(self, result: ReplayResult, recorded, sim):
         self.result = result
         self.recorded = recorded          # list per segment: {t_ns: [RecordedState]}
+        self.sim = sim
+        self.names = list(sim.world.joint_names)
         self.seen: set[tuple[int, int]] = set()
 
-    def on_applied(self, sim, applied) -> None:
-        pass
-
-    def on_state(self, sim, segment: int, force: bool) -> None:
+    def joint_state(self, t_ns: int, position, velocity, effort) -> None:
+        segment = self.sim.segment
         if segment >= len(self.recorded):
             return
-        t_ns = sim.time_ns
         states = self.recorded[segment].get(t_ns)
         if not states:
             return
         self.seen.add((segment, t_ns))
-        world = sim.world
-        names = list(world.joint_names)
+        names = self.names
         index = {n: i for i, n in enumerate(names)}
-        values = {'position': world.joint_angles(), 'velocity': world.joint_velocities(),
-                  'effort': world.applied_torques()}
+        values = {'position': position, 'velocity': velocity, 'effort': effort}
         res = self.result
         for rec in states:
             res.compared += 1
@@ -198,7 +199,7 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
                           segments=len(run.plan.segments), steps=0,
                           commands=run.command_count, recorded=run.state_count)
     result.atol.update(atol or {})
-    comparer = _Comparer(result, run.states)
+    comparer = _Comparer(result, run.states, sim)
     wall0 = time.monotonic()
     try:
         sim.run(run.plan, comparer)

@@ -85,7 +85,7 @@ def _run(args) -> int:
     from abd_joint_sim.errors import SceneError, SimulationError
     from abd_joint_sim.record import BagError
     from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns
-    from abd_joint_sim.ros.params import resolve_scene
+    from abd_joint_sim.ros.params import resolve_scene, world_dt
 
     from .bagrun import BagInputError, config_for, load_bag, scene_from_text
     from .schedule import check_plan, load_schedule, MAX_TIME, ScheduleError
@@ -142,7 +142,7 @@ def _run(args) -> int:
     try:
         config = config_for(overrides, scene_path=scene_path)
         if args.publish_every is not None:
-            dt = config.time_step or float(scene.dt)
+            dt = world_dt(config.time_step) or float(scene.dt)
             config.publish_rate = 0.0 if args.publish_every == 1 else \
                 1.0 / (args.publish_every * dt)
         sim = HeadlessSim(scene, config, clamp=bool(args.schedule))

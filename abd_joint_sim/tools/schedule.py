@@ -263,24 +263,20 @@ def load_schedule(path: str | Path) -> Plan:
 
 def check_plan(plan: Plan, actuated: Sequence[str], order: Sequence[str],
                buffer: Any = None) -> None:
-    """Every command names an actuated joint and every array has one value per joint of
-    `order` (what sim_node would reject); with `buffer` (a fresh CommandBuffer configured
-    as the run's), every torque value is also one that buffer accepts (finite, within
-    MAX_ABS_TORQUE on a joint without an effort limit)."""
-    actuated_set = set(actuated)
+    """Every command is one sim_node would accept: each is handed to `buffer` (a fresh
+    CommandBuffer configured as the run's; by default one for `actuated` and `order`), the
+    validation the node's subscription callbacks apply (actuated joint, array length,
+    finite, within MAX_ABS_TORQUE on a joint without an effort limit, position only on
+    joints with driving). ScheduleError names the first refused command."""
+    from abd_joint_sim.ros.commands import CommandBuffer
+    from abd_joint_sim.ros.loop import queue_command
+    if buffer is None:
+        buffer = CommandBuffer(actuated, order)
     for seg in plan.segments:
         for cmd in seg.commands:
-            if cmd.joint is not None and cmd.joint not in actuated_set:
-                raise ScheduleError(f'{cmd.describe()}: {cmd.joint!r} is not an actuated joint '
-                                    f'of the scene (actuated: {", ".join(actuated) or "none"})')
-            if cmd.kind == 'array' and len(cmd.value) != len(order):
-                raise ScheduleError(f'{cmd.describe()}: {len(cmd.value)} values, expected '
-                                    f'{len(order)} (one per joint of `joints`: '
-                                    f'{", ".join(order)})')
-            rejections = []
-            if buffer is not None and cmd.kind == 'array':
-                rejections = buffer.command_array(cmd.value)[0]
-            elif buffer is not None and cmd.kind == 'torque':
-                rejections = buffer.command_torque(cmd.joint, cmd.value)[0]
+            if cmd.kind == 'parameter':
+                continue
+            rejections, _ = queue_command(buffer, cmd.kind, cmd.joint, cmd.value)
             if rejections:
                 raise ScheduleError(f'{cmd.describe()}: {rejections[0]}')
+    buffer.clear()

@@ -1,0 +1,413 @@
+"""The simulation loop of sim_node and of the headless tools (run_headless, replay_check).
+
+:class:`SimLoop` owns the ``World``, the :class:`~.commands.CommandBuffer`, the publishing
+and marker schedules, the fault state and the diagnostics values, and implements the rules
+once:
+
+* commands take effect at a step boundary (``CommandBuffer.apply``), never inside a step;
+* the command timeout (simulated time) acts at the first boundary at or after it expires;
+* ``reset`` is the node's ``~/reset``: initial state, t = 0, torque commands cleared to 0;
+* ``set_parameters`` is the node's post-set callback for live parameters;
+* after every step: ``/clock``; the body markers when due (``marker_rate``); the joint state
+  when due (``publish_rate``); a step that fails or a non-finite state stops the loop (a
+  fault) before anything non-finite is published.
+
+Stepping is batched: pending commands are applied, then the loop takes clean steps in one
+``World.step_clean`` call up to the next boundary that needs the world in between — the
+next command timeout, the next marker (when someone receives markers), the next simulated-
+time diagnostics (headless) — and any step that is not clean singly with ``World.step``.
+Nothing is applied at the boundaries a batch skips because nothing can be pending there
+(the node's executor delivers new commands only between ``advance`` calls, the headless
+runner advances only up to its next scheduled command), so the results are bit-identical
+to stepping one at a time.
+
+Where messages go is the :class:`LoopOutput`'s business: the node publishes and records,
+the headless recorder records, the replay checker compares. The loop needs no ROS node,
+context or executor; it does not import rclpy itself (``convert``, which builds the
+messages, imports the message packages and ``rclpy.serialization``). Nothing below World
+imports this module.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Optional
+
+import numpy as np
+
+from . import convert
+from .commands import Applied, CommandBuffer
+from .markers import MarkerBuilder
+from .params import coerce, NODE_NAME, SimConfig, world_dt
+from .recording import markers_due, PublishSchedule, RECORDED_PARAMETERS
+from .topics import TOPIC_ENABLE_JOINT
+
+DIAGNOSTIC_KEYS = (
+    'sim_time', 'steps', 'paused', 'time_step', 'real_time_factor_requested',
+    'real_time_factor_achieved', 'newton_iterations', 'line_search_iterations', 'converged',
+    'not_converged_steps_total', 'max_joint_separation', 'substeps', 'recording', 'fault',
+    'recording_error')
+"""The values of the node's ``/diagnostics`` status, in order (README "Topics & services")."""
+
+MAX_BATCH = 256
+"""Most clean steps per ``World.step_clean`` call (bounds the arrays it returns)."""
+
+
+class LoopOutput:
+    """Where the loop's results go. Every method is a no-op here; override what you need.
+
+    The node implements it with publishers and the recorder, the headless recorder with
+    the bag only, the replay checker with a comparison."""
+
+    markers_wanted = False
+    """Build the body markers (someone subscribes, or the run is recorded); their poses
+    need the world at the marker's step, so a batch ends there."""
+    every_state = False
+    """Hand over the joint state after every step, not only when ``publish_rate`` says."""
+    world_each_step = False
+    """`stepped` reads the world itself after every step: no batching."""
+
+    def clock(self, t_ns: int) -> None:
+        """After every step (and at start, reset and a forced publish)."""
+
+    def joint_state(self, t_ns: int, position: list, velocity: list, effort: list) -> None:
+        """The joint state at `t_ns` when due (finite, plain floats)."""
+
+    def markers(self, t_ns: int, msg: Any) -> None:
+        """The body markers when due (only while `markers_wanted`)."""
+
+    def applied(self, applied: Applied) -> None:
+        """Commands as they took effect at a step boundary."""
+
+    def parameters(self, t_ns: int, changes: Mapping[str, Any]) -> None:
+        """Live parameter changes (recorded ones) in force from `t_ns` on."""
+
+    def diagnostics(self, t_ns: int) -> None:
+        """Simulated-time diagnostics are due (only with ``diagnostics_period_ns``)."""
+
+    def stepped(self, t_ns: int, force: bool) -> None:
+        """After the above, once per step or forced publish."""
+
+    def log(self, level: str, text: str, key: Any = None) -> None:
+        """A message for a person; `key` set: throttle repeats of this kind."""
+
+    def faulted(self, why: str) -> None:
+        """The loop stopped on a fault (already paused and logged)."""
+
+
+class SimLoop:
+    """A World stepped with sim_node's rules; see the module docstring.
+
+    :param clamp: apply the ``effort_limits`` parameter (False when the commands come from a
+        bag, where they are stored already clamped, so that a live change of the limits
+        during the recorded run cannot clamp them a second time).
+    :param raise_faults: re-raise a failed step (headless tools: the run ends there) instead
+        of pausing (the node keeps running).
+    :param diagnostics_period_ns: > 0: diagnostics are due on this grid of simulated time
+        (headless runs, which have no wall clock to follow); 0: the caller times them.
+    """
+
+    def __init__(self, scene: Any, config: SimConfig, output: Optional[LoopOutput] = None,
+                 clamp: bool = True, raise_faults: bool = False, paused: bool = False,
+                 diagnostics_period_ns: int = 0):
+        from abd_joint_sim import World
+        self.scene = scene
+        self.config = config
+        self.output = output if output is not None else LoopOutput()
+        self.world = World(scene, dt=world_dt(config.time_step))
+        self.joint_names = list(self.world.joint_names)
+        self.actuated = list(self.world.actuated_joint_names)
+        self.clamp = clamp
+        self.commands = CommandBuffer(
+            self.actuated, config.joints, config.effort_limits if clamp else [],
+            config.command_timeout, scene_limits=self._scene_effort_limits(),
+            driven=[j.name for j in getattr(scene, 'joints', ())
+                    if getattr(j, 'driving', None) is not None])
+        config.joints = list(self.commands.order)
+        self.markers = (MarkerBuilder(scene, config.marker_frame_id, config.marker_joint_axes)
+                        if config.marker_rate > 0.0 else None)
+        self.publish_schedule = PublishSchedule()
+        self.marker_schedule = PublishSchedule()
+        self.raise_faults = raise_faults
+        self.diagnostics_period_ns = int(diagnostics_period_ns)
+        self.next_diagnostics_ns = self.diagnostics_period_ns
+        self.paused = bool(paused)
+        self.fault: Optional[str] = None
+        """Why stepping stopped (a failed step, a non-finite state); None while healthy."""
+        self.steps = 0
+        self.not_converged = 0
+        self.max_batch = MAX_BATCH
+        self._warned_disabled: set[str] = set()
+
+    def _scene_effort_limits(self) -> dict[str, float]:
+        limits = getattr(getattr(self.world, 'model', None), 'torque_effort_limit', None)
+        if limits is None:
+            return {}
+        return {j: float(v) for j, v in zip(self.actuated, limits)}
+
+    @property
+    def time_ns(self) -> int:
+        return convert.seconds_to_ns(self.world.time)
+
+    # ------------------------------------------------------------------- stepping ----
+    def advance(self, n: int, force_publish: bool = False) -> int:
+        """Up to `n` steps: pending commands at each boundary that can have any, clean steps
+        in batches, the rest one at a time. Stops early on a pause or a fault. Returns the
+        number of steps taken."""
+        taken = 0
+        while taken < n and not self.paused:
+            self.apply_commands()
+            limit = self._batch_limit(n - taken) if not force_publish else 1
+            if limit >= 2:
+                count, times, angles, velocities = self.world.step_clean(limit)
+                if count:
+                    self._after_batch(count, times, angles, velocities)
+                    taken += count
+                    if count == limit or self.paused:
+                        continue
+                    self.apply_commands()       # (nothing can be pending: cheap)
+                # The step that was not clean: sub-steps, warnings or a failure.
+            if not self._step_single(force_publish):
+                break
+            taken += 1
+        return taken
+
+    def _batch_limit(self, remaining: int) -> int:
+        """Steps the next batch may take: up to the next boundary that needs the world or
+        the command buffer (a command timeout, markers due, diagnostics due)."""
+        if remaining < 2 or self.output.world_each_step:
+            return 1
+        limit = min(remaining, self.max_batch)
+        dt = self.world.dt
+        now = self.world.time
+        expiry = self.commands.next_timeout()
+        if expiry < math.inf:
+            # Boundaries strictly inside the batch are skipped: all before the expiry
+            # (one step to spare against rounding of the accumulated time).
+            limit = min(limit, max(1, int((expiry - now) / dt - 1e-6)))
+        dt_ns = max(1, convert.seconds_to_ns(dt))
+        now_ns = convert.seconds_to_ns(now)
+        if self.markers is not None and self.output.markers_wanted:
+            ahead = self.marker_schedule.next_ns - now_ns
+            limit = min(limit, max(1, -(-ahead // dt_ns)))      # end on the due step
+        if self.diagnostics_period_ns:
+            ahead = self.next_diagnostics_ns - now_ns
+            limit = min(limit, max(1, -(-ahead // dt_ns)))
+        return limit
+
+    def apply_commands(self) -> Applied:
+        """Apply pending commands (and the command timeout) at this step boundary."""
+        applied = self.commands.apply(self.world)
+        if applied:
+            self._on_applied(applied)
+        return applied
+
+    def step_once(self, force_publish: bool = False) -> bool:
+        """Apply pending commands, take one step, publish. False on a fault."""
+        self.apply_commands()
+        return self._step_single(force_publish)
+
+    def _step_single(self, force_publish: bool) -> bool:
+        try:
+            report = self.world.step()
+        except Exception as exc:  # noqa: BLE001 - keep the node alive, say why, pause
+            if self.raise_faults:
+                raise
+            self.stop_on_fault(
+                f'step at t={self.world.time:.6f} s failed: {type(exc).__name__}: {exc}')
+            return False
+        self.fault = None
+        self.steps += 1
+        if not getattr(report, 'converged', True):
+            self.not_converged += 1
+            self.output.log('warn', f'Newton did not converge at t={self.world.time:.6f} s '
+                            f'({report.newton_iterations} iterations)', key='not converged')
+        for text in getattr(report, 'warnings', ()) or ():
+            self.output.log('warn', f'step: {text}', key='step warning')
+        self.publish_state(force=force_publish)
+        return self.fault is None
+
+    def _after_batch(self, count: int, times, angles, velocities) -> None:
+        self.fault = None
+        self.steps += count
+        for t, position, velocity in zip(times, angles, velocities):
+            self.publish_state(t=t, position=position, velocity=velocity)
+            if self.fault:              # the publish guard stopped it: say so once
+                break
+
+    def _on_applied(self, applied: Applied) -> None:
+        for joint in applied.timed_out:
+            self.output.log('warn', f'joint {joint!r}: no torque command for '
+                            f'{self.commands.command_timeout:g} s (simulated) -> torque set '
+                            'to 0 until the next command')
+        for joint, value in applied.torques.items():
+            if value != 0.0 and not self.world.torque_enabled(joint) \
+                    and joint not in self._warned_disabled:
+                self._warned_disabled.add(joint)
+                # Throttled too: a sender toggling the enable would re-arm it each time.
+                self.output.log(
+                    'warn', f'joint {joint!r}: torque {value:g} N m stored but the torque is '
+                    f'disabled; publish true on {TOPIC_ENABLE_JOINT.format(joint=joint)} to '
+                    'apply it', key=('disabled', joint))
+        for joint, flag in applied.enables.items():
+            if flag:
+                self._warned_disabled.discard(joint)
+        self.output.applied(applied)
+
+    def stop_on_fault(self, why: str) -> None:
+        """Pause and say why (the output publishes diagnostics and flushes the bag)."""
+        self.fault = why
+        self.paused = True
+        if self.raise_faults:
+            from abd_joint_sim.errors import SimulationError
+            raise SimulationError(why)
+        self.output.log('error', f'{why}; simulation paused, nothing non-finite was published '
+                        'or recorded (call ~/reset, or ~/unpause to retry)')
+        self.output.faulted(why)
+
+    # ------------------------------------------------------------------ publishing ----
+    def publish_state(self, force: bool = False, t: Optional[float] = None,
+                      position=None, velocity=None) -> None:
+        """/clock after every step, markers and the joint state when due; never a non-finite
+        value. A batch passes each step's time, joint angles and velocities (the efforts are
+        the world's: no command changes inside a batch); by default the world's current."""
+        out = self.output
+        if t is None:
+            t = self.world.time
+        if not math.isfinite(t):
+            self.stop_on_fault(f'non-finite time {t!r} s not published')
+            return
+        t_ns = convert.seconds_to_ns(t)
+        current = position is None or t == self.world.time
+        out.clock(t_ns)
+        if self.markers is not None and current:
+            self._markers(t_ns, force)
+        due = self.publish_schedule.due(t_ns, self.config.publish_rate, force)
+        if due or out.every_state:
+            w = self.world
+            if position is None:
+                position, velocity = w.joint_angles(), w.joint_velocities()
+            position = np.asarray(position, dtype=float).tolist()
+            velocity = np.asarray(velocity, dtype=float).tolist()
+            effort = np.asarray(w.applied_torques(), dtype=float).tolist()
+            if not all(map(math.isfinite, position + velocity + effort)):
+                bad = [f'{name} {arr}' for name, arr in
+                       (('position', position), ('velocity', velocity), ('effort', effort))
+                       if not all(map(math.isfinite, arr))]
+                self.stop_on_fault(f'non-finite state at t={t!r} s ({"; ".join(bad)}) not '
+                                   'published')
+                return
+            out.joint_state(t_ns, position, velocity, effort)
+        if self.diagnostics_period_ns:
+            if force:               # start or reset: the diagnostics grid restarts too
+                self.next_diagnostics_ns = t_ns + self.diagnostics_period_ns
+            elif t_ns >= self.next_diagnostics_ns:
+                self.next_diagnostics_ns = t_ns + self.diagnostics_period_ns
+                out.diagnostics(t_ns)
+        out.stepped(t_ns, force)
+
+    def _markers(self, t_ns: int, force: bool) -> None:
+        if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
+            return
+        if not self.output.markers_wanted:
+            return
+        msg = self.markers.build(t_ns, self.world.body_pose)
+        if msg is not None:     # a non-finite pose: the joint-state guard reports the fault
+            self.output.markers(t_ns, msg)
+
+    # --------------------------------------------------------- reset and parameters ----
+    def reset(self, publish: bool = True) -> None:
+        """As ``~/reset``: initial state, t = 0, torque commands cleared to 0, pending ones
+        dropped, the fault cleared; the pause state is kept. Publishes the state at once."""
+        self.world.reset()
+        self.commands.clear()
+        for joint in self.actuated:
+            self.world.set_torque(joint, 0.0)
+        self._warned_disabled.clear()
+        self.publish_schedule.restart()
+        self.fault = None
+        if publish:
+            self.publish_state(force=True)
+
+    def set_parameters(self, changes: Mapping[str, Any]) -> dict[str, Any]:
+        """Live parameter changes (name -> value), in force from the next step boundary: the
+        post-set callback of the node. Values are coerced (ValueError/KeyError naming the
+        parameter); the recorded ones go to the output. Returns the coerced values."""
+        values = {name: coerce(name, value) for name, value in changes.items()}
+        for name, value in values.items():
+            if name == 'command_timeout':
+                self.commands.command_timeout = value
+            elif name == 'publish_rate':
+                self.publish_schedule.restart()
+            elif name == 'effort_limits' and self.clamp:
+                self.commands.set_effort_limits(value)
+            if hasattr(self.config, name):
+                setattr(self.config, name, value)
+        recorded = {n: v for n, v in values.items() if n in RECORDED_PARAMETERS}
+        if recorded:
+            self.output.parameters(self.time_ns, recorded)
+        return values
+
+    # ---------------------------------------------------------------- diagnostics ----
+    def diagnostics_values(self, real_time_factor_requested: float,
+                           real_time_factor_achieved: float, recording: bool,
+                           recording_error: str = '') -> dict[str, Any]:
+        """The ``/diagnostics`` values (:data:`DIAGNOSTIC_KEYS`) of the last step."""
+        last = getattr(self.world, 'last_step', None)
+        values = {
+            'sim_time': float(self.world.time),
+            'steps': self.steps,
+            'paused': self.paused,
+            'time_step': float(self.world.dt),
+            'real_time_factor_requested': float(real_time_factor_requested),
+            'real_time_factor_achieved': float(real_time_factor_achieved),
+            'newton_iterations': getattr(last, 'newton_iterations', 0),
+            'line_search_iterations': getattr(last, 'line_search_iterations', 0),
+            'converged': bool(getattr(last, 'converged', True)),
+            'not_converged_steps_total': self.not_converged,
+            'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
+            'substeps': getattr(last, 'substeps', 1),
+            'recording': bool(recording),
+            'fault': self.fault or '',
+            'recording_error': recording_error or '',
+        }
+        assert tuple(values) == DIAGNOSTIC_KEYS
+        return values
+
+    def diagnostics_msg(self, t_ns: int, name: str, **kwargs) -> Any:
+        """A ``DiagnosticArray`` with :meth:`diagnostics_values` (kwargs) for status `name`:
+        ERROR after a fault, WARN on solver warnings, else OK."""
+        values = self.diagnostics_values(**kwargs)
+        last = getattr(self.world, 'last_step', None)
+        ok = values['converged'] and not (getattr(last, 'warnings', None) or [])
+        if self.fault:
+            level, message = convert.ERROR, f'stopped: {self.fault}'
+        else:
+            level = convert.OK if ok else convert.WARN
+            message = 'paused' if self.paused else ('running' if ok else 'solver warnings')
+        return convert.diagnostics_msg(t_ns, name, NODE_NAME, ok, message, values, level=level)
+
+
+def queue_command(buffer: CommandBuffer, kind: str, joint: Optional[str], value: Any):
+    """Hand one command to `buffer` as the node's subscription callback for its topic does;
+    returns (rejections, clamps). `kind`: 'torque', 'array', 'enable', 'enable_all',
+    'joint_state' (value: dict with name and position/velocity/effort lists)."""
+    if kind == 'enable':
+        return buffer.command_enable(joint, value), []
+    if kind == 'enable_all':
+        buffer.command_enable_all(value)
+        return [], []
+    if kind == 'array':
+        return buffer.command_array(value)
+    if kind == 'torque':
+        return buffer.command_torque(joint, value)
+    if kind == 'joint_state':
+        return buffer.command_joint_state(value['name'], value.get('position', []),
+                                          value.get('velocity', []), value.get('effort', []))
+    raise ValueError(f'unknown command kind {kind!r}')
+
+
+def steps_until(t_ns: int, now_ns: int, dt: float) -> int:
+    """Whole steps from `now_ns` that stay before `t_ns` (at least 1): the most a caller can
+    advance without passing a boundary at or after `t_ns`."""
+    dt_ns = max(1, convert.seconds_to_ns(dt))
+    return max(1, (t_ns - now_ns) // dt_ns)

@@ -1,0 +1,270 @@
+"""The one simulation loop (abd_joint_sim/ros/loop.py) of sim_node and the headless tools,
+and the one topic table (abd_joint_sim/ros/topics.py).
+
+* Batching: with commands pending and a command timeout set, the loop still takes clean
+  steps in batches (World.step_clean), and every state is bit-identical to an independent
+  loop written here with World.step one step at a time (commands at their boundaries, the
+  timeout at the first boundary at or after it expires).
+* The diagnostics key set exists once: the node's and the headless recorder's /diagnostics
+  carry exactly DIAGNOSTIC_KEYS.
+* The topic table is what the node creates (publishers, subscriptions, QoS), what the bag
+  registers, and what README's "Topics & services" table says.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+import re
+
+import pytest
+
+from abd_joint_sim import Scene, World
+from abd_joint_sim.ros.loop import DIAGNOSTIC_KEYS, LoopOutput
+from abd_joint_sim.ros.params import config_from_values, resolve_scene
+from abd_joint_sim.ros.topics import BEST_EFFORT, RELIABLE, TOPICS, TOPICS_BY_NAME
+from abd_joint_sim.tools.schedule import Command, Plan, Segment
+
+ROOT = Path(__file__).resolve().parents[1]
+MS = 1_000_000
+
+
+class Collect(LoopOutput):
+    """Every step's state as the loop hands it over (batched: no world access)."""
+
+    every_state = True
+
+    def __init__(self):
+        self.states: dict[int, tuple] = {}
+
+    def joint_state(self, t_ns, position, velocity, effort):
+        self.states[t_ns] = (list(position), list(velocity), list(effort))
+
+
+def _plan() -> Plan:
+    """Torques on both joints of the default scene at odd times, an array command, a
+    disable and re-enable, a timeout of 37 ms that fires between commands."""
+    return Plan([Segment([
+        Command(0, 'torque', 'shoulder', 2.0),
+        Command(13 * MS, 'torque', 'elbow', -1.5),
+        Command(80 * MS, 'array', None, [1.0, 0.5]),
+        Command(150 * MS, 'enable', 'elbow', False),
+        Command(171 * MS, 'torque', 'elbow', 3.0),
+        Command(200 * MS, 'enable', 'elbow', True),
+    ], 300 * MS)])
+
+
+def _reference(scene, timeout: float) -> dict[int, tuple]:
+    """The same plan, written independently: World.step one step at a time; at each step
+    boundary the commands due, then the timeout (a joint whose last torque took effect at
+    t_cmd gets 0 at the first boundary with t - t_cmd >= timeout)."""
+    world = World(scene)
+    events = {0: [('torque', 'shoulder', 2.0)], 13: [('torque', 'elbow', -1.5)],
+              80: [('torque', 'shoulder', 1.0), ('torque', 'elbow', 0.5)],
+              150: [('enable', 'elbow', False)], 171: [('torque', 'elbow', 3.0)],
+              200: [('enable', 'elbow', True)]}
+    last: dict[str, float] = {}
+    done: set[str] = set()
+    out = {0: (world.joint_angles().tolist(), world.joint_velocities().tolist(),
+               world.applied_torques().tolist())}
+    for k in range(300):
+        now = world.time
+        for kind, joint, value in events.get(k, []):
+            if kind == 'torque':
+                world.set_torque(joint, value)
+                last[joint] = now
+                done.discard(joint)
+            else:
+                world.set_torque_enabled(joint, value)
+        for joint, t_cmd in last.items():
+            if joint not in done and now - t_cmd >= timeout - 1e-9:
+                done.add(joint)
+                world.set_torque(joint, 0.0)
+        world.step()
+        out[round(world.time * 1e9)] = (world.joint_angles().tolist(),
+                                        world.joint_velocities().tolist(),
+                                        world.applied_torques().tolist())
+    return out
+
+
+def test_batches_with_pending_commands_and_timeout_are_bit_identical():
+    from abd_joint_sim.tools.sim import HeadlessSim
+    scene = Scene.from_yaml(resolve_scene('default'))
+    sim = HeadlessSim(scene, config_from_values({'scene': 'default',
+                                                 'command_timeout': 0.037}))
+    calls = []
+    real_clean = sim.world.step_clean
+
+    def counting_clean(n):
+        result = real_clean(n)
+        calls.append((n, result[0]))
+        return result
+    sim.world.step_clean = counting_clean
+    out = Collect()
+    sim.run(_plan(), out)
+    ref = _reference(scene, 0.037)
+    assert sorted(out.states) == sorted(ref)
+    for t_ns, state in ref.items():
+        assert out.states[t_ns] == state, f't={t_ns} ns differs'   # bit-identical
+    # Batched although a command timeout is set and commands come every few ms.
+    batched = sum(count for _, count in calls)
+    print(f'\n{batched} of {sim.steps} steps in {len(calls)} step_clean calls')
+    assert batched > 200 and max(count for _, count in calls) >= 10
+    # The timeout took the shoulder's torque to 0 at the first boundary >= 37 ms (after 2 N m
+    # at t=0), while the elbow's (13 ms) lasted to 50 ms.
+    effort = {t: s[2] for t, s in out.states.items()}
+    assert effort[37 * MS][0] == 2.0 and effort[38 * MS][0] == 0.0
+    assert effort[50 * MS][1] == -1.5 and effort[51 * MS][1] == 0.0
+
+
+def test_reference_loop_can_tell_a_late_timeout():
+    """The comparison above can fail: a timeout one step late gives other states."""
+    scene = Scene.from_yaml(resolve_scene('default'))
+    a, b = _reference(scene, 0.037), _reference(scene, 0.038)
+    assert a[60 * MS] != b[60 * MS]
+
+
+def test_node_loop_batches_while_commands_are_pending():
+    """The loop as the node drives it (advance(n) per timer round, a command arriving
+    between rounds): batches of more than one step, states equal to single steps."""
+    from abd_joint_sim.ros.loop import SimLoop
+    scene = Scene.from_yaml(resolve_scene('default'))
+    results = []
+    for batch in (16, 1):
+        config = config_from_values({'scene': 'default', 'command_timeout': 0.01,
+                                     'publish_rate': 0.0})
+        out = Collect()
+        loop = SimLoop(scene, config, output=out)
+        takes = []
+
+        def counting(n, real=loop.world.step_clean):
+            result = real(n)
+            takes.append(result[0])
+            return result
+        loop.world.step_clean = counting
+        for round_ in range(20):
+            if round_ % 4 != 3:         # every 4th round no command: the timeout fires
+                loop.commands.command_torque('shoulder', 10.0 * (round_ % 3) - 5.0)
+            if batch == 1:
+                for _ in range(16):
+                    loop.step_once()
+            else:
+                assert loop.advance(batch) == 16
+        results.append(out.states)
+        if batch == 16:
+            assert max(takes) >= 8, takes
+    assert len(results[0]) == 320 and results[0] == results[1]
+
+
+def test_diagnostics_keys_once(tmp_path):
+    """The headless recorder's /diagnostics carries exactly DIAGNOSTIC_KEYS (the node's is
+    checked in test_diagnostic_keys_of_the_node below)."""
+    from abd_joint_sim.record import read_messages
+    from abd_joint_sim.tools.sim import BagRecorder, HeadlessSim
+    scene_path = resolve_scene('hinge')
+    scene = Scene.from_yaml(scene_path)
+    sim = HeadlessSim(scene, config_from_values({'scene': 'hinge'}))
+    rec = BagRecorder(str(tmp_path / 'bag'), sim, scene_path, scene.source_text)
+    sim.run(Plan([Segment([], 2100 * MS)]), rec)
+    rec.close()
+    diags = [(t, m) for topic, _, t, m in read_messages(tmp_path / 'bag')
+             if topic == '/diagnostics']
+    assert [t for t, _ in diags] == [1000 * MS, 2000 * MS]
+    for _, msg in diags:
+        assert tuple(kv.key for kv in msg.status[0].values) == DIAGNOSTIC_KEYS
+
+
+# ------------------------------------------------------------------- topic table ----
+def _readme_topics() -> dict[str, tuple[str, str, int, str]]:
+    """README "Topics & services" table: name -> (type, reliability, depth, direction)."""
+    text = (ROOT / 'README.md').read_text()
+    section = text.split('## Topics & services', 1)[1].split('\n## ', 1)[0]
+    rows = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip('|').split('|')]
+        if len(cells) < 4 or not cells[0].startswith('`'):
+            continue
+        if not cells[1].startswith('`'):
+            continue                      # the services table
+        name = cells[0].strip('`').replace('<joint>', '{joint}')
+        qos = cells[2]
+        reliability = BEST_EFFORT if 'best effort' in qos else RELIABLE
+        depth = int(re.search(r'depth (\d+)', qos).group(1))
+        direction = cells[3].split(' ')[0].rstrip(':,')
+        rows[name] = (cells[1].strip('`'), reliability, depth, direction)
+    return rows
+
+
+def test_readme_topic_table_matches_the_code():
+    readme = _readme_topics()
+    code = {t.name: (t.type, t.reliability, t.depth, t.direction) for t in TOPICS}
+    assert readme == code
+
+
+def test_readme_table_parser_can_fail():
+    rows = _readme_topics()
+    assert rows and TOPICS_BY_NAME['/clock'].reliability == BEST_EFFORT
+    assert rows['/clock'][1] == BEST_EFFORT and rows['joint_states'][1] == RELIABLE
+
+
+def test_bag_registers_the_table():
+    from abd_joint_sim.ros.recording import add_node_topics, resolve_root
+
+    class Writer:
+        def __init__(self):
+            self.topics = {}
+
+        def add_topic(self, name, msg_type, qos='reliable', depth=10):
+            self.topics[name] = (msg_type, qos, depth)
+    w = Writer()
+    add_node_topics(w, resolve_root, ['a', 'b'], markers=True)
+    expected = {}
+    for t in TOPICS:
+        for name in ([t.name.format(joint=j) for j in 'ab'] if '{joint}' in t.name
+                     else [t.name]):
+            expected[resolve_root(name)] = (t.type, t.reliability, t.depth)
+    assert w.topics == expected
+
+
+def test_node_creates_the_table(domain_id):
+    """A live node's publishers and subscriptions: names, types and QoS as in the table;
+    and its /diagnostics values are DIAGNOSTIC_KEYS."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from abd_joint_sim.ros.node import SimNode
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = SimNode(context=context, parameter_overrides=[
+        Parameter('scene', value='default'), Parameter('start_paused', value=True)])
+    try:
+        ours = {}
+        for pub in node.publishers:
+            ours[pub.topic_name] = ('out', pub.qos_profile)
+        for sub in node.subscriptions:
+            ours[sub.topic_name] = ('in', sub.qos_profile)
+        expected = set()
+        for t in TOPICS:
+            names = ([t.name.format(joint=j) for j in node.actuated] if '{joint}' in t.name
+                     else [t.name])
+            for name in names:
+                full = node.resolve_topic_name(name)
+                expected.add(full)
+                direction, qos = ours[full]
+                assert direction == t.direction, full
+                assert qos.depth == t.depth, full
+                assert (qos.reliability.name == 'BEST_EFFORT') == (t.reliability == BEST_EFFORT)
+        # Nothing beyond the table but rclpy's own /rosout.
+        assert set(ours) - expected <= {'/rosout'}
+        node._publish_diagnostics()
+        msg = node.loop.diagnostics_msg(0, 'x', real_time_factor_requested=1.0,
+                                        real_time_factor_achieved=0.0, recording=False)
+        assert tuple(kv.key for kv in msg.status[0].values) == DIAGNOSTIC_KEYS
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.parametrize('module', ['abd_joint_sim/ros/node.py', 'abd_joint_sim/tools/sim.py'])
+def test_no_second_diagnostics_key_list(module):
+    """The key set is written in ros/loop.py only."""
+    text = (ROOT / module).read_text()
+    assert "'not_converged_steps_total'" not in text and "'max_joint_separation'" not in text
