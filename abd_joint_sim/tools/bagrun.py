@@ -238,10 +238,6 @@ def config_for(run_parameters: dict[str, Any], overrides: Optional[dict[str, Any
     values = {k: v for k, v in run_parameters.items() if k in PARAMS_BY_NAME}
     values.update(overrides or {})
     values['scene'] = scene_path or values.get('scene') or ''
-    if values['scene'] == 'robot_description':
-        # sim_node's name for a scene given as URDF text: no file to resolve; the bag's
-        # stored (lowered) scene is what replays it.
-        values['scene'] = ''
     values['record'] = ''
     values['real_time_factor'] = 0.0
     values['start_paused'] = False
