@@ -532,3 +532,42 @@ def test_recorded_bytes_are_what_dds_delivers_for_empty_sequences(tmp_path):
     with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         n = sum(1 for c, _t, data in reader.messages() if reader.deserialize(data, c.msgtype))
     assert n > 3
+
+
+_SIGNAL_WHILE_LOCKED = r'''
+import signal, sys, time
+import rclpy
+from abd_joint_sim.ros import node as sim
+rclpy.init()
+ctx = rclpy.get_default_context()
+# The signal lands while the main thread is inside Context.ok(), i.e. holding the context's
+# non-reentrant lock (the node calls ok() between steps): the handler must not need it.
+with ctx._lock:
+    sim._shutdown_on_signal(signal.SIGTERM, None)
+print('handler returned', flush=True)
+n = sim.SimNode()
+t0 = time.monotonic()
+rclpy.spin(n)                       # the node's next timer shuts the context down
+print(f'spin returned after {time.monotonic() - t0:.2f} s', flush=True)
+n.close()
+n.destroy_node()
+rclpy.try_shutdown()
+'''
+
+
+def test_stop_signal_while_the_context_lock_is_held_does_not_hang(tmp_path):
+    """SIGINT/SIGTERM only note the signal; a handler that shut the context down itself
+    deadlocked when the signal arrived inside Context.ok() (seen as a node that ignored
+    SIGTERM for 15 s under load). The node's timers then end spin() promptly."""
+    import subprocess
+    import sys
+    from conftest import ros_env
+    log_dir = tmp_path / 'log'
+    log_dir.mkdir()
+    res = subprocess.run([sys.executable, '-c', _SIGNAL_WHILE_LOCKED], capture_output=True,
+                         text=True, timeout=60, env=ros_env(next_domain_id(), log_dir),
+                         stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    assert 'handler returned' in res.stdout and 'spin returned after' in res.stdout, res.stdout
+    waited = float(res.stdout.split('spin returned after ')[1].split(' s')[0])
+    assert waited < 5.0, res.stdout

@@ -187,8 +187,12 @@ def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned
 def test_panda_fingers_are_one_clear_error_without_lock():
     from abd_joint_sim.errors import SceneError
     path = os.path.join(pybullet_data.getDataPath(), 'franka_panda/panda.urdf')
-    with pytest.raises(SceneError, match=r"joint 'panda_finger_joint1' is prismatic.*lock: \[panda_finger_joint1\]"):
+    with pytest.raises(SceneError, match=r"2 joints cannot be simulated.*'panda_finger_joint1' "
+                       r"\(prismatic\), 'panda_finger_joint2' \(prismatic\); "
+                       r"`lock: \[panda_finger_joint1, panda_finger_joint2\]`"):
         Scene.from_urdf(path)
+    scene = Scene.from_urdf(path, lock=['panda_finger_joint1', 'panda_finger_joint2'])
+    assert len(scene.joint_names) == 7
 
 
 @pytest.mark.parametrize('rel_path', ['a1/a1.urdf', 'aliengo/aliengo.urdf',

@@ -263,13 +263,22 @@ class SimNode(Node):
         self._anchor_wall = time.monotonic()
         self._anchor_sim = self.world.time
 
+    def _stop_requested(self) -> bool:
+        """A SIGINT/SIGTERM was noted (`_shutdown_on_signal`): shut the context down from
+        here, in a callback, where no rclpy lock is held; spin() then returns."""
+        if _STOP_SIGNAL['received']:
+            rclpy.try_shutdown()
+            return True
+        return False
+
     def _on_step_timer(self) -> None:
-        if self.paused:
+        if self._stop_requested() or self.paused:
             return
         rtf = self.config.real_time_factor
         if rtf == 0.0:
             deadline = time.monotonic() + AFAP_BATCH_WALL
-            while not self.paused and time.monotonic() < deadline and self.context.ok():
+            while (not self.paused and time.monotonic() < deadline
+                   and not _STOP_SIGNAL['received'] and self.context.ok()):
                 if not self._advance(BATCH_STEPS):
                     break
             return
@@ -288,7 +297,8 @@ class SimNode(Node):
         # executor back after AFAP_BATCH_WALL so commands and services are never starved.
         deadline = now + AFAP_BATCH_WALL
         while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
-               and time.monotonic() < deadline and self.context.ok()):
+               and time.monotonic() < deadline and not _STOP_SIGNAL['received']
+               and self.context.ok()):
             due = int((target - self.world.time) / dt + 1e-6)       # whole steps behind
             if not self._advance(max(1, min(due, BATCH_STEPS))):
                 break
@@ -326,6 +336,8 @@ class SimNode(Node):
         self._record(TOPIC_DIAGNOSTICS, t_ns, msg)
 
     def _on_diagnostics_timer(self) -> None:
+        if self._stop_requested():
+            return
         self._publish_diagnostics()
         # A SIGKILL loses at most the chunk in progress: close it every DIAGNOSTICS_PERIOD.
         self._flush_recorder()
@@ -566,16 +578,22 @@ class _NodeOutput(LoopOutput):
         self.node._flush_recorder()
 
 
+_STOP_SIGNAL = {'received': False}
+
+
 def _shutdown_on_signal(signum, frame):
-    """SIGINT/SIGTERM: shut the ROS context down; spin() then returns between callbacks.
+    """SIGINT/SIGTERM: only note it; the node's timers shut the ROS context down at their next
+    call (`SimNode._stop_requested`), and spin() returns between callbacks.
 
     Not KeyboardInterrupt (rclpy's own handler chains to Python's, which raises it): Python
     runs a signal handler between any two bytecodes, so an exception could land inside a
     bag write and leave the MCAP writer half updated (e.g. its statistics counting a
-    message its chunk never got). Repeated signals while the bag is being closed are
-    ignored for the same reason; SIGKILL still ends a hung node.
+    message its chunk never got). Not `rclpy.try_shutdown()` here either: it takes the
+    context's non-reentrant lock, which the interrupted code may be holding (inside
+    `Context.ok()`, called between steps), and the node would hang for good. Repeated signals
+    are ignored for the same reasons; SIGKILL still ends a hung node.
     """
-    rclpy.try_shutdown()
+    _STOP_SIGNAL['received'] = True
 
 
 def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optional[str]]:
