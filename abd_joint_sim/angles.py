@@ -24,6 +24,14 @@ from numba import njit
 from .smallmat import jacobi_eigh
 
 TWO_PI = 2.0 * np.pi
+# [rad] Far from its minimum, E'∇²θ (the curvature of the angle itself) misleads Newton: θ is
+# atan2 of two quantities bilinear in (A_i, A_j), so E'∇²θ has directions of negative
+# curvature that shear and shrink A rather than turn it, and a stiff drive asked to turn
+# 0.3 rad in one step made Newton crawl into singular A (issue 15). Where |E'/E''| (the
+# distance to a drive's target) exceeds this, the Hessian is the Gauss-Newton E''∇θ∇θᵀ:
+# PSD, and with the screw retraction it turns the body. Near the minimum E'∇²θ is kept
+# (fast local convergence); the gradient, and so Newton's answer, is the same either way.
+GAUSS_NEWTON_RANGE = 0.1
 WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 
 
@@ -151,7 +159,8 @@ def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch, work):
 def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project):
     """For the n joints `joints[:n]` of one term with E'(θ), E''(θ) in d1s, d2s: adds
     ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ to the blocks on q[3:12]. With `project`,
-    H is PSD-projected as a batch (kept as is when every eigenvalue of the batch is ≥ 0,
+    a joint with |E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead, and H is
+    PSD-projected as a batch (kept as is when every eigenvalue of the batch is ≥ 0,
     else negative eigenvalues clamped to 0). θ depends on A_k only through A_k n̄_k and
     A_k b̄_k, so H's range lies in the 12-dim span of Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])
     (orthonormal columns): the eigenproblem is solved on QᵀHQ (12x12)."""
@@ -171,9 +180,10 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     for k in range(n):
         j = joints[k]
         theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True, work)
+        curvature = 0.0 if project and abs(d1s[k]) > GAUSS_NEWTON_RANGE * d2s[k] else d1s[k]
         for a in range(18):
             for b in range(18):
-                H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + d1s[k] * hh[a, b]
+                H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + curvature * hh[a, b]
         if not project:
             continue
         for side in range(2):

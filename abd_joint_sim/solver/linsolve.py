@@ -112,22 +112,24 @@ def structure(model, force_dense: bool = False) -> Structure:
 
 
 @njit(cache=True, error_model='numpy')
-def solve(m, diag, pair, grad, dq):
-    """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite)."""
+def solve(m, diag, pair, grad, dq, ws):
+    """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite), working in
+    ws (workspace.Workspace)."""
     if m.solve_kind == TREE:
-        solve_tree(m, diag, pair, grad, dq)
+        solve_tree(m, diag, pair, grad, dq, ws)
     else:
-        solve_dense(m, diag, pair, grad, dq)
+        solve_dense(m, diag, pair, grad, dq, ws)
 
 
 @njit(cache=True, error_model='numpy')
-def solve_dense(m, diag, pair, grad, dq):
+def solve_dense(m, diag, pair, grad, dq, ws):
     """Dense path: H over the free bodies, Cholesky; NaN if not PD."""
     free_idx, jp, jc = m.free_bodies, m.joint_parent, m.joint_child
     pair_joints, slot = m.joint_between_free, m.body_slot
     nf = free_idx.size
     n = 12 * nf
-    H = np.zeros((n, n))
+    H = ws.dense_H
+    H[:] = 0.0
     for s in range(nf):
         b = free_idx[s]
         for r in range(12):
@@ -140,7 +142,7 @@ def solve_dense(m, diag, pair, grad, dq):
                 for c in range(12):
                     H[12 * sp + r, 12 * sc + c] += pair[j, r, c]
                     H[12 * sc + c, 12 * sp + r] += pair[j, r, c]
-    x = np.empty(n)
+    x = ws.dense_x
     for s in range(nf):
         for r in range(12):
             x[12 * s + r] = -grad[free_idx[s], r]
@@ -155,7 +157,7 @@ def solve_dense(m, diag, pair, grad, dq):
 
 
 @njit(cache=True, error_model='numpy')
-def solve_tree(m, diag, pair, grad, dq):
+def solve_tree(m, diag, pair, grad, dq, ws):
     """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
     D_p −= XᵀX; forward y_k = L_kk⁻¹ b_k, b_p −= Xᵀ y_k; backward x_k = L_kk⁻ᵀ (y_k − X x_p).
@@ -163,9 +165,8 @@ def solve_tree(m, diag, pair, grad, dq):
     free_idx, jp, order, eparent = m.free_bodies, m.joint_parent, m.tree_order, m.tree_parent
     edge_ptr, edge_joint = m.tree_edge_ptr, m.tree_edge_joints
     nf = free_idx.size
-    W = np.empty((nf, 12, 12))
-    X = np.zeros((nf, 12, 12))
-    y = np.empty((nf, 12))
+    W, X, y = ws.tree_W, ws.tree_X, ws.tree_y
+    X[:] = 0.0
     for s in range(nf):
         b = free_idx[s]
         for r in range(12):
@@ -173,7 +174,7 @@ def solve_tree(m, diag, pair, grad, dq):
             for c in range(12):
                 W[s, r, c] = diag[b, r, c]
     ok = True
-    col = np.empty(12)
+    col = ws.col
     for t in range(nf):
         s = order[t]
         if not cholesky(W[s], 12):

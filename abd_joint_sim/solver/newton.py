@@ -93,7 +93,7 @@ def step_within_tolerance(dq, m, h):
 
 
 @njit(cache=True, error_model='numpy')
-def minimize(m, ctx, q):
+def minimize(m, ctx, q, ws):
     """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (the
     warm start never starts Newton above the plain prediction). Returns
     (status, iterations, line-search halvings)."""
@@ -105,15 +105,12 @@ def minimize(m, ctx, q):
         q[:] = ctx.q_tilde
         E = E_tilde
     energy_tol = 0.5 * m.free_mass * (m.velocity_tol * h) ** 2
-    grad = np.empty((B, 12))
-    diag = np.empty((B, 12, 12))
-    pair = np.empty((J, 12, 12))
-    dq = np.zeros((B, 12))
-    trial = np.empty_like(q)
+    grad, diag, pair, dq, trial = ws.grad, ws.diag, ws.pair, ws.dq, ws.trial
+    dq[:] = 0.0                                 # fixed bodies' rows are never solved for
     halvings = 0
     for it in range(1, m.max_iterations + 1):
         assemble(q, m, ctx, grad, diag, pair)
-        linsolve.solve(m, diag, pair, grad, dq)
+        linsolve.solve(m, diag, pair, grad, dq, ws)
         if not all_finite(dq):
             return NONFINITE, it, halvings
         dec = 0.0

@@ -101,6 +101,7 @@ def retract(q, dq, alpha, m, out):
     corr_wd = np.empty((3, 3))
     Y = np.empty((3, 3))
     Ainv = np.empty((3, 3))
+    S = np.empty((3, 3))
     for k in range(nf):
         b = free_idx[k]
         strain = 0.0
@@ -119,7 +120,6 @@ def retract(q, dq, alpha, m, out):
                 Ainv[i, j] = (q[b, 3 + 3 * i1 + j1] * q[b, 3 + 3 * i2 + j2]
                               - q[b, 3 + 3 * i1 + j2] * q[b, 3 + 3 * i2 + j1])
         det = q[b, 3] * Ainv[0, 0] + q[b, 4] * Ainv[1, 0] + q[b, 5] * Ainv[2, 0]
-        S = np.zeros((3, 3))
         for i in range(3):
             for j in range(3):
                 acc = 0.0
