@@ -80,10 +80,23 @@ def theta(q, m, j):
 
 @njit(cache=True, error_model='numpy')
 def theta_at(q, parent, child, nbar, bbar, j):
-    fr = np.empty((4, 3))
-    frames(q, parent[j], child[j], nbar, bbar, j, fr)
-    c, s = cos_sin(fr)
-    return math.atan2(s, c)
+    """θ of joint j from the frames' dot products, without a work array."""
+    i_body, j_body = parent[j], child[j]
+    ninj = bibj = binj = nibj = 0.0
+    for r in range(3):
+        ni = nj = bi = bj = 0.0
+        for c in range(3):
+            Ai = q[i_body, 3 + 3 * r + c]
+            Aj = q[j_body, 3 + 3 * r + c]
+            ni += Ai * nbar[j, 0, c]
+            bi += Ai * bbar[j, 0, c]
+            nj += Aj * nbar[j, 1, c]
+            bj += Aj * bbar[j, 1, c]
+        ninj += ni * nj
+        bibj += bi * bj
+        binj += bi * nj
+        nibj += ni * bj
+    return math.atan2(0.5 * (binj - nibj), 0.5 * (ninj + bibj))
 
 
 @njit(cache=True, error_model='numpy')

@@ -18,7 +18,13 @@ def svd3(A, U, S, V):
     """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
     AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
     keep full absolute accuracy. ~50x cheaper than a LAPACK call for a 3x3."""
-    Bm = np.empty((3, 3))
+    svd3_in(A, U, S, V, np.empty((2, 3, 3)))
+
+
+@njit(cache=True, error_model='numpy')
+def svd3_in(A, U, S, V, work):
+    """svd3 with its work array (2,3,3) given (a per-body loop allocates it once)."""
+    Bm = work[0]
     for r in range(3):
         for c in range(3):
             Bm[r, c] = A[0, r] * A[0, c] + A[1, r] * A[1, c] + A[2, r] * A[2, c]
@@ -66,7 +72,7 @@ def svd3(A, U, S, V):
                 V[r, k] = V[r, k - 1]
                 V[r, k - 1] = tmp
             k -= 1
-    b = np.empty((3, 3))                              # columns A v_k
+    b = work[1]                                       # columns A v_k
     for k in range(3):
         for r in range(3):
             b[r, k] = A[r, 0] * V[0, k] + A[r, 1] * V[1, k] + A[r, 2] * V[2, k]

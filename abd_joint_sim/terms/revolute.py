@@ -84,6 +84,8 @@ def check_separations(q, m):
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
+    if parent.size == 0:
+        return 0.0
     d = np.empty(3)
     E = 0.0
     for j in range(parent.size):
@@ -97,9 +99,12 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    Kd = np.empty((2, 3))
-    d = np.empty(3)
     parent, child, x_bar, H, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_hessian, m.joint_K
+    if parent.size == 0:
+        return
+    buf = np.empty(9)
+    Kd = buf[0:6].reshape((2, 3))
+    d = buf[6:9]
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         for a in range(2):
