@@ -28,6 +28,7 @@ FIELDS = (
     ('tree_W', '(F,12,12) tree solve: factored diagonal blocks'),
     ('tree_X', '(F,12,12) tree solve: L⁻¹ U of each edge'),
     ('tree_y', '(F,12) tree solve: right-hand side / solution'),
+    ('tree_inv_d', '(F,12) tree solve: 1 / diagonal of each factor'),
     ('dense_H', '(n,n) dense solve: the matrix (n = 12 F, or 0 with the tree solve)'),
     ('dense_x', '(n,) dense solve: right-hand side / solution'),
     ('col', '(12,) a column'),
@@ -58,7 +59,7 @@ def build(model, data) -> Workspace:
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), angle_start=(J,),
                   drive_target=(D,), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
-                  trial=(B, 12), tree_W=(F, 12, 12), tree_X=(F, 12, 12), tree_y=(F, 12),
+                  trial=(B, 12), tree_W=(F, 12, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), col=(12,), theta_grad=(18,), theta_work=WORK_SHAPE,
                   scratch=(1, 1))
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}

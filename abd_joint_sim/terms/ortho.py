@@ -96,9 +96,13 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             lam[n] = sq + S[i] * S[j]
             lam[n + 1] = sq - S[i] * S[j]
             n += 2
-        for a in range(9):
-            for c in range(9):
-                acc = 0.0
-                for k in range(9):
-                    acc += vecs[k, a] * max(lam[k], 0.0) * vecs[k, c]
-                diag[b, 3 + a, 3 + c] += w * acc
+        # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a third)
+        Hb = diag[b, 3:12, 3:12]
+        for k in range(9):
+            if not lam[k] > 0.0:
+                continue
+            wl = w * lam[k]
+            for a in range(9):
+                x = wl * vecs[k, a]
+                for c in range(9):
+                    Hb[a, c] += x * vecs[k, c]
