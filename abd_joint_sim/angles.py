@@ -157,15 +157,39 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess,
 
 
 @njit(cache=True, error_model='numpy')
-def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch, work):
-    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,), scratch (1,1), work WORK_SHAPE:
-    work arrays)."""
-    th = theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
+def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
+    """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]
+    (pass a zero array as d_minus for d = d_plus). Computed without forming ∇θ:
+    dθ = (c ds − s dc)/(c² + s²), with dc, ds the derivatives of c, s along d, e.g.
+    dc = ½(Δn_i·n_j + n_i·Δn_j + Δb_i·b_j + b_i·Δb_j), Δn_k = ΔA_k n̄_k."""
     i_body, j_body = parent[j], child[j]
-    rate = 0.0
-    for a in range(9):
-        rate += grad[a] * v[i_body, 3 + a] + grad[9 + a] * v[j_body, 3 + a]
-    return th, rate
+    ninj = bibj = binj = nibj = 0.0
+    dc = ds = 0.0
+    for r in range(3):
+        ni = nj = bi = bj = 0.0
+        dni = dnj = dbi = dbj = 0.0
+        for c in range(3):
+            Ai = q[i_body, 3 + 3 * r + c]
+            Aj = q[j_body, 3 + 3 * r + c]
+            dAi = d_plus[i_body, 3 + 3 * r + c] - d_minus[i_body, 3 + 3 * r + c]
+            dAj = d_plus[j_body, 3 + 3 * r + c] - d_minus[j_body, 3 + 3 * r + c]
+            ni += Ai * nbar[j, 0, c]
+            bi += Ai * bbar[j, 0, c]
+            nj += Aj * nbar[j, 1, c]
+            bj += Aj * bbar[j, 1, c]
+            dni += dAi * nbar[j, 0, c]
+            dbi += dAi * bbar[j, 0, c]
+            dnj += dAj * nbar[j, 1, c]
+            dbj += dAj * bbar[j, 1, c]
+        ninj += ni * nj
+        bibj += bi * bj
+        binj += bi * nj
+        nibj += ni * bj
+        dc += dni * nj + ni * dnj + dbi * bj + bi * dbj
+        ds += dbi * nj + bi * dnj - dni * bj - ni * dbj
+    cs = 0.5 * (ninj + bibj)
+    sn = 0.5 * (binj - nibj)
+    return math.atan2(sn, cs), 0.5 * (cs * ds - sn * dc) / (cs * cs + sn * sn)
 
 
 @njit(cache=True, error_model='numpy')

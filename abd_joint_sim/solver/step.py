@@ -40,19 +40,12 @@ FAIL_NONE, FAIL_NEWTON_NONFINITE, FAIL_STEP_NONFINITE, FAIL_PREDICTED_ROTATION, 
 
 
 @njit(cache=True, error_model='numpy')
-def predicted_rotation(m, q, q_tilde, ws):
+def predicted_rotation(m, q, q_tilde):
     """max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| (NaN wins, and then no split is asked)."""
-    grad, scratch, work = ws.theta_grad, ws.scratch, ws.theta_work
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
     for j in range(parent.size):
-        angles.theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
-        i_body, j_body = parent[j], child[j]
-        x = 0.0
-        for a in range(9):
-            x += (grad[a] * (q_tilde[i_body, 3 + a] - q[i_body, 3 + a])
-                  + grad[9 + a] * (q_tilde[j_body, 3 + a] - q[j_body, 3 + a]))
-        x = abs(x)
+        x = abs(angles.theta_and_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[1])
         if x != x:
             out = np.nan
         elif out == out:
@@ -80,7 +73,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     q_tilde = ws.q_tilde
     scale = bdf.predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde)
     if may_split and J > 0:
-        predicted = predicted_rotation(m, q, q_tilde, ws)
+        predicted = predicted_rotation(m, q, q_tilde)
         if predicted > m.max_step_rotation:
             outcome[OUT_ROTATION], outcome[OUT_FAILURE] = predicted, FAIL_PREDICTED_ROTATION
             return
@@ -108,12 +101,12 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     # 4. velocities, joint angles, checks
     v_new = new_qvw[1]
     bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
-    grad, scratch, work = ws.theta_grad, ws.scratch, ws.theta_work
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    zero = ws.zero
     rotation = 0.0
     finite = True
     for j in range(J):
-        th, rate = angles.theta_and_rate_at(q_new, v_new, parent, child, nbar, bbar, j, grad, scratch, work)
+        th, rate = angles.theta_and_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
         rel = angles.unwrap(th, angle_start[j])
         new_angles[0, j] = rel + init_angle[j]
         new_angles[1, j] = rate

@@ -31,10 +31,7 @@ FIELDS = (
     ('tree_inv_d', '(F,12) tree solve: 1 / diagonal of each factor'),
     ('dense_H', '(n,n) dense solve: the matrix (n = 12 F, or 0 with the tree solve)'),
     ('dense_x', '(n,) dense solve: right-hand side / solution'),
-    ('col', '(12,) a column'),
-    ('theta_grad', '(18,) ∇θ of one joint'),
-    ('theta_work', 'angles.WORK_SHAPE'),
-    ('scratch', '(1,1)'),
+    ('zero', '(B,12) zeros, never written (a direction d = d_plus − 0)'),
 )
 
 
@@ -53,15 +50,13 @@ structref.define_proxy(Workspace, WorkspaceType, [name for name, _ in FIELDS])
 
 def build(model, data) -> Workspace:
     """The Workspace of a Model whose ModelData is `data`."""
-    from ..angles import WORK_SHAPE
     B, J, D = model.body_count, model.joint_count, len(model.drive_joints)
     F = int(data.free_bodies.size)
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), angle_start=(J,),
                   drive_target=(D,), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
                   trial=(B, 12), tree_W=(F, 12, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
-                  dense_H=(n, n), dense_x=(n,), col=(12,), theta_grad=(18,), theta_work=WORK_SHAPE,
-                  scratch=(1, 1))
+                  dense_H=(n, n), dense_x=(n,), zero=(B, 12))
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
     ws = Workspace(*(values[name] for name, _ in FIELDS))
     ws.__dict__.update(values)
