@@ -115,7 +115,7 @@ def structure(model, force_dense: bool = False) -> Structure:
 @njit(cache=True, error_model='numpy')
 def solve(m, diag, pair, grad, dq, ws):
     """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite), working in
-    ws (workspace.Workspace)."""
+    ws (workspace.Workspace); diag may be overwritten."""
     if m.solve_kind == TREE:
         solve_tree(m, diag, pair, grad, dq, ws)
     else:
@@ -196,21 +196,21 @@ def solve_tree(m, diag, pair, grad, dq, ws):
     """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
     D_p −= XᵀX; forward y_k = L_kk⁻¹ b_k, b_p −= Xᵀ y_k; backward x_k = L_kk⁻ᵀ (y_k − X x_p).
-    NaN if not PD."""
+    NaN if not PD. The diagonal blocks are factored in place: `diag` is overwritten (Newton
+    assembles it afresh each iteration; a copy would double the memory traffic, which is what
+    a step of a thousand bodies is bound by)."""
     free_idx, jp, order, eparent = m.free_bodies, m.joint_parent, m.tree_order, m.tree_parent
     edge_ptr, edge_joint = m.tree_edge_ptr, m.tree_edge_joints
     nf = free_idx.size
-    W, X, y, inv_d = ws.tree_W, ws.tree_X, ws.tree_y, ws.tree_inv_d
+    X, y, inv_d = ws.tree_X, ws.tree_y, ws.tree_inv_d
     for s in range(nf):
         b = free_idx[s]
         for r in range(12):
             y[s, r] = -grad[b, r]
-            for c in range(12):
-                W[s, r, c] = diag[b, r, c]
     ok = True
     for t in range(nf):
         s = order[t]
-        Ws, Xs, ys, ds = W[s], X[s], y[s], inv_d[s]
+        Ws, Xs, ys, ds = diag[free_idx[s]], X[s], y[s], inv_d[s]
         if not factor_block(Ws, ds):
             ok = False
             break
@@ -231,7 +231,7 @@ def solve_tree(m, diag, pair, grad, dq, ws):
                     for c in range(12):
                         Xs[r, c] += pair[j, c, r]
         forward_block(Ws, ds, Xs, 12)
-        Wp, yp = W[p], y[p]
+        Wp, yp = diag[free_idx[p]], y[p]
         for k in range(12):                                 # D_p −= XᵀX (lower half), b_p −= Xᵀy
             yk = ys[k]
             for r in range(12):
@@ -250,7 +250,7 @@ def solve_tree(m, diag, pair, grad, dq, ws):
     for t in range(nf - 1, -1, -1):
         s = order[t]
         p = eparent[s]
-        Ws, ys, ds = W[s], y[s], inv_d[s]
+        Ws, ys, ds = diag[free_idx[s]], y[s], inv_d[s]
         if p >= 0:
             Xs, yp = X[s], y[p]
             for r in range(12):

@@ -47,13 +47,15 @@ def potential(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def assemble(q, m, ctx, grad, diag, pair):
-    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the blocks diag, pair."""
+    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the blocks diag, pair. A term
+    whose Hessian is constant (UID 18) has it summed into m.constant_diag/pair once per model
+    (model_data.constant_hessian) and adds only its gradient here."""
     grad[:] = 0.0
-    diag[:] = 0.0
-    pair[:] = 0.0
+    diag[:] = m.constant_diag               # UID 18's Hessian is constant: summed once per model
+    pair[:] = m.constant_pair
     inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
-    revolute.accumulate(q, m, ctx, grad, diag, pair, True)     # UID 18
+    revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
     driving.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 19
     limit.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 670
 

@@ -25,7 +25,6 @@ FIELDS = (
     ('pair', '(J,12,12) joint blocks of ∇²Π'),
     ('dq', '(B,12) Newton step'),
     ('trial', '(B,12) line-search point'),
-    ('tree_W', '(F,12,12) tree solve: factored diagonal blocks'),
     ('tree_X', '(F,12,12) tree solve: L⁻¹ U of each edge'),
     ('tree_y', '(F,12) tree solve: right-hand side / solution'),
     ('tree_inv_d', '(F,12) tree solve: 1 / diagonal of each factor'),
@@ -55,7 +54,7 @@ def build(model, data) -> Workspace:
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), angle_start=(J,),
                   drive_target=(D,), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
-                  trial=(B, 12), tree_W=(F, 12, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
+                  trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12))
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
     ws = Workspace(*(values[name] for name, _ in FIELDS))
