@@ -214,14 +214,19 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     tmp = np.empty((18, 12))
     work = np.empty(WORK_SHAPE)
     all_psd = True
+    is_psd = np.zeros(n, dtype=np.bool_)    # H[k] PSD by construction (kept as is)
     for k in range(n):
         j = joints[k]
         theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True, work)
-        curvature = 0.0 if project and abs(d1s[k]) > GAUSS_NEWTON_RANGE * d2s[k] else d1s[k]
+        gauss_newton = project and abs(d1s[k]) > GAUSS_NEWTON_RANGE * d2s[k]
+        curvature = 0.0 if gauss_newton else d1s[k]
         for a in range(18):
             for b in range(18):
                 H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + curvature * hh[a, b]
         if not project:
+            continue
+        if gauss_newton and d2s[k] >= 0.0:      # E''∇θ∇θᵀ is PSD: nothing to project
+            is_psd[k] = True
             continue
         for side in range(2):
             for r in range(3):
@@ -247,6 +252,8 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
                 all_psd = False
     if project and not all_psd:
         for k in range(n):
+            if is_psd[k]:
+                continue
             for l in range(12):             # V <- Q V, H = Σ max(w, 0) v vᵀ
                 for a in range(18):
                     acc = 0.0

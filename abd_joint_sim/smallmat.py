@@ -12,6 +12,13 @@ import math
 import numpy as np
 from numba import njit
 
+# Jacobi sweeps stop once Σ off-diagonal² ≤ JACOBI_TOL · Σ diagonal². The rotations leave
+# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 was often never
+# met: every call ran to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12 eigenproblem,
+# measured 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
+# n ≤ 12 and still means off-diagonals ≤ ~1e-15 relative: the results change by rounding.
+JACOBI_TOL = 1e-30
+
 
 @njit(cache=True, error_model='numpy')
 def svd3(A, U, S, V):
@@ -32,7 +39,7 @@ def svd3_in(A, U, S, V, work):
     for sweep in range(12):
         off = Bm[0, 1] * Bm[0, 1] + Bm[0, 2] * Bm[0, 2] + Bm[1, 2] * Bm[1, 2]
         dia = Bm[0, 0] * Bm[0, 0] + Bm[1, 1] * Bm[1, 1] + Bm[2, 2] * Bm[2, 2]
-        if off <= 1e-32 * dia:
+        if off <= JACOBI_TOL * dia:
             break
         for pq in range(3):
             p = 0 if pq < 2 else 1
@@ -127,7 +134,7 @@ def jacobi_eigh(S, w, V):
             dia += S[p, p] * S[p, p]
             for q in range(p + 1, n):
                 off += S[p, q] * S[p, q]
-        if off <= 1e-32 * dia:
+        if off <= JACOBI_TOL * dia:
             break
         for p in range(n - 1):
             for q in range(p + 1, n):
