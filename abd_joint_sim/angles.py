@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .smallmat import jacobi_eigh
+from .smallmat import eigh_ql
 
 TWO_PI = 2.0 * np.pi
 # [rad] Far from its minimum, E'∇²θ (the curvature of the angle itself) misleads Newton: θ is
@@ -246,7 +246,7 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
                     acc += Q[k, a, l] * tmp[a, l2]
                 Hs[k, l, l2] = acc
                 Hs[k, l2, l] = acc
-        jacobi_eigh(Hs[k], W[k], V[k])
+        eigh_ql(Hs[k], W[k], V[k])
         for l in range(12):
             if not W[k, l] >= 0.0:
                 all_psd = False

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from abd_joint_sim import Scene, SimulationError, World
-from abd_joint_sim.smallmat import jacobi_eigh, svd3
+from abd_joint_sim.smallmat import eigh_ql, jacobi_eigh, svd3
 from abd_joint_sim.solver import linsolve
 
 from physics_helpers import box, hinge_dict, random_rotation, scene_dict
@@ -112,6 +112,26 @@ def test_jacobi_eigh_matches_lapack():
         jacobi_eigh(S.copy(), w, V)
         assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * np.abs(S).max()
         assert np.abs(V * w @ V.T - S).max() <= 1e-13 * np.abs(S).max()
+
+
+def test_ql_eigh_matches_lapack_on_general_degenerate_and_rank_deficient_matrices():
+    """smallmat.eigh_ql (the angle terms' 12x12 projection) against LAPACK."""
+    rng = np.random.default_rng(7)
+    for n in (3, 12):
+        for kind in range(3):
+            X = rng.normal(size=(n, n))
+            S = X + X.T
+            if kind == 1:                       # rank 3, like an angle term's Hessian
+                G = rng.normal(size=(n, 3))
+                S = 10 * G @ G.T - np.outer(G[:, 0], G[:, 0])
+            elif kind == 2:                     # two clusters of equal eigenvalues
+                S = np.diag(np.r_[np.ones(n // 2), -np.ones(n - n // 2)]) + 1e-9 * S
+            w, V = np.empty(n), np.empty((n, n))
+            assert eigh_ql(S.copy(), w, V)      # converged without the Jacobi fallback
+            scale = np.abs(S).max()
+            assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * scale
+            assert np.abs(V * w @ V.T - S).max() <= 1e-13 * scale
+            assert np.abs(V.T @ V - np.eye(n)).max() <= 1e-13
 
 
 # -- single steps -------------------------------------------------------------------------------
