@@ -21,9 +21,17 @@ import math
 import numpy as np
 from numba import njit
 
-from .smallmat import jacobi_eigh
+from .smallmat import eigh_ql
 
 TWO_PI = 2.0 * np.pi
+# [rad] Far from its minimum, E'∇²θ (the curvature of the angle itself) misleads Newton: θ is
+# atan2 of two quantities bilinear in (A_i, A_j), so E'∇²θ has directions of negative
+# curvature that shear and shrink A rather than turn it, and a stiff drive asked to turn
+# 0.3 rad in one step made Newton crawl into singular A (issue 15). Where |E'/E''| (the
+# distance to a drive's target) exceeds this, the Hessian is the Gauss-Newton E''∇θ∇θᵀ:
+# PSD, and with the screw retraction it turns the body. Near the minimum E'∇²θ is kept
+# (fast local convergence); the gradient, and so Newton's answer, is the same either way.
+GAUSS_NEWTON_RANGE = 0.1
 WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 
 
@@ -72,10 +80,23 @@ def theta(q, m, j):
 
 @njit(cache=True, error_model='numpy')
 def theta_at(q, parent, child, nbar, bbar, j):
-    fr = np.empty((4, 3))
-    frames(q, parent[j], child[j], nbar, bbar, j, fr)
-    c, s = cos_sin(fr)
-    return math.atan2(s, c)
+    """θ of joint j from the frames' dot products, without a work array."""
+    i_body, j_body = parent[j], child[j]
+    ninj = bibj = binj = nibj = 0.0
+    for r in range(3):
+        ni = nj = bi = bj = 0.0
+        for c in range(3):
+            Ai = q[i_body, 3 + 3 * r + c]
+            Aj = q[j_body, 3 + 3 * r + c]
+            ni += Ai * nbar[j, 0, c]
+            bi += Ai * bbar[j, 0, c]
+            nj += Aj * nbar[j, 1, c]
+            bj += Aj * bbar[j, 1, c]
+        ninj += ni * nj
+        bibj += bi * bj
+        binj += bi * nj
+        nibj += ni * bj
+    return math.atan2(0.5 * (binj - nibj), 0.5 * (ninj + bibj))
 
 
 @njit(cache=True, error_model='numpy')
@@ -136,22 +157,47 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess,
 
 
 @njit(cache=True, error_model='numpy')
-def theta_and_rate_at(q, v, parent, child, nbar, bbar, j, grad, scratch, work):
-    """(wrapped θ, dθ/dt = ∇θ(q)·v) of joint j (grad (18,), scratch (1,1), work WORK_SHAPE:
-    work arrays)."""
-    th = theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
+def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
+    """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]
+    (pass a zero array as d_minus for d = d_plus). Computed without forming ∇θ:
+    dθ = (c ds − s dc)/(c² + s²), with dc, ds the derivatives of c, s along d, e.g.
+    dc = ½(Δn_i·n_j + n_i·Δn_j + Δb_i·b_j + b_i·Δb_j), Δn_k = ΔA_k n̄_k."""
     i_body, j_body = parent[j], child[j]
-    rate = 0.0
-    for a in range(9):
-        rate += grad[a] * v[i_body, 3 + a] + grad[9 + a] * v[j_body, 3 + a]
-    return th, rate
+    ninj = bibj = binj = nibj = 0.0
+    dc = ds = 0.0
+    for r in range(3):
+        ni = nj = bi = bj = 0.0
+        dni = dnj = dbi = dbj = 0.0
+        for c in range(3):
+            Ai = q[i_body, 3 + 3 * r + c]
+            Aj = q[j_body, 3 + 3 * r + c]
+            dAi = d_plus[i_body, 3 + 3 * r + c] - d_minus[i_body, 3 + 3 * r + c]
+            dAj = d_plus[j_body, 3 + 3 * r + c] - d_minus[j_body, 3 + 3 * r + c]
+            ni += Ai * nbar[j, 0, c]
+            bi += Ai * bbar[j, 0, c]
+            nj += Aj * nbar[j, 1, c]
+            bj += Aj * bbar[j, 1, c]
+            dni += dAi * nbar[j, 0, c]
+            dbi += dAi * bbar[j, 0, c]
+            dnj += dAj * nbar[j, 1, c]
+            dbj += dAj * bbar[j, 1, c]
+        ninj += ni * nj
+        bibj += bi * bj
+        binj += bi * nj
+        nibj += ni * bj
+        dc += dni * nj + ni * dnj + dbi * bj + bi * dbj
+        ds += dbi * nj + bi * dnj - dni * bj - ni * dbj
+    cs = 0.5 * (ninj + bibj)
+    sn = 0.5 * (binj - nibj)
+    return math.atan2(sn, cs), 0.5 * (cs * ds - sn * dc) / (cs * cs + sn * sn)
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project):
     """For the n joints `joints[:n]` of one term with E'(θ), E''(θ) in d1s, d2s: adds
     ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ to the blocks on q[3:12]. With `project`,
-    H is PSD-projected as a batch (kept as is when every eigenvalue of the batch is ≥ 0,
+    a joint with |E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead, and H is
+    PSD-projected as a batch (kept as is when every eigenvalue of the batch is ≥ 0,
     else negative eigenvalues clamped to 0). θ depends on A_k only through A_k n̄_k and
     A_k b̄_k, so H's range lies in the 12-dim span of Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])
     (orthonormal columns): the eigenproblem is solved on QᵀHQ (12x12)."""
@@ -168,13 +214,19 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     tmp = np.empty((18, 12))
     work = np.empty(WORK_SHAPE)
     all_psd = True
+    is_psd = np.zeros(n, dtype=np.bool_)    # H[k] PSD by construction (kept as is)
     for k in range(n):
         j = joints[k]
         theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True, work)
+        gauss_newton = project and abs(d1s[k]) > GAUSS_NEWTON_RANGE * d2s[k]
+        curvature = 0.0 if gauss_newton else d1s[k]
         for a in range(18):
             for b in range(18):
-                H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + d1s[k] * hh[a, b]
+                H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + curvature * hh[a, b]
         if not project:
+            continue
+        if gauss_newton and d2s[k] >= 0.0:      # E''∇θ∇θᵀ is PSD: nothing to project
+            is_psd[k] = True
             continue
         for side in range(2):
             for r in range(3):
@@ -194,12 +246,14 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
                     acc += Q[k, a, l] * tmp[a, l2]
                 Hs[k, l, l2] = acc
                 Hs[k, l2, l] = acc
-        jacobi_eigh(Hs[k], W[k], V[k])
+        eigh_ql(Hs[k], W[k], V[k])
         for l in range(12):
             if not W[k, l] >= 0.0:
                 all_psd = False
     if project and not all_psd:
         for k in range(n):
+            if is_psd[k]:
+                continue
             for l in range(12):             # V <- Q V, H = Σ max(w, 0) v vᵀ
                 for a in range(18):
                     acc = 0.0

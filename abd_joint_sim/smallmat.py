@@ -12,13 +12,26 @@ import math
 import numpy as np
 from numba import njit
 
+# Jacobi sweeps stop once Σ off-diagonal² ≤ JACOBI_TOL · Σ diagonal². The rotations leave
+# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 was often never
+# met: every call ran to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12 eigenproblem,
+# measured 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
+# n ≤ 12 and still means off-diagonals ≤ ~1e-15 relative: the results change by rounding.
+JACOBI_TOL = 1e-30
+
 
 @njit(cache=True, error_model='numpy')
 def svd3(A, U, S, V):
     """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
     AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
     keep full absolute accuracy. ~50x cheaper than a LAPACK call for a 3x3."""
-    Bm = np.empty((3, 3))
+    svd3_in(A, U, S, V, np.empty((2, 3, 3)))
+
+
+@njit(cache=True, error_model='numpy')
+def svd3_in(A, U, S, V, work):
+    """svd3 with its work array (2,3,3) given (a per-body loop allocates it once)."""
+    Bm = work[0]
     for r in range(3):
         for c in range(3):
             Bm[r, c] = A[0, r] * A[0, c] + A[1, r] * A[1, c] + A[2, r] * A[2, c]
@@ -26,7 +39,7 @@ def svd3(A, U, S, V):
     for sweep in range(12):
         off = Bm[0, 1] * Bm[0, 1] + Bm[0, 2] * Bm[0, 2] + Bm[1, 2] * Bm[1, 2]
         dia = Bm[0, 0] * Bm[0, 0] + Bm[1, 1] * Bm[1, 1] + Bm[2, 2] * Bm[2, 2]
-        if off <= 1e-32 * dia:
+        if off <= JACOBI_TOL * dia:
             break
         for pq in range(3):
             p = 0 if pq < 2 else 1
@@ -66,7 +79,7 @@ def svd3(A, U, S, V):
                 V[r, k] = V[r, k - 1]
                 V[r, k - 1] = tmp
             k -= 1
-    b = np.empty((3, 3))                              # columns A v_k
+    b = work[1]                                       # columns A v_k
     for k in range(3):
         for r in range(3):
             b[r, k] = A[r, 0] * V[0, k] + A[r, 1] * V[1, k] + A[r, 2] * V[2, k]
@@ -121,7 +134,7 @@ def jacobi_eigh(S, w, V):
             dia += S[p, p] * S[p, p]
             for q in range(p + 1, n):
                 off += S[p, q] * S[p, q]
-        if off <= 1e-32 * dia:
+        if off <= JACOBI_TOL * dia:
             break
         for p in range(n - 1):
             for q in range(p + 1, n):
@@ -207,3 +220,132 @@ def det_inv3(A, inv):
     inv[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
     inv[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
     return det
+
+
+@njit(cache=True, error_model='numpy')
+def eigh_ql(S, w, V):
+    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
+    Householder reduction to tridiagonal form, then implicit QL with Wilkinson shifts
+    (EISPACK tred2/tql2, as in Numerical Recipes' tred2/tqli). ~n³ flops against cyclic
+    Jacobi's ~6 sweeps of 3n³: the 12×12 projection of an angle term costs a fraction.
+    Falls back to jacobi_eigh (on a copy) if QL does not converge in 30 iterations per
+    eigenvalue (non-finite input)."""
+    n = S.shape[0]
+    for r in range(n):
+        for c in range(n):
+            V[r, c] = S[r, c]
+    a = V
+    e = np.empty(n)
+    d = w
+    for i in range(n - 1, 0, -1):             # tred2: a becomes the orthogonal transform
+        l = i - 1
+        h = 0.0
+        scale = 0.0
+        if l > 0:
+            for k in range(l + 1):
+                scale += abs(a[i, k])
+            if scale == 0.0:
+                e[i] = a[i, l]
+            else:
+                for k in range(l + 1):
+                    a[i, k] /= scale
+                    h += a[i, k] * a[i, k]
+                f = a[i, l]
+                g = -math.sqrt(h) if f >= 0.0 else math.sqrt(h)
+                e[i] = scale * g
+                h -= f * g
+                a[i, l] = f - g
+                f = 0.0
+                for j in range(l + 1):
+                    a[j, i] = a[i, j] / h
+                    g = 0.0
+                    for k in range(j + 1):
+                        g += a[j, k] * a[i, k]
+                    for k in range(j + 1, l + 1):
+                        g += a[k, j] * a[i, k]
+                    e[j] = g / h
+                    f += e[j] * a[i, j]
+                hh = f / (h + h)
+                for j in range(l + 1):
+                    f = a[i, j]
+                    g = e[j] - hh * f
+                    e[j] = g
+                    for k in range(j + 1):
+                        a[j, k] -= f * e[k] + g * a[i, k]
+        else:
+            e[i] = a[i, l]
+        d[i] = h
+    d[0] = 0.0
+    e[0] = 0.0
+    for i in range(n):
+        if d[i] != 0.0:
+            for j in range(i):
+                g = 0.0
+                for k in range(i):
+                    g += a[i, k] * a[k, j]
+                for k in range(i):
+                    a[k, j] -= g * a[k, i]
+        d[i] = a[i, i]
+        a[i, i] = 1.0
+        for j in range(i):
+            a[j, i] = 0.0
+            a[i, j] = 0.0
+    for i in range(1, n):                      # tqli on d, e; eigenvectors into V
+        e[i - 1] = e[i]
+    e[n - 1] = 0.0
+    for l in range(n):
+        it = 0
+        while True:
+            m = l
+            while m < n - 1:
+                dd = abs(d[m]) + abs(d[m + 1])
+                if abs(e[m]) + dd == dd:
+                    break
+                m += 1
+            if m == l:
+                break
+            it += 1
+            if it > 30:
+                return _eigh_fallback(S, w, V)
+            g = (d[l + 1] - d[l]) / (2.0 * e[l])
+            r = math.hypot(g, 1.0)
+            g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
+            s = 1.0
+            c = 1.0
+            p = 0.0
+            i = m - 1
+            underflow = False
+            while i >= l:
+                f = s * e[i]
+                b = c * e[i]
+                r = math.hypot(f, g)
+                e[i + 1] = r
+                if r == 0.0:
+                    d[i + 1] -= p
+                    e[m] = 0.0
+                    underflow = True
+                    break
+                s = f / r
+                c = g / r
+                g = d[i + 1] - p
+                r = (d[i] - g) * s + 2.0 * c * b
+                p = s * r
+                d[i + 1] = g + p
+                g = c * r - b
+                for k in range(n):
+                    f = V[k, i + 1]
+                    V[k, i + 1] = s * V[k, i] + c * f
+                    V[k, i] = c * V[k, i] - s * f
+                i -= 1
+            if underflow:
+                continue
+            d[l] -= p
+            e[l] = g
+            e[m] = 0.0
+    return True
+
+
+@njit(cache=True, error_model='numpy')
+def _eigh_fallback(S, w, V):
+    jacobi_eigh(S, w, V)
+    return False

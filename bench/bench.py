@@ -64,19 +64,26 @@ def bench_ours(d, steps, repeats):
     def step():
         its.append(w.step().newton_iterations)
     times = time_steps(step, steps, repeats)
+    batched = []                             # World.step(n): the clean steps in one compiled call
+    for _ in range(repeats):
+        gc.disable()
+        t0 = time.perf_counter()
+        w.step(steps)
+        batched.append((time.perf_counter() - t0) / steps)
+        gc.enable()
     tracemalloc.start()
     w2 = _world(d)
     w2.step(3)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     kind = 'tree' if w.solver.data.solve_kind == 1 else 'dense'
-    return dict(times=times, its=float(np.mean(its)), dt=w.dt, mem=peak,
+    return dict(times=times, batched=batched, its=float(np.mean(its)), dt=w.dt, mem=peak,
                 kind=kind, converged=w.last_step.converged)
 
 
 def check_agreement():
     """3-link chain, 200 steps: the three engines must agree before we time them."""
-    ref = _world(chain_scene(3, torque=0.01), 'default')
+    ref = _world(chain_scene(3, torque=0.01))
     ref.step(200)
     ok = True
     for name, make in (('MuJoCo', make_mujoco), ('PyBullet', make_pybullet)):
@@ -227,7 +234,8 @@ def main(argv=None):
         med, best = statistics.median(r['times']), min(r['times'])
         per_step[label] = med
         row = dict(label=label, med=med, best=best, sps=1.0 / med, rtf=r['dt'] / med, its=r['its'],
-                   mem=r['mem'], kind=r['kind'], mujoco=None, pybullet=None)
+                   mem=r['mem'], kind=r['kind'], mujoco=None, pybullet=None,
+                   batched=statistics.median(r['batched']), mujoco_n=None)
         if n is not None and not args.no_peers:
             for name, make in (('mujoco', make_mujoco), ('pybullet', make_pybullet)):
                 engine = make(n, tau=0.1)
@@ -238,6 +246,9 @@ def main(argv=None):
                     step()
                 psteps = max(steps, 2000 if n <= 10 else (200 if n <= 100 else 5))
                 row[name] = statistics.median(time_steps(step, psteps, repeats))
+                if hasattr(step, 'many'):
+                    row[name + '_n'] = statistics.median(
+                        time_steps(lambda: step.many(psteps), 1, repeats)) / psteps
         rows.append(row)
         print(f'  {label}: {med * 1e6:.0f} µs/step', flush=True)
 
@@ -255,6 +266,13 @@ def main(argv=None):
         print(f'| {r["label"]} | {r["kind"]} | {r["med"] * 1e6:.0f} ({r["best"] * 1e6:.0f}) | '
               f'{r["sps"]:.0f} | {r["rtf"]:.2f} | {r["its"]:.2f} | {r["mem"] / 2 ** 20:.1f} | '
               f'{mj} | {mjr} | {pb} | {pbr} |')
+    print('\nPer step, n steps per call on both sides (ours World.step(n), MuJoCo mj_step(m, d, n)):')
+    print('| scene | ours µs/step in step(n) | MuJoCo µs/step in nstep | ours/MuJoCo |')
+    print('|---|---|---|---|')
+    for r in rows:
+        if r['mujoco_n'] is not None:
+            print(f'| {r["label"]} | {r["batched"] * 1e6:.1f} | {r["mujoco_n"] * 1e6:.1f} | '
+                  f'{r["batched"] / r["mujoco_n"]:.2f} |')
     if 'chain 100' in per_step and 'chain 1000' in per_step:
         a, b = per_step['chain 100'], per_step['chain 1000']
         print(f'\ncost growth 100 -> 1000 links: x{b / a:.1f} (exponent {np.log10(b / a):.2f}; 1 = linear)')

@@ -4,7 +4,7 @@ Same geometry and inertia: fixed base cube of side L at the origin; link k a box
 (L, L/2, L/2) of density 1000 centred at (kL, 0, 0), hinged about +z at x = (k − ½)L; no
 gravity; torque tau on every joint; dt = 1 ms; MuJoCo with its Euler integrator, PyBullet
 with its default solver. Each `make_*` returns (step(), angles()) closures, or None when
-the engine is not installed.
+the engine is not installed; MuJoCo's step also has `step.many(n)`, n steps in one call.
 """
 from __future__ import annotations
 
@@ -40,6 +40,10 @@ def make_mujoco(n_links, *, tau=1.0, dt=1e-3, link=0.2):
 
     def step():
         mujoco.mj_step(model, data)
+
+    def many(n):    # n steps in one call (MuJoCo's nstep), as World.step(n)
+        mujoco.mj_step(model, data, n)
+    step.many = many
 
     def angles():
         return np.array(data.qpos)

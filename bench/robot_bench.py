@@ -50,7 +50,9 @@ def ours(path, steps, repeats):
 
     def step():
         its.append(world.step().newton_iterations)
-    return _time(step, steps, repeats), float(np.mean(its))
+    single = _time(step, steps, repeats)
+    batched = _time(lambda: world.step(steps), 1, repeats) / steps
+    return single, float(np.mean(its)), batched
 
 
 def mujoco(path, steps, repeats):
@@ -63,7 +65,8 @@ def mujoco(path, steps, repeats):
     m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
     d = mj.MjData(m)
     d.qfrc_applied[:] = torques(m.nv)
-    return _time(lambda: mj.mj_step(m, d), steps, repeats)
+    return (_time(lambda: mj.mj_step(m, d), steps, repeats),
+            _time(lambda: mj.mj_step(m, d, steps), 1, repeats) / steps)     # nstep: one call
 
 
 def pybullet(path, steps, repeats):
@@ -98,8 +101,9 @@ def run(quick=False, peers=True):
         print('URDF robot: skipped (pybullet_data not installed: requirements-bench.txt)')
         return None
     steps, repeats = (100, 3) if quick else (500, 5)
-    t, its = ours(path, steps, repeats)
-    mj = mujoco(path, 5 * steps, repeats) if peers else None
+    t, its, t_n = ours(path, steps, repeats)
+    mj_both = mujoco(path, 5 * steps, repeats) if peers else None
+    mj, mj_n = mj_both if mj_both else (None, None)
     pb = pybullet(path, 5 * steps, repeats) if peers else None
 
     def peer(x):
@@ -111,4 +115,7 @@ def run(quick=False, peers=True):
     print('|' + '---|' * 8)
     print(f'| KUKA iiwa | {t * 1e6:.0f} | {DT / t:.1f} | {its:.2f} | {peer(mj)[0]} | '
           f'{peer(mj)[1]} | {peer(pb)[0]} | {peer(pb)[1]} |')
+    if mj_n:
+        print(f'n steps per call on both sides: ours World.step(n) {t_n * 1e6:.1f} µs/step, MuJoCo '
+              f'mj_step(m, d, n) {mj_n * 1e6:.1f} µs/step: ours/MuJoCo {t_n / mj_n:.1f}')
     return path, t

@@ -30,7 +30,9 @@ sys.path.insert(0, sys.argv[1])
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
 name, steps = sys.argv[2], int(sys.argv[3])
-kw = {'backend': 'numba'} if sys.argv[4] == 'old' else {}
+import inspect
+# before issue 13 World took a backend argument (and the compiled one had to be asked for)
+kw = {'backend': 'numba'} if 'backend' in inspect.signature(World).parameters else {}
 if name == 'default':
     d = Scene.from_yaml(sys.argv[1] + '/abd_joint_sim/scenes/default.yaml')
 else:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from abd_joint_sim import Scene, SimulationError, World
-from abd_joint_sim.smallmat import jacobi_eigh, svd3
+from abd_joint_sim.smallmat import eigh_ql, jacobi_eigh, svd3
 from abd_joint_sim.solver import linsolve
 
 from physics_helpers import box, hinge_dict, random_rotation, scene_dict
@@ -112,6 +112,26 @@ def test_jacobi_eigh_matches_lapack():
         jacobi_eigh(S.copy(), w, V)
         assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * np.abs(S).max()
         assert np.abs(V * w @ V.T - S).max() <= 1e-13 * np.abs(S).max()
+
+
+def test_ql_eigh_matches_lapack_on_general_degenerate_and_rank_deficient_matrices():
+    """smallmat.eigh_ql (the angle terms' 12x12 projection) against LAPACK."""
+    rng = np.random.default_rng(7)
+    for n in (3, 12):
+        for kind in range(3):
+            X = rng.normal(size=(n, n))
+            S = X + X.T
+            if kind == 1:                       # rank 3, like an angle term's Hessian
+                G = rng.normal(size=(n, 3))
+                S = 10 * G @ G.T - np.outer(G[:, 0], G[:, 0])
+            elif kind == 2:                     # two clusters of equal eigenvalues
+                S = np.diag(np.r_[np.ones(n // 2), -np.ones(n - n // 2)]) + 1e-9 * S
+            w, V = np.empty(n), np.empty((n, n))
+            assert eigh_ql(S.copy(), w, V)      # converged without the Jacobi fallback
+            scale = np.abs(S).max()
+            assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * scale
+            assert np.abs(V * w @ V.T - S).max() <= 1e-13 * scale
+            assert np.abs(V.T @ V - np.eye(n)).max() <= 1e-13
 
 
 # -- single steps -------------------------------------------------------------------------------
@@ -412,3 +432,63 @@ def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, ca
     monkeypatch.setattr(warmup, '_done', False)
     out = warmup.ensure_compiled()
     assert not out['compiled'] and seen[1] == '' and capsys.readouterr().err == ''
+
+
+def _demo_arm_driven():
+    s = Scene.from_urdf(str(REPO / 'abd_joint_sim' / 'robots' / 'demo_arm.urdf'), gravity=[0, 0, 0],
+                        driving={'enabled': True})
+    return World(s)
+
+
+def test_two_large_drive_aims_at_once_converge_to_the_aims():
+    """A drive is K/2 (θ − target)², K = γ(m_i+m_j), no h²: a stiff pull that brings the
+    joint to its aim within a step. Two aims of 0.3 rad set at once used to send Newton
+    into singular A (SimulationError); now they converge, the bodies stay rigid and the
+    joints sit at their aims (the inertia against K makes the gap ~1e-4 rad). The bodies are
+    strained by a few % (the pull is stiff against κ at this dt; the code before issue 15 gave
+    the same strains, to 5 digits, for one such aim alone, which it could solve) but far from
+    the singular A the failure went to."""
+    w = _demo_arm_driven()
+    w.set_drive('elbow', aim=0.3)
+    w.set_drive('shoulder_pan', aim=-0.2)
+    r = w.step()
+    assert r.converged and r.substeps == 1
+    names = list(w.joint_names)
+    angles = w.joint_angles()
+    assert angles[names.index('elbow')] == pytest.approx(0.3, abs=3e-3)
+    assert angles[names.index('shoulder_pan')] == pytest.approx(-0.2, abs=3e-3)
+    for b in w.body_names:
+        _, A = w.body_pose(b)
+        assert np.abs(A @ A.T - np.eye(3)).max() < 0.1 and np.linalg.det(A) > 0.8, b
+    for _ in range(20):                 # and it stays there
+        w.step()
+    assert w.joint_angles()[names.index('elbow')] == pytest.approx(0.3, abs=3e-3)
+
+
+def test_a_drive_aim_beyond_one_step_fails_with_what_to_do():
+    """An aim more than max_step_rotation away cannot be reached in one step, and sub-steps
+    ask for the same turn: the error names the drive and says to move the aim gradually;
+    the state is kept."""
+    w = _demo_arm_driven()
+    w.set_drive('elbow', aim=3.0)
+    with pytest.raises(SimulationError, match=r"'elbow'.*aim 3 rad.*smaller increments"):
+        w.step()
+    assert w.time == 0.0
+    w.set_drive('elbow', aim=1.0)       # a reachable aim then works from the kept state
+    assert w.step().converged
+
+
+def test_a_fresh_solver_steps_exactly_like_a_used_one():
+    """The Solver's Workspace carries nothing from one step to the next: a new Solver
+    stepping from a state reached by another gives bit-identical results."""
+    from abd_joint_sim.solver.solver import Solver
+    for d in (_tree(), _ring(4), _drive_limit_hinge()):
+        w = World(Scene.from_dict(d))
+        _torques(0.3)(w)
+        w.step(7)
+        fresh = Solver(w.model)
+        a, _ = w.solver.step(w.state, w.control)
+        b, _ = fresh.step(w.state, w.control)
+        np.testing.assert_array_equal(a.q, b.q)
+        np.testing.assert_array_equal(a.joint_angle, b.joint_angle)
+        np.testing.assert_array_equal(a.joint_velocity, b.joint_velocity)

@@ -241,3 +241,48 @@ def test_oracle_comparison_can_fail(monkeypatch):
     right = oracle.theta
     monkeypatch.setattr(oracle, 'theta', lambda model, q, j: -right(model, q, j))
     assert good != pytest.approx(_oracle_energy('driving', q, ctx), rel=1e-6)
+
+
+def test_joint_angle_slope_is_the_directional_derivative():
+    """angles.theta_and_slope_at (the joint velocity θ̇ = ∇θ·v and the predicted rotation)
+    against a central difference of θ along the direction, on sheared states."""
+    from abd_joint_sim import angles
+    rng = np.random.default_rng(5)
+    zero = np.zeros((MODEL.body_count, 12))
+    for seed in range(4):
+        q = _state(seed, scale=0.3)
+        d = rng.normal(size=q.shape)
+        for j in range(MODEL.joint_count):
+            args = (DATA.joint_parent, DATA.joint_child, DATA.joint_nbar, DATA.joint_bbar, j)
+            th, slope = angles.theta_and_slope_at(q, d, zero, *args)
+            eps = 1e-6
+            fd = (angles.theta(q + eps * d, DATA, j) - angles.theta(q - eps * d, DATA, j)) / (2 * eps)
+            assert th == pytest.approx(angles.theta(q, DATA, j), abs=1e-15)
+            assert slope == pytest.approx(fd, rel=1e-7, abs=1e-9)
+            # the direction as a difference of two arrays gives the same
+            assert angles.theta_and_slope_at(q, q + d, q, *args)[1] == pytest.approx(slope, rel=1e-9)
+
+
+def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
+    """Beyond GAUSS_NEWTON_RANGE from its target a drive's projected Hessian is E''∇θ∇θᵀ
+    (rank one in the angle), its gradient unchanged; near the target it is the full one."""
+    from abd_joint_sim import angles
+    q = _state(2, scale=0.05)
+    j = int(MODEL.drive_joints[0])
+    start = np.zeros(MODEL.joint_count)
+    theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
+    for offset, gauss_newton in ((0.5, True), (0.02, False)):
+        ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]))
+        _, g, Hp = dense(driving, q, ctx, project=True)
+        _, g_raw, _ = dense(driving, q, ctx, project=False)
+        np.testing.assert_array_equal(g, g_raw)
+        grad = np.zeros(18)
+        angles.theta_derivatives(q, DATA, j, grad, np.zeros((18, 18)), False)
+        K = float(MODEL.drive_K[0])
+        i_b, j_b = MODEL.joint_parent[j], MODEL.joint_child[j]
+        idx = np.r_[12 * i_b + 3:12 * i_b + 12, 12 * j_b + 3:12 * j_b + 12]
+        gn = K * np.outer(grad, grad)
+        if gauss_newton:
+            np.testing.assert_allclose(Hp[np.ix_(idx, idx)], gn, atol=1e-9 * K)
+        else:
+            assert np.abs(Hp[np.ix_(idx, idx)] - gn).max() > 1e-3 * K

@@ -12,6 +12,7 @@ A matrix that is not positive definite gives a NaN step (Newton reports it non-f
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -112,22 +113,24 @@ def structure(model, force_dense: bool = False) -> Structure:
 
 
 @njit(cache=True, error_model='numpy')
-def solve(m, diag, pair, grad, dq):
-    """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite)."""
+def solve(m, diag, pair, grad, dq, ws):
+    """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite), working in
+    ws (workspace.Workspace); diag may be overwritten."""
     if m.solve_kind == TREE:
-        solve_tree(m, diag, pair, grad, dq)
+        solve_tree(m, diag, pair, grad, dq, ws)
     else:
-        solve_dense(m, diag, pair, grad, dq)
+        solve_dense(m, diag, pair, grad, dq, ws)
 
 
 @njit(cache=True, error_model='numpy')
-def solve_dense(m, diag, pair, grad, dq):
+def solve_dense(m, diag, pair, grad, dq, ws):
     """Dense path: H over the free bodies, Cholesky; NaN if not PD."""
     free_idx, jp, jc = m.free_bodies, m.joint_parent, m.joint_child
     pair_joints, slot = m.joint_between_free, m.body_slot
     nf = free_idx.size
     n = 12 * nf
-    H = np.zeros((n, n))
+    H = ws.dense_H
+    H[:] = 0.0
     for s in range(nf):
         b = free_idx[s]
         for r in range(12):
@@ -140,7 +143,7 @@ def solve_dense(m, diag, pair, grad, dq):
                 for c in range(12):
                     H[12 * sp + r, 12 * sc + c] += pair[j, r, c]
                     H[12 * sc + c, 12 * sp + r] += pair[j, r, c]
-    x = np.empty(n)
+    x = ws.dense_x
     for s in range(nf):
         for r in range(12):
             x[12 * s + r] = -grad[free_idx[s], r]
@@ -155,63 +158,90 @@ def solve_dense(m, diag, pair, grad, dq):
 
 
 @njit(cache=True, error_model='numpy')
-def solve_tree(m, diag, pair, grad, dq):
+def factor_block(W, inv_d):
+    """Lower Cholesky factor of the 12x12 W in place, row by row (the inner loops run along
+    rows, which the compiler vectorises), with inv_d = 1/diag(L) so the triangular solves
+    multiply instead of divide. False if W is not PD."""
+    for i in range(12):
+        for j in range(i + 1):
+            s = W[i, j]
+            for k in range(j):
+                s -= W[i, k] * W[j, k]
+            if j < i:
+                W[i, j] = s * inv_d[j]
+            elif not s > 0.0:
+                return False
+            else:
+                d = math.sqrt(s)
+                W[i, i] = d
+                inv_d[i] = 1.0 / d
+    return True
+
+
+@njit(cache=True, error_model='numpy')
+def forward_block(L, inv_d, X, ncol):
+    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor), all columns at once."""
+    for i in range(12):
+        for k in range(i):
+            lik = L[i, k]
+            for c in range(ncol):
+                X[i, c] -= lik * X[k, c]
+        di = inv_d[i]
+        for c in range(ncol):
+            X[i, c] *= di
+
+
+@njit(cache=True, error_model='numpy')
+def solve_tree(m, diag, pair, grad, dq, ws):
     """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
     D_p −= XᵀX; forward y_k = L_kk⁻¹ b_k, b_p −= Xᵀ y_k; backward x_k = L_kk⁻ᵀ (y_k − X x_p).
-    NaN if not PD."""
+    NaN if not PD. The diagonal blocks are factored in place: `diag` is overwritten (Newton
+    assembles it afresh each iteration; a copy would double the memory traffic, which is what
+    a step of a thousand bodies is bound by)."""
     free_idx, jp, order, eparent = m.free_bodies, m.joint_parent, m.tree_order, m.tree_parent
     edge_ptr, edge_joint = m.tree_edge_ptr, m.tree_edge_joints
     nf = free_idx.size
-    W = np.empty((nf, 12, 12))
-    X = np.zeros((nf, 12, 12))
-    y = np.empty((nf, 12))
+    X, y, inv_d = ws.tree_X, ws.tree_y, ws.tree_inv_d
     for s in range(nf):
         b = free_idx[s]
         for r in range(12):
             y[s, r] = -grad[b, r]
-            for c in range(12):
-                W[s, r, c] = diag[b, r, c]
     ok = True
-    col = np.empty(12)
     for t in range(nf):
         s = order[t]
-        if not cholesky(W[s], 12):
+        Ws, Xs, ys, ds = diag[free_idx[s]], X[s], y[s], inv_d[s]
+        if not factor_block(Ws, ds):
             ok = False
             break
+        forward_block(Ws, ds, ys.reshape((12, 1)), 1)
         p = eparent[s]
-        lower_solve(W[s], y[s], 12)
         if p < 0:
             continue
         bs = free_idx[s]
+        Xs[:] = 0.0
         for e in range(edge_ptr[s], edge_ptr[s + 1]):       # U = H[s, p] = Σ pair or pairᵀ
             j = edge_joint[e]
             if jp[j] == bs:
                 for r in range(12):
                     for c in range(12):
-                        X[s, r, c] += pair[j, r, c]
+                        Xs[r, c] += pair[j, r, c]
             else:
                 for r in range(12):
                     for c in range(12):
-                        X[s, r, c] += pair[j, c, r]
-        for c in range(12):
+                        Xs[r, c] += pair[j, c, r]
+        forward_block(Ws, ds, Xs, 12)
+        Wp, yp = diag[free_idx[p]], y[p]
+        for k in range(12):                                 # D_p −= XᵀX (lower half), b_p −= Xᵀy
+            yk = ys[k]
             for r in range(12):
-                col[r] = X[s, r, c]
-            lower_solve(W[s], col, 12)
-            for r in range(12):
-                X[s, r, c] = col[r]
+                xkr = Xs[k, r]
+                for c in range(r + 1):
+                    Wp[r, c] -= xkr * Xs[k, c]
+                yp[r] -= xkr * yk
         for r in range(12):
-            for c in range(r, 12):
-                acc = 0.0
-                for k in range(12):
-                    acc += X[s, k, r] * X[s, k, c]
-                W[p, r, c] -= acc
-                if c != r:
-                    W[p, c, r] -= acc
-            acc = 0.0
-            for k in range(12):
-                acc += X[s, k, r] * y[s, k]
-            y[p, r] -= acc
+            for c in range(r):
+                Wp[c, r] = Wp[r, c]
     if not ok:
         for s in range(nf):
             for r in range(12):
@@ -220,13 +250,19 @@ def solve_tree(m, diag, pair, grad, dq):
     for t in range(nf - 1, -1, -1):
         s = order[t]
         p = eparent[s]
+        Ws, ys, ds = diag[free_idx[s]], y[s], inv_d[s]
         if p >= 0:
+            Xs, yp = X[s], y[p]
             for r in range(12):
                 acc = 0.0
                 for c in range(12):
-                    acc += X[s, r, c] * y[p, c]
-                y[s, r] -= acc
-        upper_solve(W[s], y[s], 12)
+                    acc += Xs[r, c] * yp[c]
+                ys[r] -= acc
+        for i in range(11, -1, -1):                         # Lᵀ x = y
+            acc = ys[i]
+            for k in range(i + 1, 12):
+                acc -= Ws[k, i] * ys[k]
+            ys[i] = acc * ds[i]
     for s in range(nf):
         for r in range(12):
             dq[free_idx[s], r] = y[s, r]

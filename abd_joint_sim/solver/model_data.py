@@ -69,7 +69,20 @@ FIELDS = (
     ('line_search_max', 'int Newton'),
     ('max_step_rotation', '[rad] sub-stepping threshold'),
     ('free_mass', '[kg] Σ m over free bodies (Newton energy tolerance)'),
+    ('constant_diag', '(B,12,12) the constant Hessian blocks (UID 18) Newton starts from'),
+    ('constant_pair', '(J,12,12) the same, off the diagonal'),
 )
+
+
+def constant_hessian(values, B, J):
+    """(diag, pair): the UID 18 Hessian blocks, constant over the run, summed once (by the
+    term's own accumulate, so the sum is written in one place)."""
+    from ..terms import revolute
+    fields = dict(values, constant_diag=np.zeros((B, 12, 12)), constant_pair=np.zeros((J, 12, 12)))
+    partial = ModelData(*(fields[name] for name, _ in FIELDS))
+    diag, pair = np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
+    revolute.accumulate(np.zeros((B, 12)), partial, None, np.zeros((B, 12)), diag, pair, True)
+    return diag, pair
 
 
 @structref.register
@@ -151,6 +164,7 @@ def build(model, force_dense: bool = False) -> ModelData:
         # as numpy sums it (np.sum's pairwise order): the tolerance must not depend on layout
         free_mass=float(np.sum(m.body_mass[free])),
     )
+    values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)
     data = ModelData(*(values[name] for name, _ in FIELDS))
     data.__dict__.update(values)
     return data

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from ..terms import driving, inertia, limit, ortho, revolute
@@ -47,13 +46,15 @@ def potential(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def assemble(q, m, ctx, grad, diag, pair):
-    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the blocks diag, pair."""
+    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the blocks diag, pair. A term
+    whose Hessian is constant (UID 18) has it summed into m.constant_diag/pair once per model
+    (model_data.constant_hessian) and adds only its gradient here."""
     grad[:] = 0.0
-    diag[:] = 0.0
-    pair[:] = 0.0
+    diag[:] = m.constant_diag               # UID 18's Hessian is constant: summed once per model
+    pair[:] = m.constant_pair
     inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
-    revolute.accumulate(q, m, ctx, grad, diag, pair, True)     # UID 18
+    revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
     driving.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 19
     limit.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 670
 
@@ -93,7 +94,7 @@ def step_within_tolerance(dq, m, h):
 
 
 @njit(cache=True, error_model='numpy')
-def minimize(m, ctx, q):
+def minimize(m, ctx, q, ws):
     """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (the
     warm start never starts Newton above the plain prediction). Returns
     (status, iterations, line-search halvings)."""
@@ -105,15 +106,12 @@ def minimize(m, ctx, q):
         q[:] = ctx.q_tilde
         E = E_tilde
     energy_tol = 0.5 * m.free_mass * (m.velocity_tol * h) ** 2
-    grad = np.empty((B, 12))
-    diag = np.empty((B, 12, 12))
-    pair = np.empty((J, 12, 12))
-    dq = np.zeros((B, 12))
-    trial = np.empty_like(q)
+    grad, diag, pair, dq, trial = ws.grad, ws.diag, ws.pair, ws.dq, ws.trial
+    dq[:] = 0.0                                 # fixed bodies' rows are never solved for
     halvings = 0
     for it in range(1, m.max_iterations + 1):
         assemble(q, m, ctx, grad, diag, pair)
-        linsolve.solve(m, diag, pair, grad, dq)
+        linsolve.solve(m, diag, pair, grad, dq, ws)
         if not all_finite(dq):
             return NONFINITE, it, halvings
         dec = 0.0

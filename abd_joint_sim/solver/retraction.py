@@ -95,12 +95,14 @@ def retract(q, dq, alpha, m, out):
     for b in range(q.shape[0]):
         for r in range(12):
             out[b, r] = q[b, r] + alpha * dq[b, r]
-    W = np.empty((3, 3))
-    R = np.empty((3, 3))
-    AD = np.empty((3, 3))
-    corr_wd = np.empty((3, 3))
-    Y = np.empty((3, 3))
-    Ainv = np.empty((3, 3))
+    buf = np.empty(7 * 9)                   # one allocation, cut into named 3x3 views
+    W = buf[0:9].reshape((3, 3))
+    R = buf[9:18].reshape((3, 3))
+    AD = buf[18:27].reshape((3, 3))
+    corr_wd = buf[27:36].reshape((3, 3))
+    Y = buf[36:45].reshape((3, 3))
+    Ainv = buf[45:54].reshape((3, 3))
+    S = buf[54:63].reshape((3, 3))
     for k in range(nf):
         b = free_idx[k]
         strain = 0.0
@@ -119,7 +121,6 @@ def retract(q, dq, alpha, m, out):
                 Ainv[i, j] = (q[b, 3 + 3 * i1 + j1] * q[b, 3 + 3 * i2 + j2]
                               - q[b, 3 + 3 * i1 + j2] * q[b, 3 + 3 * i2 + j1])
         det = q[b, 3] * Ainv[0, 0] + q[b, 4] * Ainv[1, 0] + q[b, 5] * Ainv[2, 0]
-        S = np.zeros((3, 3))
         for i in range(3):
             for j in range(3):
                 acc = 0.0

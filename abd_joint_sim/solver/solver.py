@@ -22,7 +22,7 @@ from ..state import Control, State
 from ..terms.context import StepContext
 from ..terms.revolute import joint_separation
 from ..terms.torque import SINGULAR_RATIO
-from . import model_data, step as kernel
+from . import model_data, step as kernel, workspace
 from .model_data import SEPARATION_FAULT, SEPARATION_WARN
 from .report import STATUS_BY_CODE, Status, StepReport
 
@@ -78,6 +78,7 @@ class Solver:
         """`force_dense`: solve Newton's system densely whatever its structure (for tests)."""
         self.model = model
         self.data = model_data.build(model, force_dense)    # ValueError for an unsupported loop
+        self.work = workspace.build(model, self.data)
         B, J = model.body_count, model.joint_count
         self._skipped = np.zeros(max(2 * len(model.torque_joints), 1), dtype=np.int64)
         self._outcome = np.zeros(kernel.OUT_COLUMNS)
@@ -135,9 +136,29 @@ class Solver:
             return self._advance(half, control, h / 2, depth + 1, tally)
         if new_state is None:       # not finite, or a joint came apart: nothing to keep
             raise SimulationError(f't={state.time:.6g}s: {failure} even with {2 ** depth} sub-steps of '
-                                  f'{h:.3g}s; state kept at the last good step')
+                                  f'{h:.3g}s; state kept at the last good step{self._drive_hint(state, control)}')
         tally.warnings.append(f't={state.time:.6g}s: {failure} with {2 ** depth} sub-steps; result kept')
         return new_state
+
+    def _drive_hint(self, state, control) -> str:
+        """Why a failed step may be a drive's doing: an active drive whose aim is more than
+        max_step_rotation from its joint's angle. A drive (UID 19, K = γ(m_i+m_j), no h²) pulls
+        its joint onto the aim within a step, and sub-steps do not help (each is asked for the
+        whole turn), so such an aim change must be spread over several steps."""
+        m = self.model
+        limit = m.newton.max_step_rotation
+        far = []
+        for k, j in enumerate(m.drive_joints):
+            if control.drive_enabled[k] and not control.drive_passive[k]:
+                gap = float(control.drive_aim[k] - state.joint_angle[j])
+                if not abs(gap) <= limit:
+                    far.append(f'{m.joint_names[j]!r} (aim {control.drive_aim[k]:.3g} rad, '
+                               f'angle {state.joint_angle[j]:.3g} rad)')
+        if not far:
+            return ''
+        return (f'. The drive of joint(s) {", ".join(far)} asks for more than max_step_rotation = '
+                f'{limit:.3g} rad in one step: a drive reaches its aim within a step or two, so move '
+                'the aim in smaller increments over several steps')
 
     def _single(self, s, c, h, tally, may_split):
         """One (sub-)step: (new State or None, None or a failure description). The new State
@@ -152,7 +173,7 @@ class Solver:
         out = self._outcome
         kernel.step(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
                     c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive,
-                    h, self._bdf2 and s.history_dt == h, may_split, qvw, aw, self._skipped, out)
+                    h, self._bdf2 and s.history_dt == h, may_split, self.work, qvw, aw, self._skipped, out)
         return qvw, aw, out
 
     def _state(self, s, h, qvw, aw):
@@ -255,7 +276,7 @@ class Solver:
         count = kernel.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
                              c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
                              c.drive_passive, m.dt, bdf2 and s.history_dt == m.dt, bdf2,
-                             self._may_split, int(n), self._clean_rotation,
+                             self._may_split, int(n), self._clean_rotation, self.work,
                              qvw, aw, self._skipped, out)
         return int(count), qvw, aw, out
 

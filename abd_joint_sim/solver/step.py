@@ -42,19 +42,10 @@ FAIL_NONE, FAIL_NEWTON_NONFINITE, FAIL_STEP_NONFINITE, FAIL_PREDICTED_ROTATION, 
 @njit(cache=True, error_model='numpy')
 def predicted_rotation(m, q, q_tilde):
     """max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| (NaN wins, and then no split is asked)."""
-    grad = np.empty(18)
-    scratch = np.empty((1, 1))
-    work = np.empty(angles.WORK_SHAPE)
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
     for j in range(parent.size):
-        angles.theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, scratch, False, work)
-        i_body, j_body = parent[j], child[j]
-        x = 0.0
-        for a in range(9):
-            x += (grad[a] * (q_tilde[i_body, 3 + a] - q[i_body, 3 + a])
-                  + grad[9 + a] * (q_tilde[j_body, 3 + a] - q[j_body, 3 + a]))
-        x = abs(x)
+        x = abs(angles.theta_and_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[1])
         if x != x:
             out = np.nan
         elif out == out:
@@ -64,21 +55,22 @@ def predicted_rotation(m, q, q_tilde):
 
 @njit(cache=True, error_model='numpy')
 def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-         drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, new_qvw, new_angles,
+         drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw, new_angles,
          skipped, outcome):
-    """One step of size h. new_qvw (3,B,12) = new q, v, warm_start; new_angles (2,J) = joint
+    """One step of size h, working in ws (workspace.Workspace). new_qvw (3,B,12) = new q, v, warm_start; new_angles (2,J) = joint
     angle, joint velocity; skipped[:outcome[OUT_SKIPPED]] = bodies without torque."""
     B, J = q.shape[0], m.joint_parent.size
     outcome[:] = 0.0
     outcome[OUT_APART_JOINT] = -1.0
     # 1. forces
-    q_force = np.empty((B, 12))
+    q_force = ws.q_force
     bdf.force_point(q, q_prev, bdf2, q_force)
-    acc = np.zeros((B, 12))
+    acc = ws.acc
+    acc[:] = 0.0
     gravity.add_acceleration(q_force, m, acc)
     outcome[OUT_SKIPPED] = torque.add_acceleration(q_force, m, torque_value, torque_enabled, acc, skipped)
     # 2. prediction
-    q_tilde = np.empty((B, 12))
+    q_tilde = ws.q_tilde
     scale = bdf.predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde)
     if may_split and J > 0:
         predicted = predicted_rotation(m, q, q_tilde)
@@ -87,21 +79,21 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
             return
     # 3. Newton
     init_angle = m.joint_init_angle
-    angle_start = np.empty(J)
+    angle_start = ws.angle_start
     for j in range(J):
         angle_start[j] = joint_angle[j] - init_angle[j]
     drive_joints = m.drive_joints
-    drive_target = np.empty(drive_joints.size)
+    drive_target = ws.drive_target
     for k in range(drive_joints.size):
         j = drive_joints[k]
         drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
     ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled)
     cw = h * h / scale
-    q_new = np.empty((B, 12))
+    q_new = ws.q_new
     for b in range(B):
         for r in range(12):
             q_new[b, r] = q_tilde[b, r] + cw * warm_start[b, r]
-    status, iterations, halvings = newton.minimize(m, ctx, q_new)
+    status, iterations, halvings = newton.minimize(m, ctx, q_new, ws)
     outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
     if status == newton.NONFINITE or not newton.all_finite(q_new):
         outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
@@ -109,14 +101,12 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     # 4. velocities, joint angles, checks
     v_new = new_qvw[1]
     bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
-    grad = np.empty(18)
-    scratch = np.empty((1, 1))
-    work = np.empty(angles.WORK_SHAPE)
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    zero = ws.zero
     rotation = 0.0
     finite = True
     for j in range(J):
-        th, rate = angles.theta_and_rate_at(q_new, v_new, parent, child, nbar, bbar, j, grad, scratch, work)
+        th, rate = angles.theta_and_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
         rel = angles.unwrap(th, angle_start[j])
         new_angles[0, j] = rel + init_angle[j]
         new_angles[1, j] = rate
@@ -145,7 +135,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
 @njit(cache=True, error_model='numpy')
 def steps(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
           drive_aim, drive_enabled, drive_passive, h, bdf2_first, bdf2_next, may_split, n,
-          clean_rotation, new_qvw, new_angles, skipped, outcome):
+          clean_rotation, ws, new_qvw, new_angles, skipped, outcome):
     """Up to n consecutive steps, each `step` on the previous one's output, stopping before the
     first that is not clean: a failure, an unconverged Newton, a skipped torque, a rotation
     above `clean_rotation` or an overloaded joint (the steps on which the Solver sub-steps or
@@ -155,16 +145,16 @@ def steps(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque
     for k in range(n):
         if k == 0:
             step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-                 drive_aim, drive_enabled, drive_passive, h, bdf2_first, may_split,
+                 drive_aim, drive_enabled, drive_passive, h, bdf2_first, may_split, ws,
                  new_qvw[0], new_angles[0], skipped, outcome[0])
         elif k == 1:
             step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], new_angles[0, 0],
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
-                 bdf2_next, may_split, new_qvw[1], new_angles[1], skipped, outcome[1])
+                 bdf2_next, may_split, ws, new_qvw[1], new_angles[1], skipped, outcome[1])
         else:
             step(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], new_qvw[k - 2, 0], new_qvw[k - 2, 1],
                  new_qvw[k - 1, 2], new_angles[k - 1, 0], torque_value, torque_enabled,
-                 drive_aim, drive_enabled, drive_passive, h, bdf2_next, may_split,
+                 drive_aim, drive_enabled, drive_passive, h, bdf2_next, may_split, ws,
                  new_qvw[k], new_angles[k], skipped, outcome[k])
         o = outcome[k]
         if (o[OUT_FAILURE] != FAIL_NONE or o[OUT_STATUS] != newton.CONVERGED or o[OUT_SKIPPED] != 0.0

@@ -21,6 +21,8 @@ def energy(q, m, ctx):
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
     E = 0.0
+    if joints.size == 0:                    # (the loop below would still cost its setup)
+        return E
     for k in range(joints.size):
         if on[k]:
             j = joints[k]
@@ -34,6 +36,8 @@ def energy(q, m, ctx):
 def accumulate(q, m, ctx, grad, diag, pair, project):
     drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
     D = drive_joints.size
+    if D == 0:                              # no allocations for a scene without drives
+        return
     joints = np.empty(D, dtype=np.int64)
     d1s = np.empty(D)
     d2s = np.empty(D)

@@ -42,6 +42,8 @@ def energy(q, m, ctx):
     joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     start = ctx.angle_start
     E = 0.0
+    if joints.size == 0:
+        return E
     for k in range(joints.size):
         j = joints[k]
         x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
@@ -55,6 +57,8 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     start = ctx.angle_start
     L = limit_joints.size
+    if L == 0:                              # no allocations for a scene without limits
+        return
     joints = np.empty(L, dtype=np.int64)
     d1s = np.empty(L)
     d2s = np.empty(L)

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..smallmat import svd3
+from ..smallmat import svd3_in
 
 
 @njit(cache=True, error_model='numpy')
@@ -36,13 +36,16 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    A = np.empty((3, 3))
-    C = np.empty((3, 3))
-    vecs = np.empty((9, 9))
-    lam = np.empty(9)
-    U = np.empty((3, 3))
-    S = np.empty(3)
-    V = np.empty((3, 3))
+    # one allocation, cut into named views (each allocation costs about a body's gradient)
+    buf = np.empty(3 * 9 + 81 + 9 + 9 + 3 + 18)
+    A = buf[0:9].reshape((3, 3))
+    C = buf[9:18].reshape((3, 3))
+    U = buf[18:27].reshape((3, 3))
+    vecs = buf[27:108].reshape((9, 9))
+    lam = buf[108:117]
+    V = buf[117:126].reshape((3, 3))
+    S = buf[126:129]
+    svd_work = buf[129:147].reshape((2, 3, 3))
     r2 = math.sqrt(0.5)
     hh = ctx.h * ctx.h
     weight = m.ortho_weight
@@ -71,7 +74,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                                 x += C[i, j]
                             diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
             continue
-        svd3(A, U, S, V)
+        svd3_in(A, U, S, V, svd_work)
         # P_ij = vec(u_i v_jᵀ): P_ij[3r + c] = U[r, i] V[c, j]
         n = 0
         for i in range(3):
@@ -93,9 +96,13 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             lam[n] = sq + S[i] * S[j]
             lam[n + 1] = sq - S[i] * S[j]
             n += 2
-        for a in range(9):
-            for c in range(9):
-                acc = 0.0
-                for k in range(9):
-                    acc += vecs[k, a] * max(lam[k], 0.0) * vecs[k, c]
-                diag[b, 3 + a, 3 + c] += w * acc
+        # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a third)
+        Hb = diag[b, 3:12, 3:12]
+        for k in range(9):
+            if not lam[k] > 0.0:
+                continue
+            wl = w * lam[k]
+            for a in range(9):
+                x = wl * vecs[k, a]
+                for c in range(9):
+                    Hb[a, c] += x * vecs[k, c]

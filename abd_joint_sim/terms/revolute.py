@@ -84,6 +84,8 @@ def check_separations(q, m):
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
+    if parent.size == 0:
+        return 0.0
     d = np.empty(3)
     E = 0.0
     for j in range(parent.size):
@@ -97,9 +99,27 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    Kd = np.empty((2, 3))
-    d = np.empty(3)
-    parent, child, x_bar, H, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_hessian, m.joint_K
+    accumulate_gradient(q, m, ctx, grad)
+    parent, child, H = m.joint_parent, m.joint_child, m.joint_hessian
+    for j in range(parent.size):
+        i_body, j_body = parent[j], child[j]
+        for r in range(12):
+            for c in range(12):
+                diag[i_body, r, c] += H[j, r, c]
+                diag[j_body, r, c] += H[j, 12 + r, 12 + c]
+                pair[j, r, c] += H[j, r, 12 + c]
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_gradient(q, m, ctx, grad):
+    """∇E only: Newton's assembly starts from the constant Hessian blocks
+    (model_data.constant_hessian), so the step adds just this."""
+    parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
+    if parent.size == 0:
+        return
+    buf = np.empty(9)
+    Kd = buf[0:6].reshape((2, 3))
+    d = buf[6:9]
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         for a in range(2):
@@ -114,8 +134,3 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                 for c in range(3):
                     grad[b, 3 + 3 * r + c] += sign * (Kd[0, r] * x_bar[j, side, 0, c]
                                                       + Kd[1, r] * x_bar[j, side, 1, c])
-        for r in range(12):
-            for c in range(12):
-                diag[i_body, r, c] += H[j, r, c]
-                diag[j_body, r, c] += H[j, 12 + r, 12 + c]
-                pair[j, r, c] += H[j, r, 12 + c]

@@ -1,0 +1,62 @@
+"""`Workspace`: the arrays one step works in, allocated once per Solver (a numba structref,
+like ModelData). An array allocated inside a compiled kernel costs as much as a few hundred
+flops, and a step used to allocate some forty of them: at a few bodies that was a large
+share of the step. The kernels only write these arrays before reading them; nothing in them
+carries from one step to the next (a step with a fresh Workspace gives the same result).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba.core import types
+from numba.experimental import structref
+
+from . import linsolve
+
+#: (name, meaning) of every field; the shapes come from `build`.
+FIELDS = (
+    ('q_force', '(B,12) where the explicit forces are evaluated'),
+    ('acc', '(B,12) their acceleration'),
+    ('q_tilde', '(B,12) prediction q̃'),
+    ('q_new', '(B,12) Newton iterate'),
+    ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
+    ('drive_target', '(D,) UID 19 target'),
+    ('grad', '(B,12) ∇Π'),
+    ('diag', '(B,12,12) diagonal blocks of ∇²Π'),
+    ('pair', '(J,12,12) joint blocks of ∇²Π'),
+    ('dq', '(B,12) Newton step'),
+    ('trial', '(B,12) line-search point'),
+    ('tree_X', '(F,12,12) tree solve: L⁻¹ U of each edge'),
+    ('tree_y', '(F,12) tree solve: right-hand side / solution'),
+    ('tree_inv_d', '(F,12) tree solve: 1 / diagonal of each factor'),
+    ('dense_H', '(n,n) dense solve: the matrix (n = 12 F, or 0 with the tree solve)'),
+    ('dense_x', '(n,) dense solve: right-hand side / solution'),
+    ('zero', '(B,12) zeros, never written (a direction d = d_plus − 0)'),
+)
+
+
+@structref.register
+class WorkspaceType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class Workspace(structref.StructRefProxy):
+    """Python handle of a step's work arrays."""
+
+
+structref.define_proxy(Workspace, WorkspaceType, [name for name, _ in FIELDS])
+
+
+def build(model, data) -> Workspace:
+    """The Workspace of a Model whose ModelData is `data`."""
+    B, J, D = model.body_count, model.joint_count, len(model.drive_joints)
+    F = int(data.free_bodies.size)
+    n = 12 * F if data.solve_kind == linsolve.DENSE else 0
+    shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), angle_start=(J,),
+                  drive_target=(D,), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
+                  trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
+                  dense_H=(n, n), dense_x=(n,), zero=(B, 12))
+    values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
+    ws = Workspace(*(values[name] for name, _ in FIELDS))
+    ws.__dict__.update(values)
+    return ws
