@@ -105,7 +105,28 @@ def install() -> None:
             return cls(py_func, py_file) if _writable(directory()) else None
 
     caching.CacheImpl._locator_classes.insert(0, PackageCacheLocator)
+
+    # A cache that cannot be written (full disk, quota, a file-size limit) costs a compile
+    # next time, never the run: numba would raise the OSError out of the first call.
+    save = caching.Cache.save_overload
+
+    def save_overload(self, sig, data):
+        try:
+            save(self, sig, data)
+        except OSError as exc:
+            if not str(getattr(self, '_cache_path', '')).startswith(str(directory())):
+                raise
+            if not _save_failed:
+                _save_failed.append(exc)
+                print(f'abd_joint_sim: could not store the compiled physics kernels in '
+                      f'{directory()} ({exc.strerror or exc}); running on, they will be '
+                      'compiled again next time', file=sys.stderr, flush=True)
+
+    caching.Cache.save_overload = save_overload
     _installed = True
+
+
+_save_failed: list = []
 
 
 install()

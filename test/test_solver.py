@@ -492,3 +492,32 @@ def test_a_fresh_solver_steps_exactly_like_a_used_one():
         np.testing.assert_array_equal(a.q, b.q)
         np.testing.assert_array_equal(a.joint_angle, b.joint_angle)
         np.testing.assert_array_equal(a.joint_velocity, b.joint_velocity)
+
+
+_CACHE_UNWRITABLE = r'''
+import resource, sys
+import numpy as np
+from abd_joint_sim import smallmat      # installs the package's kernel cache
+A = np.array([[2.0, 0, 0], [0, 3.0, 0], [0, 0, 4.0]])
+L = A.copy()
+resource.setrlimit(resource.RLIMIT_FSIZE, (512, 512))     # the cache cannot be written
+smallmat.cholesky(L, 3)                                    # compiles, then fails to store it
+print('ok', L[0, 0], L[2, 2])
+'''
+
+
+def test_a_kernel_cache_that_cannot_be_written_does_not_stop_the_run(tmp_path):
+    """A full disk (here RLIMIT_FSIZE) under the kernel cache: one line on stderr saying the
+    kernels will be compiled again, and the run goes on with correct results."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    env = dict(os.environ, ABD_KERNEL_CACHE=str(tmp_path / 'cache'))
+    res = subprocess.run([sys.executable, '-c', _CACHE_UNWRITABLE], capture_output=True,
+                         text=True, timeout=300, env=env, stdin=subprocess.DEVNULL,
+                         preexec_fn=lambda: signal.signal(signal.SIGXFSZ, signal.SIG_IGN))
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.split() == ['ok', repr(2.0 ** 0.5), '2.0'], res.stdout
+    lines = [ln for ln in res.stderr.splitlines() if 'could not store the compiled' in ln]
+    assert len(lines) == 1 and 'compiled again next time' in lines[0], res.stderr[-3000:]
