@@ -8,7 +8,7 @@ recording and SIGTERM.
 
 Tolerance of the magnitude check: with a constant torque tau from rest, the analytic angle
 is theta(t) = 1/2 alpha t^2 (alpha = tau / I). BDF1 (implicit Euler) gives, exactly,
-theta_n = alpha h^2 n (n + 1) / 2 = 1/2 alpha t^2 + 1/2 alpha h t (PHYSICS.md section 7), so
+theta_n = alpha h^2 n (n + 1) / 2 = 1/2 alpha t^2 + 1/2 alpha h t (docs/physics.md "Analytic references"), so
 we allow |theta - 1/2 alpha t^2| <= 1/2 alpha h t + 5 % and the velocity within 5 % + alpha h
 of alpha t. The 5 % covers joint compliance and the Newton stopping rule (reference default
 velocity_tol = 0.05 m/s, about 1 iteration per step): at tau = 10 N m the core is ~2 % above
