@@ -277,3 +277,20 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
                 diag[i_body, 3 + a, 3 + b] += H[k, a, b]
                 diag[j_body, 3 + a, 3 + b] += H[k, 9 + a, 9 + b]
                 pair[j, 3 + a, 3 + b] += H[k, a, 9 + b]
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_angle_gradient(q, m, joints, d1s, n, grad):
+    """∇E = E'∇θ of accumulate_angle_hessian alone (Newton with a reused factorisation)."""
+    if n == 0:
+        return
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    G = np.empty(18)
+    work = np.empty(WORK_SHAPE)
+    for k in range(n):
+        j = joints[k]
+        theta_derivatives_at(q, parent, child, nbar, bbar, j, G, G.reshape((3, 6)), False, work)
+        i_body, j_body = parent[j], child[j]
+        for a in range(9):
+            grad[i_body, 3 + a] += d1s[k] * G[a]
+            grad[j_body, 3 + a] += d1s[k] * G[9 + a]

@@ -60,6 +60,17 @@ def assemble(q, m, ctx, grad, diag, pair):
 
 
 @njit(cache=True, error_model='numpy')
+def gradient(q, m, ctx, grad):
+    """∇Π alone, the same sum as `assemble`'s (Newton iterations on a reused factorisation)."""
+    grad[:] = 0.0
+    inertia.accumulate_gradient(q, m, ctx, grad)
+    ortho.accumulate_gradient(q, m, ctx, grad)                 # UID 1
+    revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18
+    driving.accumulate_gradient(q, m, ctx, grad)               # UID 19
+    limit.accumulate_gradient(q, m, ctx, grad)                 # UID 670
+
+
+@njit(cache=True, error_model='numpy')
 def all_finite(x):
     for b in range(x.shape[0]):
         for r in range(x.shape[1]):

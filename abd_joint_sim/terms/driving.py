@@ -33,11 +33,10 @@ def energy(q, m, ctx):
 
 
 @njit(cache=True, error_model='numpy')
-def accumulate(q, m, ctx, grad, diag, pair, project):
+def active_joints(q, m, ctx):
+    """(joints, E', E'', n): the n enabled drives at q."""
     drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
     D = drive_joints.size
-    if D == 0:                              # no allocations for a scene without drives
-        return
     joints = np.empty(D, dtype=np.int64)
     d1s = np.empty(D)
     d2s = np.empty(D)
@@ -51,4 +50,21 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             d1s[n] = K[k] * (x - target[k])
             d2s[n] = K[k]
             n += 1
+    return joints, d1s, d2s, n
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    if m.drive_joints.size == 0:            # no allocations for a scene without drives
+        return
+    joints, d1s, d2s, n = active_joints(q, m, ctx)
     angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_gradient(q, m, ctx, grad):
+    """∇E only (Newton with a reused factorisation)."""
+    if m.drive_joints.size == 0:
+        return
+    joints, d1s, _, n = active_joints(q, m, ctx)
+    angles.accumulate_angle_gradient(q, m, joints, d1s, n, grad)

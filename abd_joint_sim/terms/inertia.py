@@ -33,3 +33,15 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                 Md += M[b, r, c] * (q[b, c] - q_tilde[b, c])
                 diag[b, r, c] += s * M[b, r, c]
             grad[b, r] += s * Md
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_gradient(q, m, ctx, grad):
+    """∇E only (Newton with a reused factorisation needs no Hessian)."""
+    q_tilde, M, s = ctx.q_tilde, m.body_M, ctx.scale
+    for b in m.free_bodies:
+        for r in range(12):
+            Md = 0.0
+            for c in range(12):
+                Md += M[b, r, c] * (q[b, c] - q_tilde[b, c])
+            grad[b, r] += s * Md

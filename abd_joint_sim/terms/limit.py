@@ -53,12 +53,11 @@ def energy(q, m, ctx):
 
 
 @njit(cache=True, error_model='numpy')
-def accumulate(q, m, ctx, grad, diag, pair, project):
+def active_joints(q, m, ctx):
+    """(joints, E', E'', n): the n limits outside their range at q, with their slopes."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     start = ctx.angle_start
     L = limit_joints.size
-    if L == 0:                              # no allocations for a scene without limits
-        return
     joints = np.empty(L, dtype=np.int64)
     d1s = np.empty(L)
     d2s = np.empty(L)
@@ -73,4 +72,21 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             d1s[n] = d1
             d2s[n] = d2
             n += 1
+    return joints, d1s, d2s, n
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    if m.limit_joints.size == 0:            # no allocations for a scene without limits
+        return
+    joints, d1s, d2s, n = active_joints(q, m, ctx)
     angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_gradient(q, m, ctx, grad):
+    """∇E only (Newton with a reused factorisation)."""
+    if m.limit_joints.size == 0:
+        return
+    joints, d1s, _, n = active_joints(q, m, ctx)
+    angles.accumulate_angle_gradient(q, m, joints, d1s, n, grad)
