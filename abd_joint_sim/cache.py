@@ -5,10 +5,14 @@ directory: the source tree (tests) and a colcon install space (sim_node) are two
 the same files, so each compiled the kernels again. Here the kernels of this package are
 cached in one directory per user, numba version and Python version
 (`$ABD_KERNEL_CACHE`, else `$XDG_CACHE_HOME/abd_joint_sim/…` or `~/.cache/abd_joint_sim/…`),
-by path inside the package, and stamped with a hash of ALL kernel sources: any edit to any
-kernel file makes every entry stale (numba alone would not notice an edit in a callee that
-lives in another file). A directory that cannot be written leaves numba's own locators
-in charge.
+in a subdirectory named by a hash of ALL kernel sources: any edit to any kernel file
+gives a new directory (numba alone would not notice an edit in a callee that lives in
+another file). Why a directory per hash rather than one directory with stamped entries:
+numba unpickles an index's signatures before it compares the stamp, so another version's
+index naming a type this version lacks was an ImportError out of the first kernel call
+(switching checkouts or versions), and two versions used alternately recompiled over each
+other. Only the KEEP most recently used directories are kept. A directory that cannot be
+written leaves numba's own locators in charge.
 """
 from __future__ import annotations
 
@@ -47,7 +51,32 @@ def directory() -> Path:
         base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
         root = os.path.join(base, 'abd_joint_sim')
     tag = f'numba{numba.__version__}-py{sys.version_info[0]}{sys.version_info[1]}-{platform.machine()}'
-    return Path(root) / tag
+    return Path(root) / tag / sources_hash()
+
+
+#: kernel directories (source versions) kept per user, numba and Python version
+KEEP = 4
+
+
+def prune() -> None:
+    """Remove all but the KEEP most recently compiled source versions' directories, and
+    anything else there (an unfinished compile, the layout before per-version directories)
+    untouched for a day. Best effort."""
+    import shutil
+    import time
+    here = directory()
+    try:
+        parent = here.parent
+        versions = [d for d in parent.iterdir() if d != here]
+        day_ago = time.time() - 86400
+        old = [d for d in versions if not (d.is_dir() and any(d.glob('compiled-*')))
+               and d.stat().st_mtime < day_ago]
+        versions = [d for d in versions if d.is_dir() and any(d.glob('compiled-*'))]
+        done = sorted(versions, key=lambda d: d.stat().st_mtime)
+        for d in old + done[:max(0, len(done) - (KEEP - 1))]:
+            shutil.rmtree(d, ignore_errors=True) if d.is_dir() else d.unlink()
+    except OSError:
+        pass
 
 
 def marker() -> Path:
@@ -59,7 +88,8 @@ def mark_compiled() -> None:
     try:
         marker().write_text('all kernels compiled for these sources\n')
     except OSError:
-        pass
+        return
+    prune()
 
 
 def _writable(path: Path) -> bool:

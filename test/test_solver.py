@@ -358,6 +358,46 @@ def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
     assert out.stdout.strip() == str(cache.marker())     # same sources, same cache entry
 
 
+def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
+    """Another version of the kernel sources (here: a copy with one kernel file edited) gets its
+    own cache directory, so versions used alternately neither recompile over each other nor
+    read each other's index (numba unpickles an index's signatures before checking its stamp:
+    a type the running version lacks was an ImportError); `prune` keeps the KEEP newest."""
+    import shutil
+    from abd_joint_sim import cache
+    copy = tmp_path / 'pkg' / 'abd_joint_sim'
+    shutil.copytree(REPO / 'abd_joint_sim', copy, ignore=shutil.ignore_patterns('__pycache__'))
+    with open(copy / 'terms' / 'gravity.py', 'a') as f:
+        f.write('\n# an edit\n')
+    code = ('import abd_joint_sim.cache as c; print(c.directory())')
+    env = dict(os.environ, PYTHONPATH=str(tmp_path / 'pkg'), ABD_KERNEL_CACHE=str(tmp_path / 'cache'))
+    out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    edited = Path(out.stdout.strip())
+    env['PYTHONPATH'] = str(REPO)
+    out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120, env=env)
+    ours = Path(out.stdout.strip())
+    assert edited.parent == ours.parent and edited != ours
+    # prune: compiled versions beyond KEEP go, oldest first; an unfinished recent one stays
+    root = ours.parent
+    root.mkdir(parents=True, exist_ok=True)
+    for k in range(cache.KEEP + 2):
+        d = root / f'{k:020d}'
+        d.mkdir()
+        (d / f'compiled-{k}').write_text('')
+        os.utime(d, (1000 + k, 1000 + k))
+    (root / 'unfinished').mkdir()
+    edited.mkdir(exist_ok=True)                 # (importing the package may have made it)
+    code = ('import abd_joint_sim.cache as c; c.mark_compiled()')
+    out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    left = sorted(d.name for d in root.iterdir())
+    assert left == sorted([ours.name, edited.name, 'unfinished'] + [f'{k:020d}' for k in range(3, cache.KEEP + 2)])
+
+
 def _imports(path: Path, module: str, package: str = 'abd_joint_sim'):
     """Modules of `package` imported by the file of `module` (relative imports resolved)."""
     is_init = path.name == '__init__.py'
