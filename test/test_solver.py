@@ -18,7 +18,7 @@ from abd_joint_sim import Scene, SimulationError, World
 from abd_joint_sim.smallmat import eigh_ql, jacobi_eigh, svd3
 from abd_joint_sim.solver import linsolve
 
-from physics_helpers import box, hinge_dict, random_rotation, scene_dict
+from physics_helpers import box, chain_dict, hinge_dict, random_rotation, scene_dict
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -307,6 +307,48 @@ def test_step_n_is_bit_identical_to_n_single_steps(case):
         last = one.step()
     assert many.step(n) == last
     for x, y in zip(_state_fields(one), _state_fields(many)):
+        assert np.array_equal(x, y)
+
+
+def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
+    """Solver calls the compiled step's entry point directly (no per-call typing) only with
+    arrays the step made or Control arrays it checked; a State or Control whose arrays have
+    another layout (Fortran order, strided views) goes through numba's dispatcher. Both give
+    the same steps, bit for bit; fed to the entry point, such arrays would be misread."""
+    from abd_joint_sim.state import State
+    d = chain_dict(3, torque=0.7)
+    plain, odd = _world(d), _world(d)
+    for w in (plain, odd):
+        w.set_torque('j3', 2.0)
+    def strided(a):
+        out = np.zeros((2,) + a.shape, dtype=a.dtype, order='F')[1]
+        out[...] = a
+        return out
+    for k in range(12):
+        plain.step()
+        s = odd.state
+        if k % 3 == 0:              # a State of odd arrays, as a user might build one
+            odd.state = State(s.time, np.asfortranarray(s.q), strided(s.v), strided(s.q_prev),
+                              np.asfortranarray(s.v_prev), strided(s.joint_angle),
+                              s.joint_velocity, s.step_count, s.history_dt, strided(s.warm_start))
+            assert not odd.state.q.flags.c_contiguous and not odd.state.v.flags.c_contiguous
+        if k == 5:                  # Control arrays replaced by strided views
+            c = odd.control
+            c.torque_value = strided(c.torque_value)
+            c.torque_enabled = strided(c.torque_enabled)
+            assert not c.torque_value.flags.c_contiguous
+        odd.step()
+    assert plain.solver._entry is not None and odd.solver._entry is not None
+    for x, y in zip(_state_fields(plain), _state_fields(odd)):
+        assert np.array_equal(x, y)
+    # and the odd arrays really are read where they are: a torque written into the strided
+    # Control array takes effect exactly as in the plain one
+    plain.set_torque('j1', -3.0)
+    odd.set_torque('j1', -3.0)
+    for _ in range(5):
+        plain.step()
+        odd.step()
+    for x, y in zip(_state_fields(plain), _state_fields(odd)):
         assert np.array_equal(x, y)
 
 

@@ -36,6 +36,11 @@ ACCURACY_NOTE = {
             'rad/step, ~1 % at 0.6): reduce dt for accuracy'}
 
 
+#: dtypes of Control's arrays as the compiled step takes them
+CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
+                  np.dtype(np.bool_))
+
+
 @dataclass(frozen=True)
 class CleanSteps:
     """Result of `Solver.clean_steps`."""
@@ -84,6 +89,9 @@ class Solver:
         self._outcome = np.zeros(kernel.OUT_COLUMNS)
         self._clean_rotation = min(model.newton.max_step_rotation, ACCURACY_ROTATION[model.integrator])
         self._shape = (B, J)
+        self._entry = None              # the compiled step's entry point (_control_checked)
+        self._made = (None,) * 6        # state arrays the last step made (_compute)
+        self._control = (None,) * 5     # Control arrays checked for the entry point
         self._qvw_shape, self._aw_shape = (3, B, 12), (2, J)
         self._bdf2 = model.integrator == 'bdf2'
         self._may_split = model.newton.max_substep_depth > 0
@@ -167,20 +175,63 @@ class Solver:
         return self._decode(s, h, *self._compute(s, c, h, may_split), tally)
 
     def _compute(self, s, c, h, may_split):
-        """The compiled step: (q/v/warm_start (3,B,12), angle/velocity (2,J), outcome row)."""
+        """The compiled step: ((q, v, warm_start) (B,12) each, (angle, velocity) (J,) each,
+        outcome row)."""
         qvw = np.empty(self._qvw_shape)
         aw = np.empty(self._aw_shape)
         out = self._outcome
-        kernel.step(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
-                    c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive,
-                    h, self._bdf2 and s.history_dt == h, may_split, self.work, qvw, aw, self._skipped, out)
+        args = (self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
+                c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive,
+                h, self._bdf2 and s.history_dt == h, may_split, self.work, qvw, aw, self._skipped, out)
+        k = self._made
+        if (s.q is k[0] and s.v is k[1] and s.q_prev is k[2] and s.v_prev is k[3]
+                and s.warm_start is k[4] and s.joint_angle is k[5] and self._control_checked(c)):
+            self._entry(*args)
+        else:
+            kernel.step(*args)
+        # arrays of the new state this step made (or, as history, made the step before);
+        # indexed once: each qvw[0] is a new view object, and the check is by identity
+        qvw, aw = (qvw[0], qvw[1], qvw[2]), (aw[0], aw[1])
+        self._made = (qvw[0], qvw[1], s.q if s.q is k[0] else None, s.v if s.v is k[1] else None,
+                      qvw[2], aw[0])
         return qvw, aw, out
+
+    def _control_checked(self, c) -> bool:
+        """Whether the compiled step's entry point may be called with Control c's arrays, and
+        the entry point bound (once). Why bypass numba's dispatcher: it types every argument
+        on every call, ~0.65 µs for each of the two structrefs (a Python-level typeof), a
+        fifth of a one-body step's Python. The entry point skips that and unboxes by the
+        compiled signature, so it would misread an array of another layout or dtype: it is
+        only given arrays the step made itself (_made) and Control arrays checked here
+        (checked again whenever one is replaced); anything else goes through the dispatcher,
+        which types (and if needed compiles) it."""
+        arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
+        known = self._control
+        if (arrays[0] is known[0] and arrays[1] is known[1] and arrays[2] is known[2]
+                and arrays[3] is known[3] and arrays[4] is known[4]):
+            return self._entry is not None
+        if not all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
+                   and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES)):
+            self._control = (None,) * 5
+            return False
+        self._control = arrays
+        if self._entry is None:
+            try:
+                m, s = self.data, self.work
+                z = np.zeros(self._qvw_shape[1:])
+                j = np.zeros(self._aw_shape[1:])
+                sig = tuple(kernel.step.typeof_pyval(a) for a in (
+                    m, z, z, z, z, z, j, *arrays, 1.0, True, True, s, np.empty(self._qvw_shape),
+                    np.empty(self._aw_shape), self._skipped, self._outcome))
+                self._entry = kernel.step.overloads[sig].entry_point
+            except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
+                self._entry = None
+        return self._entry is not None
 
     def _state(self, s, h, qvw, aw):
         """The State after a step from s."""
-        return State(time=s.time + h, q=qvw[0], v=qvw[1], q_prev=s.q, v_prev=s.v,
-                     joint_angle=aw[0], joint_velocity=aw[1] if self._shape[1] else s.joint_velocity,
-                     step_count=s.step_count + 1, history_dt=h, warm_start=qvw[2])
+        return State(s.time + h, qvw[0], qvw[1], s.q, s.v, aw[0],
+                     aw[1] if self._shape[1] else s.joint_velocity, s.step_count + 1, h, qvw[2])
 
     def _decode(self, s, h, qvw, aw, out, tally):
         m = self.model
