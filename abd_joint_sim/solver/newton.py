@@ -4,8 +4,9 @@
     Π(q) = (s/2) Σ_free (q − q̃)ᵀ M (q − q̃) + Σ_terms E(q)
 
 Each iteration solves H Δq = −∇Π (H = sM + the PSD-projected term Hessians, positive
-definite on the free bodies), then halves α until Π(q ⊕ αΔq) ≤ Π(q) + ROUNDOFF·|Π|, where
-⊕ applies each body's step as a screw motion (retraction.py; = q + Δq to first order).
+definite on the free bodies); a step that meets the tolerances below is taken whole and ends
+Newton, any other is cut by halving α until Π(q ⊕ αΔq) ≤ Π(q) + ROUNDOFF·|Π|, where ⊕ applies
+each body's step as a screw motion (retraction.py; = q + Δq to first order).
 Converged (libuipc's tests, plus ours): every free body's bounding-box corners move less
 than velocity_tol·h under Δq, max |Δq[3:12]| ≤ transrate_tol·h, and the Newton decrement
 −½∇ΠᵀΔq is at most s·½Σm(velocity_tol·h)², what moving every body by the displacement
@@ -133,8 +134,14 @@ def minimize(m, ctx, q, ws):
         converged = step_within_tolerance(dq, m, h) and decrement <= scale * energy_tol
         if decrement <= ROUNDOFF * abs(E):
             return CONVERGED, it, halvings
-        # Once the tolerances hold only the full step is tried: whether it lowers Π is then
-        # decided by rounding, and halving would only spend iterations.
+        if converged:
+            # The tolerances hold: the full step is taken without evaluating Π there. The
+            # decrease test could only choose between two answers that both pass them (q, or
+            # q ⊕ Δq); the step is the better one (nearer the minimum by O(|Δq|²)), and Π at
+            # the trial cost as much as the rest of the iteration's energy evaluations.
+            retract(q, dq, 1.0, m, trial)
+            q[:] = trial
+            return CONVERGED, it, halvings
         alpha = 1.0
         found = False
         E_new = E
@@ -144,16 +151,12 @@ def minimize(m, ctx, q, ws):
             if E_new <= E + ROUNDOFF * abs(E):
                 found = True
                 break
-            if converged:
-                break
             alpha *= 0.5
             halvings += 1
         if not found:
-            return (CONVERGED if converged else LINE_SEARCH_FAILED), it, halvings
+            return LINE_SEARCH_FAILED, it, halvings
         if not math.isfinite(E_new):
             return NONFINITE, it, halvings
         q[:] = trial
         E = E_new
-        if converged and alpha == 1.0:          # a cut step left part of Δq undone: go on
-            return CONVERGED, it, halvings
     return MAX_ITERATIONS, m.max_iterations, halvings
