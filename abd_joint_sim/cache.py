@@ -153,6 +153,18 @@ def install() -> None:
                       'compiled again next time', file=sys.stderr, flush=True)
 
     caching.Cache.save_overload = save_overload
+
+    # An index that cannot be read (truncated by a full disk or a killed process, written by
+    # another numba) is a stale cache, compiled over, not an exception out of the first call.
+    load_index = caching.IndexDataCacheFile._load_index
+
+    def _load_index(self):
+        try:
+            return load_index(self)
+        except Exception:                           # noqa: BLE001 - any unreadable index
+            return {}
+
+    caching.IndexDataCacheFile._load_index = _load_index
     _installed = True
 
 

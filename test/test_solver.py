@@ -440,6 +440,32 @@ def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
     assert left == sorted([ours.name, edited.name, 'unfinished'] + [f'{k:020d}' for k in range(3, cache.KEEP + 2)])
 
 
+def test_an_unreadable_kernel_cache_index_is_compiled_over(tmp_path):
+    """A cache index that cannot be unpickled (here: one naming a module that does not exist,
+    as another version's index did; or truncated) costs a compile, not a traceback."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), ABD_KERNEL_CACHE=str(tmp_path / 'cache'))
+    code = ('import numpy as np; from abd_joint_sim import smallmat; U, S, V = np.zeros((3, 3)), '
+            'np.zeros(3), np.zeros((3, 3)); smallmat.svd3(np.diag([2.0, 3.0, 1.0]), U, S, V); '
+            'print(S.tolist())')
+    first = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300, env=env)
+    assert first.returncode == 0, first.stderr[-2000:]
+    indexes = list((tmp_path / 'cache').rglob('smallmat.svd3-*.nbi'))
+    assert indexes
+    import pickle
+    # a pickle of a global from a module that does not exist (hand-written opcodes: protocol 0
+    # GLOBAL 'abd_joint_sim.no_such_module Missing', then STOP)
+    missing = b'cabd_joint_sim.no_such_module\nMissing\n.'
+    for index in indexes:
+        with open(index, 'rb') as f:
+            version = pickle.load(f)
+        with open(index, 'wb') as f:
+            pickle.dump(version, f)
+            f.write(missing)
+    again = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300, env=env)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert again.stdout == first.stdout and 'Traceback' not in again.stderr
+
+
 def _imports(path: Path, module: str, package: str = 'abd_joint_sim'):
     """Modules of `package` imported by the file of `module` (relative imports resolved)."""
     is_init = path.name == '__init__.py'
