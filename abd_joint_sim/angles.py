@@ -281,7 +281,8 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
     QᵀHQ). c, s are quadratic forms ½ tr(Z C Zᵀ), ½ tr(Z S Zᵀ) with constant 4x4 C, S, so
     with r² = c² + s², O = (cR − sI)/r (R the +90° turn, O orthogonal), ∇r = Z M_r:
 
-        ∇²θ = I3 ⊗ M_θ − (∇θ ∇rᵀ + ∇r ∇θᵀ)/r,   M_θ = (cS − sC)/r² = [[0, O], [Oᵀ, 0]]/(2r),
+        ∇²θ = I3 ⊗ M_θ − (∇θ ∇rᵀ + ∇r ∇θᵀ)/r,
+        M_θ = (cS − sC)/r² = [[0, O], [Oᵀ, 0]]/(2r),
 
     i.e. I3 ⊗ (eigenvalues ±1/(2r), six times each) plus rank 2. In the coordinates
     a = (X_i + X_j Oᵀ)/√2, b = (X_i − X_j Oᵀ)/√2 (X_i = [n_i b_i], X_j = [n_j b_j]), which
@@ -388,7 +389,9 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
                 diag[j_body, 3 + b, 3 + a] += xj
         for b in range(9):
             cb = b % 3
-            x = Vx[0, a] * Wp[0, 9 + b] + Vx[1, a] * Wp[1, 9 + b] + Vx[2, a] * Wp[2, 9 + b] + Vx[3, a] * Wp[3, 9 + b]
+            x = (Vx[0, a] * Wp[0, 9 + b] + Vx[1, a] * Wp[1, 9 + b]
+                 + Vx[2, a] * Wp[2, 9 + b] + Vx[3, a] * Wp[3, 9 + b])
             if a // 3 == b // 3:
-                x += ko * (nbi[ca] * (o00 * nbj[cb] + o01 * bbj[cb]) + bbi[ca] * (o10 * nbj[cb] + o11 * bbj[cb]))
+                x += ko * (nbi[ca] * (o00 * nbj[cb] + o01 * bbj[cb])
+                           + bbi[ca] * (o10 * nbj[cb] + o11 * bbj[cb]))
             pair[j, 3 + a, 3 + b] += x

@@ -388,7 +388,8 @@ def test_angle_projection_equals_the_12x12_eigen_projection(shape):
         q = {'rigid': _rigid_state(seed), 'near': _state(seed, 1e-7), 'sheared': _state(seed, 0.15),
              'far': _state(seed, 0.8)}[shape]
         for d1, d2 in ANGLE_CASES:
-            for joints, d1s, d2s in (([0], [d1], [d2]), ([1], [-d1], [d2]), ([0, 1], [d1, 0.3 * d1], [d2, 2 * d2])):
+            for joints, d1s, d2s in (([0], [d1], [d2]), ([1], [-d1], [d2]),
+                                     ([0, 1], [d1, 0.3 * d1], [d2, 2 * d2])):
                 ref = _reference_angle_projection(q, joints, d1s, d2s)
                 new = _projected_angle_hessian(q, joints, d1s, d2s)
                 raw = _raw_angle_hessian(q, joints, d1s, d2s)
@@ -427,10 +428,36 @@ def test_angle_hessian_has_the_structure_the_projection_uses():
                 F = np.stack([DATA.joint_nbar[j, side], DATA.joint_bbar[j, side]], axis=1)
                 Q[9 * side:9 * side + 9, 6 * side:6 * side + 6] = np.kron(np.eye(3), F)
             fr = np.zeros((4, 3))
-            angles.frames(q, MODEL.joint_parent[j], MODEL.joint_child[j], DATA.joint_nbar, DATA.joint_bbar, j, fr)
+            angles.frames(q, MODEL.joint_parent[j], MODEL.joint_child[j], DATA.joint_nbar,
+                          DATA.joint_bbar, j, fr)
             r = np.hypot(*angles.cos_sin(fr))
             for d1 in (-2.0, 3.0):
                 w = np.linalg.eigvalsh(Q.T @ (5.0 * np.outer(g, g) + d1 * hh) @ Q)
                 for sign in (1, -1):
                     assert np.sum(np.isclose(w, sign * d1 / (2 * r), rtol=1e-9)) >= 4
                 assert w.min() < 0
+
+
+@pytest.mark.parametrize('name', ['driving', 'limit'])
+def test_terms_project_like_the_12x12_eigen_projection(name):
+    """Through the terms' own `accumulate` (the fused loops): drives near their target on
+    either side (E'∇²θ kept) and limits active above and below, against the reference."""
+    from abd_joint_sim import angles
+    term, signs = TERMS[name], set()
+    j = int(MODEL.drive_joints[0])
+    for seed in range(4):
+        q = _state(seed, 0.1)
+        theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
+        for offset in (0.03, -0.05, 0.4):
+            # drives: target beside the angle; limits: the step-start branch and init shift x
+            start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
+            ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]))
+            joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
+            if n == 0:
+                continue
+            signs |= set(np.sign(d1s[:n]))
+            ref = _reference_angle_projection(q, joints[:n], d1s[:n], d2s[:n])
+            _, _, H = dense(term, q, ctx, project=True)
+            _, _, raw = dense(term, q, ctx, project=False)
+            assert np.abs(H - ref).max() <= 1e-12 * np.abs(raw).max()
+    assert signs >= {-1.0, 1.0}, signs

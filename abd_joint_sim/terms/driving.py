@@ -57,9 +57,10 @@ def active_joints(q, m, ctx):
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and the (projected) Hessian of the enabled drives: active_joints and
     angles.accumulate_angle_hessian fused, joint by joint, into one work array."""
-    drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
+    drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     if drive_joints.size == 0:              # no allocations for a scene without drives
         return
+    target, start = ctx.drive_target, ctx.angle_start
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     work = np.empty(angles.ANGLE_WORK_SHAPE)
     for k in range(drive_joints.size):
