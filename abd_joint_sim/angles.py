@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .smallmat import eigh_ql
+from .smallmat import eigh_ql_in
 
 TWO_PI = 2.0 * np.pi
 # [rad] Far from its minimum, E'∇²θ (the curvature of the angle itself) misleads Newton: θ is
@@ -197,86 +197,18 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     """For the n joints `joints[:n]` of one term with E'(θ), E''(θ) in d1s, d2s: adds
     ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ to the blocks on q[3:12]. With `project`,
     a joint with |E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead, and H is
-    PSD-projected as a batch (kept as is when every eigenvalue of the batch is ≥ 0,
-    else negative eigenvalues clamped to 0). θ depends on A_k only through A_k n̄_k and
-    A_k b̄_k, so H's range lies in the 12-dim span of Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])
-    (orthonormal columns): the eigenproblem is solved on QᵀHQ (12x12)."""
+    PSD-projected (negative eigenvalues clamped to 0) joint by joint, in closed form up to
+    a 4x4 eigenproblem (angle_hessian_projected). Projecting joint by joint gives the
+    matrix of the former batch rule (kept as is when every eigenvalue of the batch is ≥ 0,
+    else each joint projected): the projection of a PSD H is H, and H with E' ≠ 0 is never
+    PSD (eigenvalue −|E'|/(2r) at least 4 times), so to rounding the two rules agree."""
     if n == 0:
         return
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    G = np.empty((n, 18))
-    H = np.empty((n, 18, 18))
-    hh = np.empty((18, 18))
-    Q = np.zeros((n, 18, 12))
-    Hs = np.empty((n, 12, 12))
-    W = np.empty((n, 12))
-    V = np.empty((n, 12, 12))
-    tmp = np.empty((18, 12))
-    work = np.empty(WORK_SHAPE)
-    all_psd = True
-    is_psd = np.zeros(n, dtype=np.bool_)    # H[k] PSD by construction (kept as is)
+    work = np.empty(ANGLE_WORK_SHAPE)
     for k in range(n):
-        j = joints[k]
-        theta_derivatives_at(q, parent, child, nbar, bbar, j, G[k], hh, True, work)
-        gauss_newton = project and abs(d1s[k]) > GAUSS_NEWTON_RANGE * d2s[k]
-        curvature = 0.0 if gauss_newton else d1s[k]
-        for a in range(18):
-            for b in range(18):
-                H[k, a, b] = d2s[k] * (G[k, a] * G[k, b]) + curvature * hh[a, b]
-        if not project:
-            continue
-        if gauss_newton and d2s[k] >= 0.0:      # E''∇θ∇θᵀ is PSD: nothing to project
-            is_psd[k] = True
-            continue
-        for side in range(2):
-            for r in range(3):
-                for c in range(3):
-                    Q[k, 9 * side + 3 * r + c, 6 * side + 2 * r] = nbar[j, side, c]
-                    Q[k, 9 * side + 3 * r + c, 6 * side + 2 * r + 1] = bbar[j, side, c]
-        for a in range(18):
-            for l in range(12):
-                acc = 0.0
-                for b in range(18):
-                    acc += H[k, a, b] * Q[k, b, l]
-                tmp[a, l] = acc
-        for l in range(12):
-            for l2 in range(l, 12):
-                acc = 0.0
-                for a in range(18):
-                    acc += Q[k, a, l] * tmp[a, l2]
-                Hs[k, l, l2] = acc
-                Hs[k, l2, l] = acc
-        eigh_ql(Hs[k], W[k], V[k])
-        for l in range(12):
-            if not W[k, l] >= 0.0:
-                all_psd = False
-    if project and not all_psd:
-        for k in range(n):
-            if is_psd[k]:
-                continue
-            for l in range(12):             # V <- Q V, H = Σ max(w, 0) v vᵀ
-                for a in range(18):
-                    acc = 0.0
-                    for l2 in range(12):
-                        acc += Q[k, a, l2] * V[k, l2, l]
-                    tmp[a, l] = acc
-            for a in range(18):
-                for b in range(a, 18):
-                    acc = 0.0
-                    for l in range(12):
-                        acc += tmp[a, l] * max(W[k, l], 0.0) * tmp[b, l]
-                    H[k, a, b] = acc
-                    H[k, b, a] = acc
-    for k in range(n):
-        j = joints[k]
-        i_body, j_body = parent[j], child[j]
-        for a in range(9):
-            grad[i_body, 3 + a] += d1s[k] * G[k, a]
-            grad[j_body, 3 + a] += d1s[k] * G[k, 9 + a]
-            for b in range(9):
-                diag[i_body, 3 + a, 3 + b] += H[k, a, b]
-                diag[j_body, 3 + a, 3 + b] += H[k, 9 + a, 9 + b]
-                pair[j, 3 + a, 3 + b] += H[k, a, 9 + b]
+        accumulate_angle_joint(q, parent, child, nbar, bbar, joints[k], d1s[k], d2s[k],
+                               grad, diag, pair, project, work)
 
 
 @njit(cache=True, error_model='numpy')
@@ -294,3 +226,172 @@ def accumulate_angle_gradient(q, m, joints, d1s, n, grad):
         for a in range(9):
             grad[i_body, 3 + a] += d1s[k] * G[a]
             grad[j_body, 3 + a] += d1s[k] * G[9 + a]
+
+
+# -- the angle terms' Hessian, joint by joint (issue 15) ---------------------------------------
+ANGLE_WORK_SHAPE = (25, 18)     #: work array of accumulate_angle_joint
+_TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair carries nothing
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair, project,
+                           work):
+    """accumulate_angle_hessian for one joint j with E' = d1, E'' = d2 (`work`: an array of
+    ANGLE_WORK_SHAPE, reused across joints). The gradient is the very expression of
+    accumulate_angle_gradient (bit-identical)."""
+    G = work[8]
+    tw = work[0:8]
+    i_body, j_body = parent[j], child[j]
+    if not project:                         # the raw Hessian, from ∇²θ (tests; Newton projects)
+        hh = np.empty((18, 18))
+        theta_derivatives_at(q, parent, child, nbar, bbar, j, G, hh, True, tw)
+    else:
+        theta_derivatives_at(q, parent, child, nbar, bbar, j, G, tw, False, tw)
+    for a in range(9):
+        grad[i_body, 3 + a] += d1 * G[a]
+        grad[j_body, 3 + a] += d1 * G[9 + a]
+    if not project:
+        for a in range(9):
+            for b in range(9):
+                diag[i_body, 3 + a, 3 + b] += d2 * (G[a] * G[b]) + d1 * hh[a, b]
+                diag[j_body, 3 + a, 3 + b] += d2 * (G[9 + a] * G[9 + b]) + d1 * hh[9 + a, 9 + b]
+                pair[j, 3 + a, 3 + b] += d2 * (G[a] * G[9 + b]) + d1 * hh[a, 9 + b]
+        return
+    curvature = 0.0 if abs(d1) > GAUSS_NEWTON_RANGE * d2 else d1
+    if curvature == 0.0 and d2 >= 0.0:      # E''∇θ∇θᵀ is PSD: nothing to project
+        for a in range(9):
+            for b in range(9):
+                diag[i_body, 3 + a, 3 + b] += d2 * (G[a] * G[b])
+                diag[j_body, 3 + a, 3 + b] += d2 * (G[9 + a] * G[9 + b])
+                pair[j, 3 + a, 3 + b] += d2 * (G[a] * G[9 + b])
+        return
+    fr = tw[0:4, 0:3]                       # n_i, n_j, b_i, b_j, left there by theta_derivatives_at
+    c, s = cos_sin(fr)
+    angle_hessian_projected(fr, c, s, nbar[j, 0], bbar[j, 0], nbar[j, 1], bbar[j, 1],
+                            curvature, d2, i_body, j_body, j, diag, pair, work)
+
+
+@njit(cache=True, error_model='numpy')
+def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j, diag, pair,
+                            work):
+    """Adds the PSD projection of H = e2 ∇θ∇θᵀ + e1 ∇²θ (e1 = E', e2 = E'') to the blocks,
+    from its structure instead of a 12x12 eigenproblem (docs/speed.md).
+
+    Reduced coordinates Z = [n_i b_i n_j b_j] (3x4; H lives in their span, Q of the former
+    QᵀHQ). c, s are quadratic forms ½ tr(Z C Zᵀ), ½ tr(Z S Zᵀ) with constant 4x4 C, S, so
+    with r² = c² + s², O = (cR − sI)/r (R the +90° turn, O orthogonal), ∇r = Z M_r:
+
+        ∇²θ = I3 ⊗ M_θ − (∇θ ∇rᵀ + ∇r ∇θᵀ)/r,
+        M_θ = (cS − sC)/r² = [[0, O], [Oᵀ, 0]]/(2r),
+
+    i.e. I3 ⊗ (eigenvalues ±1/(2r), six times each) plus rank 2. In the coordinates
+    a = (X_i + X_j Oᵀ)/√2, b = (X_i − X_j Oᵀ)/√2 (X_i = [n_i b_i], X_j = [n_j b_j]), which
+    split the ± eigenspaces, ∇θ = (a, −b)/(2r) and ∇r = (−bR, aR)/2; |a| = |b| and
+    ⟨a, bR⟩ = −2r. So H is e1/(2r) on the +, −e1/(2r) on the − space except on the 4-dim
+    invariant span of u± (∝ a − bR, b + aR) and v± (∝ a + bR, b − aR), where in that
+    orthonormal basis (S = |a − bR|, δ = |a + bR|; δ = 0 for a rigid pair)
+
+        H_W = e1/(2r) diag(1, −1, 1, −1) + e2 gθ gθᵀ − (e1/r)(gr gθᵀ + gθ grᵀ),
+        gθ = (S, −S, δ, −δ)/(4r),   gr = (S, S, −δ, −δ)/4.
+
+    Projection: H⁺ = β Π_pos + V (H_W⁺ − β E_pos) Vᵀ, β = |e1|/(2r), Π_pos the projector
+    on the space of eigenvalue +β (I3 ⊗ (I/2 + sign(e1) r M_θ)), E_pos its part in the
+    basis V, H_W⁺ from a 4x4 eigenproblem (smallmat.eigh_ql_in). The rows of H_W⁺ − β E_pos on v± are
+    O(δ), so v±, whose direction is ill-determined when δ is tiny, enter only with weight
+    O(δ): the result is accurate to rounding even for rigid pairs."""
+    r = math.sqrt(c * c + s * s)
+    o00, o01, o10, o11 = -s / r, -c / r, c / r, -s / r
+    h = math.sqrt(0.5)
+    P = work[17]                    # rows of a − bR at [2k, 2k+1], of a + bR at [6+2k, 7+2k]
+    ss = dd = 0.0
+    for k in range(3):
+        ni, nj, bi, bj = fr[0, k], fr[1, k], fr[2, k], fr[3, k]
+        t0 = o00 * nj + o01 * bj              # row k of X_j Oᵀ
+        t1 = o10 * nj + o11 * bj
+        a0, a1 = h * (ni + t0), h * (bi + t1)
+        b0, b1 = h * (ni - t0), h * (bi - t1)
+        u0, u1 = a0 - b1, a1 + b0             # a − bR  (yR = [y1, −y0] per row)
+        v0, v1 = a0 + b1, a1 - b0             # a + bR
+        P[2 * k], P[2 * k + 1], P[6 + 2 * k], P[7 + 2 * k] = u0, u1, v0, v1
+        ss += u0 * u0 + u1 * u1
+        dd += v0 * v0 + v1 * v1
+    S = math.sqrt(ss)
+    dl = math.sqrt(dd)
+    inv_u = h / S
+    inv_v = h / dl if dl > _TINY_SPLIT * S else 0.0
+    Vx = work[9:13]                 # u+, u−, v+, v− as x = [vec A_i, vec A_j]
+    for k in range(3):
+        u0, u1, v0, v1 = P[2 * k], P[2 * k + 1], P[6 + 2 * k], P[7 + 2 * k]
+        for t in range(4):
+            if t == 0:
+                y0, y1, sg = u0 * inv_u, u1 * inv_u, 1.0
+            elif t == 1:
+                y0, y1, sg = u1 * inv_u, -u0 * inv_u, -1.0
+            elif t == 2:
+                y0, y1, sg = v0 * inv_v, v1 * inv_v, 1.0
+            else:
+                y0, y1, sg = -v1 * inv_v, v0 * inv_v, -1.0
+            z0 = sg * (o00 * y0 + o10 * y1)   # X_i = y/√2, X_j = ±y O/√2 (the h is in y)
+            z1 = sg * (o01 * y0 + o11 * y1)
+            for cc in range(3):               # A = X Fᵀ, F = [n̄ b̄]
+                Vx[t, 3 * k + cc] = y0 * nbi[cc] + y1 * bbi[cc]
+                Vx[t, 9 + 3 * k + cc] = z0 * nbj[cc] + z1 * bbj[cc]
+    HW = work[21, 0:16].reshape((4, 4))
+    V4 = work[22, 0:16].reshape((4, 4))
+    Fm = work[23, 0:16].reshape((4, 4))
+    w4 = work[24, 0:4]
+    gt = work[24, 4:8]
+    gr = work[24, 8:12]
+    gt[0], gt[1], gt[2], gt[3] = S / (4.0 * r), -S / (4.0 * r), dl / (4.0 * r), -dl / (4.0 * r)
+    gr[0], gr[1], gr[2], gr[3] = 0.25 * S, 0.25 * S, -0.25 * dl, -0.25 * dl
+    half = e1 / (2.0 * r)
+    k1 = e1 / r
+    for p in range(4):
+        for t in range(p, 4):
+            x = e2 * (gt[p] * gt[t]) - k1 * (gr[p] * gt[t] + gt[p] * gr[t])
+            HW[p, t] = x
+            HW[t, p] = x
+        HW[p, p] += half if p % 2 == 0 else -half
+    eigh_ql_in(HW, w4, V4, work[24, 12:16])
+    for p in range(4):
+        for t in range(p, 4):
+            x = 0.0
+            for l in range(4):
+                if w4[l] > 0.0:
+                    x += V4[p, l] * w4[l] * V4[t, l]
+            Fm[p, t] = x
+            Fm[t, p] = x
+    beta = abs(e1) / (2.0 * r)
+    first = 0 if e1 > 0.0 else 1           # u+, v+ span the positive space when E' > 0
+    Fm[first, first] -= beta
+    Fm[first + 2, first + 2] -= beta
+    Wp = work[13:17]
+    for t in range(4):
+        for a in range(18):
+            Wp[t, a] = (Fm[t, 0] * Vx[0, a] + Fm[t, 1] * Vx[1, a]
+                        + Fm[t, 2] * Vx[2, a] + Fm[t, 3] * Vx[3, a])
+    kd = abs(e1) / (4.0 * r)                # β Π_pos = I3 ⊗ (|e1|/(4r) F Fᵀ on each body,
+    ko = e1 / (4.0 * r)                     #                 e1/(4r) F_i O F_jᵀ across)
+    for a in range(9):
+        ca = a % 3
+        for b in range(a, 9):
+            cb = b % 3
+            xi = Vx[0, a] * Wp[0, b] + Vx[1, a] * Wp[1, b] + Vx[2, a] * Wp[2, b] + Vx[3, a] * Wp[3, b]
+            xj = (Vx[0, 9 + a] * Wp[0, 9 + b] + Vx[1, 9 + a] * Wp[1, 9 + b]
+                  + Vx[2, 9 + a] * Wp[2, 9 + b] + Vx[3, 9 + a] * Wp[3, 9 + b])
+            if a // 3 == b // 3:
+                xi += kd * (nbi[ca] * nbi[cb] + bbi[ca] * bbi[cb])
+                xj += kd * (nbj[ca] * nbj[cb] + bbj[ca] * bbj[cb])
+            diag[i_body, 3 + a, 3 + b] += xi
+            diag[j_body, 3 + a, 3 + b] += xj
+            if b != a:
+                diag[i_body, 3 + b, 3 + a] += xi
+                diag[j_body, 3 + b, 3 + a] += xj
+        for b in range(9):
+            cb = b % 3
+            x = (Vx[0, a] * Wp[0, 9 + b] + Vx[1, a] * Wp[1, 9 + b]
+                 + Vx[2, a] * Wp[2, 9 + b] + Vx[3, a] * Wp[3, 9 + b])
+            if a // 3 == b // 3:
+                x += ko * (nbi[ca] * (o00 * nbj[cb] + o01 * bbj[cb])
+                           + bbi[ca] * (o10 * nbj[cb] + o11 * bbj[cb]))
+            pair[j, 3 + a, 3 + b] += x

@@ -227,15 +227,20 @@ def eigh_ql(S, w, V):
     """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
     Householder reduction to tridiagonal form, then implicit QL with Wilkinson shifts
     (EISPACK tred2/tql2, as in Numerical Recipes' tred2/tqli). ~n³ flops against cyclic
-    Jacobi's ~6 sweeps of 3n³: the 12×12 projection of an angle term costs a fraction.
-    Falls back to jacobi_eigh (on a copy) if QL does not converge in 30 iterations per
-    eigenvalue (non-finite input)."""
+    Jacobi's ~6 sweeps of 3n³. Falls back to jacobi_eigh (on a copy) if QL does not
+    converge in 30 iterations per eigenvalue (non-finite input); returns False then."""
+    return eigh_ql_in(S, w, V, np.empty(S.shape[0]))
+
+
+@njit(cache=True, error_model='numpy')
+def eigh_ql_in(S, w, V, e):
+    """eigh_ql with its scratch vector e (n,) from the caller: no allocation (the angle
+    terms' 4x4 eigenproblem, once per joint and Newton iteration)."""
     n = S.shape[0]
     for r in range(n):
         for c in range(n):
             V[r, c] = S[r, c]
     a = V
-    e = np.empty(n)
     d = w
     for i in range(n - 1, 0, -1):             # tred2: a becomes the orthogonal transform
         l = i - 1

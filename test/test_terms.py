@@ -314,3 +314,150 @@ def test_newton_gradient_equals_assembled():
     newton.assemble(q, DATA, ctx, g1, np.zeros((B, 12, 12)), np.zeros((J, 12, 12)))
     newton.gradient(q, DATA, ctx, g2)
     np.testing.assert_array_equal(g2, g1)
+
+
+# -- the angle terms' projection (issue 15) ---------------------------------------------------
+def _reference_angle_projection(q, joints, d1s, d2s):
+    """The former projection, kept here as the reference: per joint H = E''∇θ∇θᵀ + E'∇²θ
+    (E' → 0 beyond GAUSS_NEWTON_RANGE) on the 18 coordinates vec A_i, vec A_j, reduced to
+    QᵀHQ (12x12, Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])), eigen-decomposed by LAPACK;
+    kept as is when every eigenvalue of the batch is ≥ 0, else negative ones clamped to 0.
+    Returns the dense (12B, 12B) matrix."""
+    from abd_joint_sim import angles
+    B = MODEL.body_count
+    blocks, all_psd = [], True
+    for j, d1, d2 in zip(joints, d1s, d2s):
+        g, hh = np.zeros(18), np.zeros((18, 18))
+        angles.theta_derivatives(q, DATA, j, g, hh, True)
+        gauss_newton = abs(d1) > angles.GAUSS_NEWTON_RANGE * d2
+        H = d2 * np.outer(g, g) + (0.0 if gauss_newton else d1) * hh
+        Q = np.zeros((18, 12))
+        for side in range(2):
+            F = np.stack([DATA.joint_nbar[j, side], DATA.joint_bbar[j, side]], axis=1)
+            Q[9 * side:9 * side + 9, 6 * side:6 * side + 6] = np.kron(np.eye(3), F)
+        w, V = np.linalg.eigh(Q.T @ H @ Q)
+        skip = gauss_newton and d2 >= 0
+        all_psd &= skip or w.min() >= 0
+        blocks.append((j, H, None if skip else (Q @ V, w)))
+    out = np.zeros((12 * B, 12 * B))
+    for j, H, eig in blocks:
+        if eig is not None and not all_psd:
+            QV, w = eig
+            H = (QV * np.maximum(w, 0.0)) @ QV.T
+        idx = np.r_[12 * MODEL.joint_parent[j] + 3:12 * MODEL.joint_parent[j] + 12,
+                    12 * MODEL.joint_child[j] + 3:12 * MODEL.joint_child[j] + 12]
+        out[np.ix_(idx, idx)] += H
+    return out
+
+
+def _projected_angle_hessian(q, joints, d1s, d2s):
+    from abd_joint_sim import angles
+    B, J = MODEL.body_count, MODEL.joint_count
+    grad, diag, pair = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
+    angles.accumulate_angle_hessian(q, DATA, np.asarray(joints, np.int64), np.asarray(d1s, float),
+                                    np.asarray(d2s, float), len(joints), grad, diag, pair, True)
+    H = np.zeros((12 * B, 12 * B))
+    for b in range(B):
+        H[12 * b:12 * b + 12, 12 * b:12 * b + 12] += diag[b]
+    for j in range(J):
+        i_b, j_b = MODEL.joint_parent[j], MODEL.joint_child[j]
+        H[12 * i_b:12 * i_b + 12, 12 * j_b:12 * j_b + 12] += pair[j]
+        H[12 * j_b:12 * j_b + 12, 12 * i_b:12 * i_b + 12] += pair[j].T
+    return H
+
+
+def _rigid_state(seed):
+    rng = np.random.default_rng(seed)
+    q = MODEL.body_q0.copy()
+    for b in np.flatnonzero(~MODEL.body_fixed):
+        q[b, 3:12] = random_rotation(rng).ravel()
+    return q
+
+
+ANGLE_CASES = [(-3.0, 40.0), (2.5, 40.0), (-0.5, 40.0), (0.7, 40.0), (1e-3, 1.0), (-1e-3, 0.0),
+               (4.0, 0.0), (0.0, 5.0), (0.0, -2.0), (-0.05, 2.0), (0.05, 2.0)]
+
+
+@pytest.mark.parametrize('shape', ['rigid', 'near', 'sheared', 'far'])
+def test_angle_projection_equals_the_12x12_eigen_projection(shape):
+    """The closed-form projection (angles.angle_hessian_projected) against the former 12x12
+    eigen-decomposition, E' of both signs, near (E'∇²θ kept) and far (Gauss-Newton) from the
+    minimum, one joint and both at once, on rigid and sheared pairs up to far from SO(3)."""
+    worst, clamped = 0.0, 0
+    for seed in range(6):
+        q = {'rigid': _rigid_state(seed), 'near': _state(seed, 1e-7), 'sheared': _state(seed, 0.15),
+             'far': _state(seed, 0.8)}[shape]
+        for d1, d2 in ANGLE_CASES:
+            for joints, d1s, d2s in (([0], [d1], [d2]), ([1], [-d1], [d2]),
+                                     ([0, 1], [d1, 0.3 * d1], [d2, 2 * d2])):
+                ref = _reference_angle_projection(q, joints, d1s, d2s)
+                new = _projected_angle_hessian(q, joints, d1s, d2s)
+                raw = _raw_angle_hessian(q, joints, d1s, d2s)
+                scale = np.abs(raw).max()           # rounding is relative to the raw Hessian
+                worst = max(worst, np.abs(new - ref).max() / scale)
+                clamped += not np.allclose(ref, raw, atol=1e-6 * scale)
+    assert clamped, 'the projection must matter in these cases'
+    assert worst < 1e-12, worst
+
+
+def _raw_angle_hessian(q, joints, d1s, d2s):
+    from abd_joint_sim import angles
+    B = MODEL.body_count
+    out = np.zeros((12 * B, 12 * B))
+    for j, d1, d2 in zip(joints, d1s, d2s):
+        g, hh = np.zeros(18), np.zeros((18, 18))
+        angles.theta_derivatives(q, DATA, j, g, hh, True)
+        idx = np.r_[12 * MODEL.joint_parent[j] + 3:12 * MODEL.joint_parent[j] + 12,
+                    12 * MODEL.joint_child[j] + 3:12 * MODEL.joint_child[j] + 12]
+        out[np.ix_(idx, idx)] += d2 * np.outer(g, g) + d1 * hh
+    return out
+
+
+def test_angle_hessian_has_the_structure_the_projection_uses():
+    """QᵀHQ = I3 ⊗ E'M_θ + rank 2, M_θ with eigenvalues ±1/(2r): so ±E'/(2r) are eigenvalues
+    at least 4 times each (what angles.angle_hessian_projected relies on), and H with E' ≠ 0
+    is never PSD (why joint-by-joint projection equals the former batch rule)."""
+    from abd_joint_sim import angles
+    for seed in range(4):
+        q = _state(seed, 0.4)
+        for j in range(MODEL.joint_count):
+            g, hh = np.zeros(18), np.zeros((18, 18))
+            angles.theta_derivatives(q, DATA, j, g, hh, True)
+            Q = np.zeros((18, 12))
+            for side in range(2):
+                F = np.stack([DATA.joint_nbar[j, side], DATA.joint_bbar[j, side]], axis=1)
+                Q[9 * side:9 * side + 9, 6 * side:6 * side + 6] = np.kron(np.eye(3), F)
+            fr = np.zeros((4, 3))
+            angles.frames(q, MODEL.joint_parent[j], MODEL.joint_child[j], DATA.joint_nbar,
+                          DATA.joint_bbar, j, fr)
+            r = np.hypot(*angles.cos_sin(fr))
+            for d1 in (-2.0, 3.0):
+                w = np.linalg.eigvalsh(Q.T @ (5.0 * np.outer(g, g) + d1 * hh) @ Q)
+                for sign in (1, -1):
+                    assert np.sum(np.isclose(w, sign * d1 / (2 * r), rtol=1e-9)) >= 4
+                assert w.min() < 0
+
+
+@pytest.mark.parametrize('name', ['driving', 'limit'])
+def test_terms_project_like_the_12x12_eigen_projection(name):
+    """Through the terms' own `accumulate` (the fused loops): drives near their target on
+    either side (E'∇²θ kept) and limits active above and below, against the reference."""
+    from abd_joint_sim import angles
+    term, signs = TERMS[name], set()
+    j = int(MODEL.drive_joints[0])
+    for seed in range(4):
+        q = _state(seed, 0.1)
+        theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
+        for offset in (0.03, -0.05, 0.4):
+            # drives: target beside the angle; limits: the step-start branch and init shift x
+            start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
+            ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]))
+            joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
+            if n == 0:
+                continue
+            signs |= set(np.sign(d1s[:n]))
+            ref = _reference_angle_projection(q, joints[:n], d1s[:n], d2s[:n])
+            _, _, H = dense(term, q, ctx, project=True)
+            _, _, raw = dense(term, q, ctx, project=False)
+            assert np.abs(H - ref).max() <= 1e-12 * np.abs(raw).max()
+    assert signs >= {-1.0, 1.0}, signs

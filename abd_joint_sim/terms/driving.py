@@ -6,7 +6,7 @@ angle toward a target,
 for each enabled drive; θ is the unwrapped angle relative to init_angle (angles.py) and
 θ_target the aim (relative to init_angle), or the angle at the start of the step when the
 drive is passive. Like UID 18 it carries no h² (physical potential E/h²). Gradient and
-PSD-projected Hessian via angles.accumulate_angle_hessian.
+PSD-projected Hessian via angles.accumulate_angle_joint.
 """
 from __future__ import annotations
 
@@ -55,10 +55,20 @@ def active_joints(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    if m.drive_joints.size == 0:            # no allocations for a scene without drives
+    """∇E and the (projected) Hessian of the enabled drives: active_joints and
+    angles.accumulate_angle_hessian fused, joint by joint, into one work array."""
+    drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
+    if drive_joints.size == 0:              # no allocations for a scene without drives
         return
-    joints, d1s, d2s, n = active_joints(q, m, ctx)
-    angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)
+    target, start = ctx.drive_target, ctx.angle_start
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    work = np.empty(angles.ANGLE_WORK_SHAPE)
+    for k in range(drive_joints.size):
+        if on[k]:
+            j = drive_joints[k]
+            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * (x - target[k]), K[k],
+                                          grad, diag, pair, project, work)
 
 
 @njit(cache=True, error_model='numpy')

@@ -4,7 +4,7 @@
     x > u:  E = s ((x − u)/w)³          x < l:  E = s ((l − x)/w)³          inside: E = 0
     w = 0:  E = s |x − l|³ (a locked joint)
 
-E' and E'' follow; gradient and PSD-projected Hessian via angles.accumulate_angle_hessian.
+E' and E'' follow; gradient and PSD-projected Hessian via angles.accumulate_angle_joint.
 """
 from __future__ import annotations
 
@@ -77,10 +77,21 @@ def active_joints(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    if m.limit_joints.size == 0:            # no allocations for a scene without limits
+    """∇E and the (projected) Hessian of the active limits: active_joints and
+    angles.accumulate_angle_hessian fused, joint by joint, into one work array."""
+    limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
+    if limit_joints.size == 0:              # no allocations for a scene without limits
         return
-    joints, d1s, d2s, n = active_joints(q, m, ctx)
-    angles.accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project)
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    start = ctx.angle_start
+    work = np.empty(angles.ANGLE_WORK_SHAPE)
+    for k in range(limit_joints.size):
+        j = limit_joints[k]
+        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+        if active(x, lower[k], upper[k]):
+            _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
+            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
+                                          project, work)
 
 
 @njit(cache=True, error_model='numpy')
