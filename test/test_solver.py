@@ -629,3 +629,21 @@ def test_a_kernel_cache_that_cannot_be_written_does_not_stop_the_run(tmp_path):
     assert res.stdout.split() == ['ok', repr(2.0 ** 0.5), '2.0'], res.stdout
     lines = [ln for ln in res.stderr.splitlines() if 'could not store the compiled' in ln]
     assert len(lines) == 1 and 'compiled again next time' in lines[0], res.stderr[-3000:]
+
+
+def test_the_constant_joint_blocks_are_never_written():
+    """In a model without drives and limits Newton's solve reads the UID 18 joint blocks
+    straight from the model (newton.assemble returns m.constant_pair, not a copy): stepping
+    must leave them as built, and give the same states as a model whose joint blocks are
+    copied every iteration (the same chain with a limit it never reaches)."""
+    d = chain_dict(4, torque=0.5)
+    plain = _world(d)
+    limited = dict(d, joints=[dict(j, limit=dict(lower=-50.0, upper=50.0)) for j in d['joints']])
+    other = _world(limited)
+    before = plain.solver.data.constant_pair.copy()
+    assert np.abs(before).max() > 0.0
+    plain.step(40)
+    other.step(40)
+    assert np.array_equal(plain.solver.data.constant_pair, before)
+    assert np.array_equal(plain.state.q, other.state.q)
+    assert np.abs(plain.joint_angles()).max() > 1e-3

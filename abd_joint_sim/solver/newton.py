@@ -47,17 +47,24 @@ def potential(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def assemble(q, m, ctx, grad, diag, pair):
-    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the blocks diag, pair. A term
-    whose Hessian is constant (UID 18) has it summed into m.constant_diag/pair once per model
-    (model_data.constant_hessian) and adds only its gradient here."""
+    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
+    the joint blocks: `pair`, or m.constant_pair itself in a model without drives and limits
+    (then only UID 18 has joint blocks, and copying them would be a pass over memory for
+    nothing). A term whose Hessian is constant (UID 18) has it summed into
+    m.constant_diag/pair once per model (model_data.constant_hessian) and adds only its
+    gradient here."""
     grad[:] = 0.0
     diag[:] = m.constant_diag               # UID 18's Hessian is constant: summed once per model
-    pair[:] = m.constant_pair
+    if m.drive_joints.size == 0 and m.limit_joints.size == 0:
+        pair = m.constant_pair              # read only: no term below adds to it
+    else:
+        pair[:] = m.constant_pair
     inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
     revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
     driving.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 19
     limit.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 670
+    return pair
 
 
 @njit(cache=True, error_model='numpy')
@@ -122,8 +129,8 @@ def minimize(m, ctx, q, ws):
     dq[:] = 0.0                                 # fixed bodies' rows are never solved for
     halvings = 0
     for it in range(1, m.max_iterations + 1):
-        assemble(q, m, ctx, grad, diag, pair)
-        linsolve.solve(m, diag, pair, grad, dq, ws)
+        joint_blocks = assemble(q, m, ctx, grad, diag, pair)
+        linsolve.solve(m, diag, joint_blocks, grad, dq, ws)
         if not all_finite(dq):
             return NONFINITE, it, halvings
         dec = 0.0
