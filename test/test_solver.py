@@ -647,3 +647,23 @@ def test_the_constant_joint_blocks_are_never_written():
     assert np.array_equal(plain.solver.data.constant_pair, before)
     assert np.array_equal(plain.state.q, other.state.q)
     assert np.abs(plain.joint_angles()).max() > 1e-3
+
+
+def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
+    """World.step(n) runs at most `batch_limit` steps per compiled call (the batch writes every
+    step's state: unbounded, World.step(100_000) would allocate gigabytes); split or not, the
+    states are those of n single steps, bit for bit."""
+    d = chain_dict(3, torque=0.4)
+    one, split, whole = _world(d), _world(d), _world(d)
+    assert 2 <= split.solver.batch_limit
+    assert whole.solver.batch_limit >= 25
+    split.solver.batch_limit = 4
+    for _ in range(25):
+        one.step()
+    split.step(25)
+    whole.step(25)
+    for w in (split, whole):
+        for x, y in zip(_state_fields(one), _state_fields(w)):
+            assert np.array_equal(x, y)
+    big = _world(chain_dict(1000, torque=0.0))
+    assert 2 <= big.solver.batch_limit < 10        # ~1 MB of states per batch

@@ -36,6 +36,9 @@ ACCURACY_NOTE = {
             'rad/step, ~1 % at 0.6): reduce dt for accuracy'}
 
 
+#: [bytes] the states of one compiled batch (Solver.advance): within a core's L2 cache
+BATCH_BYTES = 1 << 20
+
 #: dtypes of Control's arrays as the compiled step takes them
 CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
                   np.dtype(np.bool_))
@@ -89,6 +92,8 @@ class Solver:
         self._outcome = np.zeros(kernel.OUT_COLUMNS)
         self._clean_rotation = min(model.newton.max_step_rotation, ACCURACY_ROTATION[model.integrator])
         self._shape = (B, J)
+        #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
+        self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + kernel.OUT_COLUMNS)))
         self._entry = None              # the compiled step's entry point (_control_checked)
         self._made = (None,) * 6        # state arrays the last step made (_compute)
         self._control = (None,) * 5     # Control arrays checked for the entry point
@@ -295,7 +300,11 @@ class Solver:
         steps run in one compiled call; the step that stopped them was computed already and is
         kept when it needs no recovery (it then only adds warnings); one that needs recovery
         is left to the next call, which takes it through `step` (and may raise
-        SimulationError, having taken nothing). Bit-identical to `count` calls of `step`."""
+        SimulationError, having taken nothing). Bit-identical to `count` calls of `step`. At
+        most `batch_limit` steps per call: the compiled call writes every step's state, and a
+        batch larger than the cache (or than memory: World.step(100_000) on 100 bodies would
+        be 3 GB) only costs."""
+        n = min(n, self.batch_limit)
         if n <= 1:
             state, report = self.step(state, control)
             return state, report, 1
