@@ -7,16 +7,19 @@ compared on a 3-link chain before anything is timed; a mismatch exits 1. A real 
 description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
 same file, and in sim_node (bench/robot_bench.py).
 
-    python bench/bench.py [--quick] [--no-peers] [--no-node]
+    python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only]
 
-The node figures come two ways: `_step_once` against `World.step` in one process (the
-node's per-step overhead), and sim_node end to end in its own process over DDS, as users run
-it, with the real-time factor it reports on /diagnostics.
+The node figures (default scene, demo_arm URDF, KUKA iiwa URDF) come two ways: the node's
+batched `_advance` against `World.step_clean` in one process (the node's per-step overhead,
+with and without recording), and sim_node end to end in its own process over DDS, as users
+run it, with the real-time factor it reports on /diagnostics: no subscriber, a subscriber,
+recording.
 """
 from __future__ import annotations
 
 import argparse
 import gc
+import math
 import os
 import platform
 import statistics
@@ -103,11 +106,27 @@ def check_agreement():
     return ok
 
 
-def node_overhead(steps):
-    """Per-step cost of sim_node's step (pending commands, step, /clock every step,
-    /joint_states at its 100 Hz default), one at a time and in the node's batches, against
-    World.step alone: one process, no subscribers, no recording; rounds interleaved and the
-    minimum of each kept, so load from other jobs on the machine affects all alike."""
+def node_scenes(kuka_path=None):
+    """(label, scene parameter) of the scenes the node is timed on: the default scene, the
+    packaged demo_arm URDF and, with pybullet_data, the KUKA iiwa URDF (7 joints)."""
+    robots = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'robots'
+    out = [('default scene', 'default'), ('demo_arm URDF', str(robots / 'demo_arm.urdf'))]
+    if kuka_path:
+        out.append(('KUKA iiwa URDF', str(kuka_path)))
+    return out
+
+
+def node_overhead(steps, scene='default', rounds=7):
+    """What sim_node adds per step on top of World's step, in one process: the node's
+    `_advance` (the loop's batches of up to 16 steps between the boundaries that need one;
+    /clock every step, /joint_states at the default 100 Hz; the markers at 30 Hz when
+    recording), without and with recording, against `World.step_clean` (the compiled batch,
+    the RTF ceiling) on the same trajectory (each round starts from `~/reset`; nothing
+    commanded, so the arms fall under gravity into their limits). No subscriber, no spinning.
+    CPU time of this process (DDS threads included), rounds interleaved, minimum of each
+    kept. Returns µs/step {'world', 'node', 'node_recording'}."""
+    import shutil
+    import tempfile
     try:
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         os.environ.setdefault('ROS_DOMAIN_ID', str(90 + os.getpid() % 9))
@@ -117,23 +136,42 @@ def node_overhead(steps):
     except Exception as exc:  # noqa: BLE001 - optional section
         print(f'node overhead: skipped ({exc})')
         return None
+    tmp = tempfile.mkdtemp(prefix='bench_node_')
     rclpy.init()
     try:
-        params = [Parameter('real_time_factor', value=0.0), Parameter('start_paused', value=True),
-                  Parameter('record', value='')]
-        node = SimNode(parameter_overrides=params)
-        node.paused = False       # the loop steps only unpaused; nothing spins, no timer fires
-        node._step_once()
-        node_t, world_t, batch_t = [], [], []
-        batch = 16                        # node.BATCH_STEPS: steps per compiled call
-        for _ in range(7):
-            node_t += time_steps(node._step_once, steps, 1)
-            world_t += time_steps(node.world.step, steps, 1)
-            batch_t += [t / batch for t in time_steps(lambda: node._step_batch(batch), steps // batch, 1)]
-        node.destroy_node()
+        nodes = {}
+        for key, record in (('node', ''), ('node_recording', str(Path(tmp) / 'bag'))):
+            params = [Parameter('real_time_factor', value=0.0),
+                      Parameter('start_paused', value=True), Parameter('record', value=record),
+                      Parameter('scene', value=scene)]
+            node = SimNode(parameter_overrides=params)
+            node.paused = False       # the loop steps only unpaused; nothing spins
+            nodes[key] = node
+
+        def run(key):
+            node = nodes['node' if key == 'world' else key]
+            node.loop.reset(publish=False)
+            gc.disable()
+            t0, k = time.process_time(), 0
+            while k < steps:
+                k += (node.world.step_clean(16)[0] if key == 'world' else node._advance(16))
+            t = (time.process_time() - t0) / k
+            gc.enable()
+            return t
+        keys = ('world', 'node', 'node_recording')
+        for key in keys:
+            run(key)                                  # warm-up
+        best = {key: math.inf for key in keys}
+        for _ in range(rounds):
+            for key in keys:
+                best[key] = min(best[key], run(key))
+        for node in nodes.values():
+            node.close()
+            node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    return min(node_t), min(world_t), min(batch_t)
+        shutil.rmtree(tmp, ignore_errors=True)
+    return {k: v * 1e6 for k, v in best.items()}
 
 
 def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
@@ -208,7 +246,15 @@ def main(argv=None):
     ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
     ap.add_argument('--no-peers', action='store_true', help='skip MuJoCo and PyBullet')
     ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
+    ap.add_argument('--node-only', action='store_true',
+                    help='only the sim_node section (default scene, demo_arm, KUKA iiwa)')
     args = ap.parse_args(argv)
+    if args.node_only:
+        import robot_bench
+        print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
+              f'Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}')
+        node_section(args.quick, robot_bench.robot_path())
+        return 0
 
     print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
           f'Python {platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f}, '
@@ -276,42 +322,54 @@ def main(argv=None):
     if 'chain 100' in per_step and 'chain 1000' in per_step:
         a, b = per_step['chain 100'], per_step['chain 1000']
         print(f'\ncost growth 100 -> 1000 links: x{b / a:.1f} (exponent {np.log10(b / a):.2f}; 1 = linear)')
-    if not args.no_node:
-        res = node_overhead(100 if args.quick else 500)
-        if res:
-            t_node, t_world, t_batch = res
-            print(f'\nsim_node step on the default scene: {t_node * 1e6:.0f} µs '
-                  f'vs World.step {t_world * 1e6:.0f} µs -> node overhead '
-                  f'{(t_node - t_world) * 1e6:.0f} µs/step; real-time factor with the node at '
-                  f'dt 1 ms: {1e-3 / t_node:.1f} one step at a time, {1e-3 / t_batch:.1f} in '
-                  f'batches of 16 while no command is pending ({t_batch * 1e6:.0f} µs/step)')
-        import tempfile
-        with tempfile.TemporaryDirectory() as tmp:
-            for label, rec, sub in (('no subscriber, not recording', None, False),
-                                    ('a subscriber on /clock and /joint_states', None, True),
-                                    ('no subscriber, recording', str(Path(tmp) / 'bag'), False)):
-                res = node_end_to_end(4 if args.quick else 8, rec, sub)
-                if res and res[0]:
-                    rtfs, counts = res
-                    print(f'sim_node end to end (own process, DDS, as fast as possible, default '
-                          f'scene, {label}): real-time factor median {statistics.median(rtfs):.1f} '
-                          f'(min {min(rtfs):.1f}, max {max(rtfs):.1f}; {len(rtfs)} one-second '
-                          f'reports on /diagnostics'
-                          + (f'; the probe received {counts["clock"]} /clock and '
-                             f'{counts["states"]} /joint_states)' if sub else ')'))
-                elif res is not None:
-                    print(f'sim_node end to end ({label}): no /diagnostics report received')
     # URDF robot (issue 11): a real robot description in all three engines, and in sim_node.
     import robot_bench
     robot = robot_bench.run(args.quick, peers=not args.no_peers)
-    if robot and not args.no_node:
-        res = node_end_to_end(4 if args.quick else 8, None, False,
-                              ['-p', f'scene:={robot[0]}'])
-        if res and res[0]:
-            print(f'sim_node end to end, KUKA iiwa URDF (own process, DDS, as fast as possible, '
-                  f'no subscriber, not recording): real-time factor median '
-                  f'{statistics.median(res[0]):.1f} (min {min(res[0]):.1f}, max {max(res[0]):.1f})')
+    if not args.no_node:
+        node_section(args.quick, robot[0] if robot else robot_bench.robot_path())
     return 0
+
+
+def node_section(quick, kuka_path=None):
+    """sim_node on each of `node_scenes`: the per-step overhead in one process against the
+    World's own batch (`node_overhead`), then end to end in its own process over DDS with no
+    subscriber, with a subscriber on /clock and /joint_states, and recording (no subscriber);
+    the load average before each."""
+    import tempfile
+    scenes = node_scenes(kuka_path)
+    print('\nsim_node per step in one process (CPU time, min of 7 rounds; `_advance` in the '
+          "node's batches vs `World.step_clean`, the same trajectory):")
+    print('| scene | World.step_clean µs/step (RTF ceiling at dt 1 ms) | node µs/step | '
+          'overhead | node recording µs/step | overhead recording | load |')
+    print('|' + '---|' * 7)
+    for label, scene in scenes:
+        load = os.getloadavg()[0]
+        res = node_overhead(1000 if quick else 4000, scene)
+        if res:
+            w, n, r = res['world'], res['node'], res['node_recording']
+            print(f'| {label} | {w:.1f} ({1e3 / w:.0f}) | {n:.1f} | {n - w:.1f} | {r:.1f} | '
+                  f'{r - w:.1f} | {load:.2f} |', flush=True)
+    seconds = 4 if quick else 8
+    print(f'\nsim_node end to end (own process, DDS on loopback, as fast as possible, dt 1 ms, '
+          f'/clock every step, /joint_states at 100 Hz; the real-time factor it reports on '
+          f'/diagnostics, median (min–max) of {seconds} one-second reports after the first):')
+    print('| scene | no subscriber | a subscriber on /clock and /joint_states | recording, no '
+          'subscriber | load |')
+    print('|---|---|---|---|---|')
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (label, scene) in enumerate(scenes):
+            load = os.getloadavg()[0]
+            cells = []
+            for mode, (rec, sub) in enumerate(((None, False), (None, True),
+                                               (str(Path(tmp) / f'bag{k}'), False))):
+                res = node_end_to_end(seconds, rec, sub, ['-p', f'scene:={scene}'])
+                if res and res[0]:
+                    rtfs, counts = res
+                    cells.append(f'{statistics.median(rtfs):.1f} ({min(rtfs):.1f}–'
+                                 f'{max(rtfs):.1f})')
+                else:
+                    cells.append('no report')
+            print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
 
 
 if __name__ == '__main__':

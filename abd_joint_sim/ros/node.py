@@ -95,8 +95,14 @@ class SimNode(Node):
         self.joint_state_pub = self._publisher(JointState, TOPIC_JOINT_STATES)
         self.clock_pub = self._publisher(Clock, TOPIC_CLOCK)
         self.clock_encoder = convert.ClockEncoder()      # /clock as checked CDR bytes
-        zeros = [0.0] * len(self.joint_names)
-        self._joint_state = convert.joint_state_msg(0, self.joint_names, zeros, zeros, zeros)
+        # What clock_pub.publish(bytes) calls, without its per-call type dispatch and handle
+        # guard (the publisher lives as long as the node; only this node's executor thread
+        # publishes): /clock goes out after every step.
+        self.clock_publish_raw = self.clock_pub.handle.publish_raw
+        # /joint_states as checked CDR bytes too (fixed names and frame_id: read-only).
+        self.joint_state_encoder = convert.JointStateEncoder(self.joint_names,
+                                                             self.config.frame_id)
+        self._joint_states_topic = self._abs(TOPIC_JOINT_STATES)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
         # the run is recorded.
@@ -540,21 +546,25 @@ class _NodeOutput(LoopOutput):
         # (convert.ClockEncoder), serialised once instead of once per use.
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
-        node.clock_pub.publish(clock)
+        node.clock_publish_raw(clock)
         if node.recorder is not None:
             node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
+        # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
         node = self.node
-        msg = node._joint_state
-        convert.fill_joint_state(msg, t_ns, position, velocity, effort, node.config.frame_id)
-        node.joint_state_pub.publish(msg)
-        node._record(node._abs(TOPIC_JOINT_STATES), t_ns, msg)
+        data = node.joint_state_encoder.encode(t_ns, position, velocity, effort)
+        node.joint_state_pub.publish(data)
+        if node.recorder is not None:
+            node._record(node._joint_states_topic, t_ns, data, serialized=True)
 
-    def markers(self, t_ns: int, msg) -> None:
+    markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
+
+    def markers(self, t_ns: int, data) -> None:
         node = self.node
-        node.marker_pub.publish(msg)
-        node._record(node._abs(TOPIC_MARKERS), t_ns, msg)
+        node.marker_pub.publish(data)
+        if node.recorder is not None:
+            node._record(node._abs(TOPIC_MARKERS), t_ns, data, serialized=True)
 
     def applied(self, applied) -> None:
         if self.node.recorder is not None:
