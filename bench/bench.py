@@ -7,7 +7,7 @@ compared on a 3-link chain before anything is timed; a mismatch exits 1. A real 
 description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
 same file, and in sim_node (bench/robot_bench.py).
 
-    python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only]
+    python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only] [--node-old DIR]
 
 The node figures (default scene, demo_arm URDF, KUKA iiwa URDF) come two ways: the node's
 batched `_advance` against `World.step_clean` in one process (the node's per-step overhead,
@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# ABD_BENCH_TREE: time another checkout's abd_joint_sim with this bench (`--node-old`).
+sys.path.insert(0, os.environ.get('ABD_BENCH_TREE') or str(Path(__file__).resolve().parents[1]))
 
 from abd_joint_sim import Scene, World                      # noqa: E402
 from abd_joint_sim.builders import chain_scene, tree_scene  # noqa: E402
@@ -116,15 +117,16 @@ def node_scenes(kuka_path=None):
     return out
 
 
-def node_overhead(steps, scene='default', rounds=7):
+def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
     """What sim_node adds per step on top of World's step, in one process: the node's
-    `_advance` (the loop's batches of up to 16 steps between the boundaries that need one;
-    /clock every step, /joint_states at the default 100 Hz; the markers at 30 Hz when
-    recording), without and with recording, against `World.step_clean` (the compiled batch,
-    the RTF ceiling) on the same trajectory (each round starts from `~/reset`; nothing
-    commanded, so the arms fall under gravity into their limits). No subscriber, no spinning.
-    CPU time of this process (DDS threads included), rounds interleaved, minimum of each
-    kept. Returns µs/step {'world', 'node', 'node_recording'}."""
+    `_advance` as fast as possible (the loop's batches of up to AFAP_BATCH_STEPS steps between
+    the boundaries that need one; /clock every step, /joint_states at the default 100 Hz, the
+    markers at 30 Hz when recording), without and with recording, against
+    `World.step_clean` (the compiled batch: the RTF ceiling) on the same trajectory: every
+    round starts from the state after `start_steps` steps (nothing commanded: the arms have
+    fallen into their joint limits and stay there, as in the end-to-end runs). No subscriber,
+    no spinning. CPU time of this process (DDS threads included), rounds interleaved, minimum
+    of each kept. Returns µs/step {'world', 'node', 'node_recording'}."""
     import shutil
     import tempfile
     try:
@@ -136,25 +138,33 @@ def node_overhead(steps, scene='default', rounds=7):
     except Exception as exc:  # noqa: BLE001 - optional section
         print(f'node overhead: skipped ({exc})')
         return None
+    from abd_joint_sim.ros import node as node_module
+    # (an older tree stepped as fast as possible in BATCH_STEPS)
+    batch = getattr(node_module, 'AFAP_BATCH_STEPS', node_module.BATCH_STEPS)
     tmp = tempfile.mkdtemp(prefix='bench_node_')
     rclpy.init()
     try:
-        nodes = {}
-        for key, record in (('node', ''), ('node_recording', str(Path(tmp) / 'bag'))):
-            params = [Parameter('real_time_factor', value=0.0),
-                      Parameter('start_paused', value=True), Parameter('record', value=record),
-                      Parameter('scene', value=scene)]
-            node = SimNode(parameter_overrides=params)
-            node.paused = False       # the loop steps only unpaused; nothing spins
-            nodes[key] = node
+        params = [Parameter('real_time_factor', value=0.0), Parameter('start_paused', value=True),
+                  Parameter('record', value=str(Path(tmp) / 'bag')), Parameter('scene', value=scene)]
+        node = SimNode(parameter_overrides=params)
+        node.paused = False           # the loop steps only unpaused; nothing spins
+        recorder = node.recorder      # taken away for the rounds without recording
+
+        node.recorder = None
+        while node.steps < start_steps:       # past the start (the arms in their limits)
+            node._advance(batch)
+        start = node.world.state              # (a World's state is never written in place)
 
         def run(key):
-            node = nodes['node' if key == 'world' else key]
-            node.loop.reset(publish=False)
+            node.recorder = recorder if key == 'node_recording' else None
+            node.world.state = start
+            node.loop.publish_schedule.restart()
+            node.loop.marker_schedule.restart()
             gc.disable()
             t0, k = time.process_time(), 0
             while k < steps:
-                k += (node.world.step_clean(16)[0] if key == 'world' else node._advance(16))
+                k += (node.world.step_clean(batch)[0] if key == 'world'
+                      else node._advance(batch))
             t = (time.process_time() - t0) / k
             gc.enable()
             return t
@@ -165,9 +175,9 @@ def node_overhead(steps, scene='default', rounds=7):
         for _ in range(rounds):
             for key in keys:
                 best[key] = min(best[key], run(key))
-        for node in nodes.values():
-            node.close()
-            node.destroy_node()
+        node.recorder = recorder
+        node.close()
+        node.destroy_node()
     finally:
         rclpy.try_shutdown()
         shutil.rmtree(tmp, ignore_errors=True)
@@ -204,7 +214,7 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
     proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     old_domain = os.environ.get('ROS_DOMAIN_ID')
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
-    rtfs, counts = [], {'clock': 0, 'states': 0}
+    rtfs, counts, marks = [], {'clock': 0, 'states': 0}, []
     rclpy.init()
     try:
         node = rclpy.create_node('bench_probe')
@@ -214,6 +224,7 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
                 kv = {k.key: k.value for k in st.values}
                 if 'real_time_factor_achieved' in kv and kv.get('paused') == 'False':
                     rtfs.append(float(kv['real_time_factor_achieved']))
+                    marks.append((float(kv['sim_time']), _cpu_seconds(proc.pid)))
 
         node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
         if subscribe:
@@ -238,7 +249,23 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-    return rtfs[1:], counts
+    # Simulated seconds per CPU second of the node's process between the first report and the
+    # last: the real-time factor the node would reach on a core of its own (None without /proc).
+    cpu_rtf = None
+    if len(marks) >= 2 and marks[0][1] is not None and marks[-1][1] is not None \
+            and marks[-1][1] > marks[0][1]:
+        cpu_rtf = (marks[-1][0] - marks[0][0]) / (marks[-1][1] - marks[0][1])
+    return rtfs[1:], counts, cpu_rtf
+
+
+def _cpu_seconds(pid):
+    """User + system CPU seconds of process `pid` so far (Linux /proc), None elsewhere."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def main(argv=None):
@@ -248,12 +275,21 @@ def main(argv=None):
     ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
     ap.add_argument('--node-only', action='store_true',
                     help='only the sim_node section (default scene, demo_arm, KUKA iiwa)')
+    ap.add_argument('--node-old', metavar='CHECKOUT',
+                    help="also time another checkout's node in one process, side by side")
+    ap.add_argument('--node-overhead', metavar='SCENE', help=argparse.SUPPRESS)
+    ap.add_argument('--steps', type=int, default=4000, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.node_overhead:                    # the child process of _node_overhead_process
+        import json
+        res = node_overhead(args.steps, args.node_overhead)
+        print(json.dumps(res))
+        return 0 if res else 1
     if args.node_only:
         import robot_bench
         print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
               f'Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}')
-        node_section(args.quick, robot_bench.robot_path())
+        node_section(args.quick, robot_bench.robot_path(), args.node_old)
         return 0
 
     print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
@@ -326,33 +362,73 @@ def main(argv=None):
     import robot_bench
     robot = robot_bench.run(args.quick, peers=not args.no_peers)
     if not args.no_node:
-        node_section(args.quick, robot[0] if robot else robot_bench.robot_path())
+        node_section(args.quick, robot[0] if robot else robot_bench.robot_path(), args.node_old)
     return 0
 
 
-def node_section(quick, kuka_path=None):
+def _node_overhead_process(tree, scene, steps):
+    """`node_overhead` in a process of its own (`tree`: another checkout, None: this one)."""
+    import json
+    import subprocess
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    if tree:
+        env['ABD_BENCH_TREE'] = str(Path(tree).resolve())
+    out = subprocess.run([sys.executable, __file__, '--node-overhead', scene, '--steps',
+                          str(steps)], env=env, capture_output=True, text=True, timeout=900)
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
+    if out.returncode or not lines:
+        print(f'node overhead ({scene}, {tree or "this tree"}): failed: '
+              f'{(out.stderr or out.stdout).strip().splitlines()[-1:]}')
+        return None
+    return json.loads(lines[-1])
+
+
+def node_section(quick, kuka_path=None, old_tree=None):
     """sim_node on each of `node_scenes`: the per-step overhead in one process against the
-    World's own batch (`node_overhead`), then end to end in its own process over DDS with no
+    World's own batch (`node_overhead`; with `old_tree`, that checkout's too, alternating),
+    then end to end in its own process over DDS with no
     subscriber, with a subscriber on /clock and /joint_states, and recording (no subscriber);
     the load average before each."""
     import tempfile
     scenes = node_scenes(kuka_path)
-    print('\nsim_node per step in one process (CPU time, min of 7 rounds; `_advance` in the '
-          "node's batches vs `World.step_clean`, the same trajectory):")
-    print('| scene | World.step_clean µs/step (RTF ceiling at dt 1 ms) | node µs/step | '
-          'overhead | node recording µs/step | overhead recording | load |')
-    print('|' + '---|' * 7)
+    steps = 1000 if quick else 4000
+    print(f'\nsim_node per step in one process, {steps} steps from t = 1 s (CPU time, min of 7 '
+          "rounds; the node's `_advance` as fast as possible against `World.step_clean`, the "
+          'same trajectory; each tree in its own process' + (f', this tree and {old_tree} '
+                                                             'alternating' if old_tree else '')
+          + '):')
+    head = ['scene', 'World.step_clean µs/step (RTF ceiling at dt 1 ms)', 'node µs/step',
+            'node overhead', 'recording µs/step', 'recording overhead']
+    if old_tree:
+        head += ['old tree: World.step_clean', 'old: node', 'old: overhead', 'old: recording',
+                 'old: recording overhead']
+    print('| ' + ' | '.join(head + ['load']) + ' |')
+    print('|' + '---|' * (len(head) + 1))
     for label, scene in scenes:
         load = os.getloadavg()[0]
-        res = node_overhead(1000 if quick else 4000, scene)
-        if res:
+        trees = [None] + ([old_tree] if old_tree else [])
+        best = {t: None for t in trees}
+        for _ in range(2):                    # alternating, the better of two processes each
+            for tree in trees:
+                res = _node_overhead_process(tree, scene, steps)
+                if res and (best[tree] is None or res['node'] < best[tree]['node']):
+                    best[tree] = res
+        cells = []
+        for tree in trees:
+            res = best[tree]
+            if res is None:
+                cells += ['–'] * 5
+                continue
             w, n, r = res['world'], res['node'], res['node_recording']
-            print(f'| {label} | {w:.1f} ({1e3 / w:.0f}) | {n:.1f} | {n - w:.1f} | {r:.1f} | '
-                  f'{r - w:.1f} | {load:.2f} |', flush=True)
+            cells += [f'{w:.1f}' + (f' ({1e3 / w:.0f})' if tree is None else ''), f'{n:.1f}',
+                      f'{n - w:.1f}', f'{r:.1f}', f'{r - w:.1f}']
+        print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
     seconds = 4 if quick else 8
     print(f'\nsim_node end to end (own process, DDS on loopback, as fast as possible, dt 1 ms, '
           f'/clock every step, /joint_states at 100 Hz; the real-time factor it reports on '
-          f'/diagnostics, median (min–max) of {seconds} one-second reports after the first):')
+          f'/diagnostics, median (min–max) of {seconds} one-second reports after the first; '
+          'and simulated seconds per CPU second of the node process over the same reports, '
+          'the RTF on a core of its own):')
     print('| scene | no subscriber | a subscriber on /clock and /joint_states | recording, no '
           'subscriber | load |')
     print('|---|---|---|---|---|')
@@ -364,9 +440,10 @@ def node_section(quick, kuka_path=None):
                                                (str(Path(tmp) / f'bag{k}'), False))):
                 res = node_end_to_end(seconds, rec, sub, ['-p', f'scene:={scene}'])
                 if res and res[0]:
-                    rtfs, counts = res
+                    rtfs, counts, cpu_rtf = res
                     cells.append(f'{statistics.median(rtfs):.1f} ({min(rtfs):.1f}–'
-                                 f'{max(rtfs):.1f})')
+                                 f'{max(rtfs):.1f})' + (f'; per CPU s {cpu_rtf:.1f}'
+                                                        if cpu_rtf else ''))
                 else:
                     cells.append('no report')
             print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)

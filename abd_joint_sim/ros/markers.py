@@ -78,8 +78,13 @@ def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
 def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
     w, x, y, z is computed first, so no division by a small number)."""
-    # Plain floats: the same IEEE arithmetic as numpy scalars, without their per-op cost.
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R, dtype=float).tolist()
+    return _quaternion(np.asarray(R, dtype=float).tolist())
+
+
+def _quaternion(rows: list) -> tuple[float, float, float, float]:
+    """:func:`quaternion` of a rotation given as nested lists of plain floats (the same IEEE
+    arithmetic as numpy scalars, without their per-operation cost)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
     t = r00 + r11 + r22
     candidates = (t, r00, r11, r22)
     k = max(range(4), key=candidates.__getitem__)      # the first largest, as np.argmax
@@ -172,6 +177,7 @@ class MarkerBuilder:
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
         self._packed: Optional[tuple] = None    # build_serialized's template and offsets
+        self._stacked: Optional[tuple] = None   # the parts' bodies, origins, arrows as arrays
         self._packed_ok = False
 
     def _body_parts(self, body: Any, colour) -> list[_Part]:
@@ -313,7 +319,8 @@ class MarkerBuilder:
 
     def _values(self, pose: Callable[[str], tuple]) -> Optional[tuple[list, list]]:
         """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint
-        arrow]) of the current poses, plain floats; None if a pose is not finite."""
+        arrow]) of the current poses, plain floats; None if a pose is not finite. All parts
+        at once: position A t + p, orientation R R_v (module docstring)."""
         ps, As = [], []
         for name in self.body_names:
             p, A = pose(name)
@@ -323,20 +330,26 @@ class MarkerBuilder:
         A = np.asarray(As, dtype=float)
         if not (np.all(np.isfinite(P)) and np.all(np.isfinite(A))):
             return None
-        R = nearest_rotations(A)
-        index = self._index
+        if self._stacked is None:
+            index = self._index
+            self._stacked = (
+                np.array([index[p.body] for p in self.parts], dtype=np.intp),
+                np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3, 1),
+                np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
+                np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp),
+                np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
+                         dtype=float).reshape(-1, 2, 3).transpose(0, 2, 1))
+        k, t, Rv, ka, ab = self._stacked
         poses = []
-        for part in self.parts:
-            k = index[part.body]
-            position = A[k] @ part.t + P[k]
-            poses.append((float(position[0]), float(position[1]), float(position[2]))
-                         + quaternion(R[k] @ part.R))
+        if len(k):
+            R = nearest_rotations(A)
+            position = (A[k] @ t)[:, :, 0] + P[k]
+            poses = [tuple(x) + _quaternion(r) for x, r in
+                     zip(position.tolist(), (R[k] @ Rv).tolist())]
         points = []
-        for _j, _name, parent, a, b in self.axes:
-            k = index[parent]
-            x0, x1 = A[k] @ a + P[k], A[k] @ b + P[k]
-            points.append((float(x0[0]), float(x0[1]), float(x0[2]),
-                           float(x1[0]), float(x1[1]), float(x1[2])))
+        if len(ka):
+            ends = A[ka] @ ab + P[ka][:, :, None]         # (K, 3, 2): both ends of each arrow
+            points = [tuple(e) for e in ends.transpose(0, 2, 1).reshape(-1, 6).tolist()]
         return poses, points
 
     def _marker(self, ns: str, mid: int, kind: int):
