@@ -184,13 +184,13 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
     return {k: v * 1e6 for k, v in best.items()}
 
 
-def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
+def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tree=None):
     """sim_node as users run it: its own process, real DDS (loopback only), as fast as
     possible (real_time_factor 0), /clock every step, /joint_states at the default 100 Hz,
     optionally recording, and with `subscribe` a subscriber on both in this process (which
     then shares the 2 cores with the node). Returns the real-time factors the node reports
     on /diagnostics (steps x dt / wall, once a second) after the first report (start-up),
-    and the messages the probe received."""
+    and the messages the probe received. `tree`: run another checkout's node."""
     import signal
     import subprocess
     try:
@@ -205,8 +205,9 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
         return None
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=str(80 + os.getpid() % 9),
-               PYTHONPATH=os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]),
-                                                        os.environ.get('PYTHONPATH')])))
+               PYTHONPATH=os.pathsep.join(filter(None, [
+                   str(Path(tree).resolve()) if tree else str(Path(__file__).resolve().parents[1]),
+                   os.environ.get('PYTHONPATH')])))
     args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p', 'real_time_factor:=0.0']
     if record_dir:                  # (rcl cannot parse an empty `record:=`; the default is off)
         args += ['-p', f'record:={record_dir}']
@@ -434,19 +435,22 @@ def node_section(quick, kuka_path=None, old_tree=None):
     print('|---|---|---|---|---|')
     with tempfile.TemporaryDirectory() as tmp:
         for k, (label, scene) in enumerate(scenes):
-            load = os.getloadavg()[0]
-            cells = []
-            for mode, (rec, sub) in enumerate(((None, False), (None, True),
-                                               (str(Path(tmp) / f'bag{k}'), False))):
-                res = node_end_to_end(seconds, rec, sub, ['-p', f'scene:={scene}'])
-                if res and res[0]:
-                    rtfs, counts, cpu_rtf = res
-                    cells.append(f'{statistics.median(rtfs):.1f} ({min(rtfs):.1f}–'
-                                 f'{max(rtfs):.1f})' + (f'; per CPU s {cpu_rtf:.1f}'
-                                                        if cpu_rtf else ''))
-                else:
-                    cells.append('no report')
-            print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
+            for tree in [None] + ([old_tree] if old_tree else []):
+                load = os.getloadavg()[0]
+                cells = []
+                for mode, (rec, sub) in enumerate(((None, False), (None, True),
+                                                   (str(Path(tmp) / f'bag{k}_{tree is None}'),
+                                                    False))):
+                    res = node_end_to_end(seconds, rec, sub, ['-p', f'scene:={scene}'], tree)
+                    if res and res[0]:
+                        rtfs, counts, cpu_rtf = res
+                        cells.append(f'{statistics.median(rtfs):.1f} ({min(rtfs):.1f}–'
+                                     f'{max(rtfs):.1f})' + (f'; per CPU s {cpu_rtf:.1f}'
+                                                            if cpu_rtf else ''))
+                    else:
+                        cells.append('no report')
+                name = label if tree is None else f'{label}, old tree'
+                print(f'| {name} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
 
 
 if __name__ == '__main__':
