@@ -145,7 +145,8 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
     rclpy.init()
     try:
         params = [Parameter('real_time_factor', value=0.0), Parameter('start_paused', value=True),
-                  Parameter('record', value=str(Path(tmp) / 'bag')), Parameter('scene', value=scene)]
+                  Parameter('record', value=str(Path(tmp) / 'bag')),
+                  Parameter('scene', value=scene)]
         node = SimNode(parameter_overrides=params)
         node.paused = False           # the loop steps only unpaused; nothing spins
         recorder = node.recorder      # taken away for the rounds without recording

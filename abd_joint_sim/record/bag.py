@@ -104,10 +104,11 @@ class _FastMessages:
     ``Message`` record object and writes it field by field (several calls per field). This
     does exactly what that path does to the writer's state — statistics, the open chunk's
     time range and message index, the record bytes, closing a full chunk — with one
-    ``struct`` pack per message (and one per chunk for its message index). It reaches into ``mcap.Writer``'s private state (the
-    pinned ``mcap`` version), so :func:`fast_messages_work` checks, once per process, that a
-    file written through it is byte for byte the file ``add_message`` writes; if not (another
-    mcap version), BagWriter uses ``add_message``.
+    ``struct`` pack per message (and one per chunk for its message index). It reaches into
+    ``mcap.Writer``'s private state (the pinned ``mcap`` version), so
+    :func:`fast_messages_work` checks, once per process, that a file written through it is
+    byte for byte the file ``add_message`` writes; if not (another mcap version), BagWriter
+    uses ``add_message``.
     """
 
     def __init__(self, writer: Writer) -> None:

@@ -110,11 +110,12 @@ class JointStateEncoder:
     than the rest of the publish. The CDR stream of a JointState with fixed names has a fixed
     layout: only the stamp (int32 sec, uint32 nanosec) and the three float64 arrays change.
     The template is ``serialize_message`` of the message itself, trimmed as the bag stores it
-    and with its alignment padding zeroed (``cdr.without_padding``); the offsets of those fields come from ``cdr.field_offsets``, and
-    ``encode`` packs the new values between the template's constant pieces. The result is
-    checked against ``serialize_message`` of the filled message here, on several states; if
-    that check fails, ``encode`` serialises through rclpy instead (test_ros_commands.py
-    compares both on many states).
+    and with its alignment padding zeroed (``cdr.without_padding``); the offsets of those
+    fields come from ``cdr.field_offsets``, and ``encode`` packs the new values between the
+    template's constant pieces. The result is checked against ``serialize_message`` of the
+    filled message here, on several states; if that check fails, ``encode`` serialises
+    through rclpy instead (test_ros_encode.py compares both on many states, and decodes the
+    bytes with rosbags).
     """
 
     def __init__(self, names: Sequence[str], frame_id: str = '') -> None:

@@ -272,8 +272,9 @@ class MarkerBuilder:
 
     def build_serialized(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[bytes]:
         """:meth:`build` as serialized CDR bytes (what ``serialize_message`` gives for it,
-        trimmed as the bag stores it, padding zeroed: ``cdr.without_padding``), for ``Publisher.publish(bytes)``
-        and ``BagWriter.write_serialized``; None if a pose is not finite.
+        trimmed as the bag stores it, padding zeroed: ``cdr.without_padding``), for
+        ``Publisher.publish(bytes)`` and ``BagWriter.write_serialized``; None if a pose is
+        not finite.
 
         A MarkerArray of a scene has a fixed layout: only the stamps, poses and arrow points
         change, so the array is serialised once and those fields are packed in place at the
@@ -291,7 +292,8 @@ class MarkerBuilder:
             n = len(self.parts)
             self._packed = (
                 bytearray(cdr.without_padding(serialize_message(msg), msg)),
-                [offsets[('markers', i, 'header', 'stamp', 'sec')] for i in range(len(msg.markers))],
+                [offsets[('markers', i, 'header', 'stamp', 'sec')]
+                 for i in range(len(msg.markers))],
                 [offsets[('markers', i, 'pose', 'position', 'x')] for i in range(n)],
                 [offsets[('markers', n + i, 'points', 0, 'x')] for i in range(len(self.axes))])
             expected = bytes(self._packed[0])
@@ -336,7 +338,8 @@ class MarkerBuilder:
                 np.array([index[p.body] for p in self.parts], dtype=np.intp),
                 np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3, 1),
                 np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
-                np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp),
+                np.array([index[parent] for _j, _n, parent, _a, _b in self.axes],
+                         dtype=np.intp),
                 np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
                          dtype=float).reshape(-1, 2, 3).transpose(0, 2, 1))
         k, t, Rv, ka, ab = self._stacked
