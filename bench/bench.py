@@ -213,7 +213,9 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
     if record_dir:                  # (rcl cannot parse an empty `record:=`; the default is off)
         args += ['-p', f'record:={record_dir}']
     args += list(extra_args)
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # (in the tree's directory: `python -m` puts the working directory first on sys.path)
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            cwd=str(Path(tree).resolve()) if tree else None)
     old_domain = os.environ.get('ROS_DOMAIN_ID')
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
     rtfs, counts, marks = [], {'clock': 0, 'states': 0}, []
