@@ -7,16 +7,19 @@ compared on a 3-link chain before anything is timed; a mismatch exits 1. A real 
 description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
 same file, and in sim_node (bench/robot_bench.py).
 
-    python bench/bench.py [--quick] [--no-peers] [--no-node]
+    python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only] [--node-old DIR]
 
-The node figures come two ways: `_step_once` against `World.step` in one process (the
-node's per-step overhead), and sim_node end to end in its own process over DDS, as users run
-it, with the real-time factor it reports on /diagnostics.
+The node figures (default scene, demo_arm URDF, KUKA iiwa URDF) come two ways: the node's
+batched `_advance` against `World.step_clean` in one process (the node's per-step overhead,
+with and without recording), and sim_node end to end in its own process over DDS, as users
+run it, with the real-time factor it reports on /diagnostics: no subscriber, a subscriber,
+recording.
 """
 from __future__ import annotations
 
 import argparse
 import gc
+import math
 import os
 import platform
 import statistics
@@ -28,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# ABD_BENCH_TREE: time another checkout's abd_joint_sim with this bench (`--node-old`).
+sys.path.insert(0, os.environ.get('ABD_BENCH_TREE') or str(Path(__file__).resolve().parents[1]))
 
 from abd_joint_sim import Scene, World                      # noqa: E402
 from abd_joint_sim.builders import chain_scene, tree_scene  # noqa: E402
@@ -103,11 +107,28 @@ def check_agreement():
     return ok
 
 
-def node_overhead(steps):
-    """Per-step cost of sim_node's step (pending commands, step, /clock every step,
-    /joint_states at its 100 Hz default), one at a time and in the node's batches, against
-    World.step alone: one process, no subscribers, no recording; rounds interleaved and the
-    minimum of each kept, so load from other jobs on the machine affects all alike."""
+def node_scenes(kuka_path=None):
+    """(label, scene parameter) of the scenes the node is timed on: the default scene, the
+    packaged demo_arm URDF and, with pybullet_data, the KUKA iiwa URDF (7 joints)."""
+    robots = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'robots'
+    out = [('default scene', 'default'), ('demo_arm URDF', str(robots / 'demo_arm.urdf'))]
+    if kuka_path:
+        out.append(('KUKA iiwa URDF', str(kuka_path)))
+    return out
+
+
+def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
+    """What sim_node adds per step on top of World's step, in one process: the node's
+    `_advance` as fast as possible (the loop's batches of up to AFAP_BATCH_STEPS steps between
+    the boundaries that need one; /clock every step, /joint_states at the default 100 Hz, the
+    markers at 30 Hz when recording), without and with recording, against
+    `World.step_clean` (the compiled batch: the RTF ceiling) on the same trajectory: every
+    round starts from the state after `start_steps` steps (nothing commanded: the arms have
+    fallen into their joint limits and stay there, as in the end-to-end runs). No subscriber,
+    no spinning. CPU time of this process (DDS threads included), rounds interleaved, minimum
+    of each kept. Returns µs/step {'world', 'node', 'node_recording'}."""
+    import shutil
+    import tempfile
     try:
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         os.environ.setdefault('ROS_DOMAIN_ID', str(90 + os.getpid() % 9))
@@ -117,32 +138,60 @@ def node_overhead(steps):
     except Exception as exc:  # noqa: BLE001 - optional section
         print(f'node overhead: skipped ({exc})')
         return None
+    from abd_joint_sim.ros import node as node_module
+    # (an older tree stepped as fast as possible in BATCH_STEPS)
+    batch = getattr(node_module, 'AFAP_BATCH_STEPS', node_module.BATCH_STEPS)
+    tmp = tempfile.mkdtemp(prefix='bench_node_')
     rclpy.init()
     try:
         params = [Parameter('real_time_factor', value=0.0), Parameter('start_paused', value=True),
-                  Parameter('record', value='')]
+                  Parameter('record', value=str(Path(tmp) / 'bag')),
+                  Parameter('scene', value=scene)]
         node = SimNode(parameter_overrides=params)
-        node.paused = False       # the loop steps only unpaused; nothing spins, no timer fires
-        node._step_once()
-        node_t, world_t, batch_t = [], [], []
-        batch = 16                        # node.BATCH_STEPS: steps per compiled call
-        for _ in range(7):
-            node_t += time_steps(node._step_once, steps, 1)
-            world_t += time_steps(node.world.step, steps, 1)
-            batch_t += [t / batch for t in time_steps(lambda: node._step_batch(batch), steps // batch, 1)]
+        node.paused = False           # the loop steps only unpaused; nothing spins
+        recorder = node.recorder      # taken away for the rounds without recording
+
+        node.recorder = None
+        while node.steps < start_steps:       # past the start (the arms in their limits)
+            node._advance(batch)
+        start = node.world.state              # (a World's state is never written in place)
+
+        def run(key):
+            node.recorder = recorder if key == 'node_recording' else None
+            node.world.state = start
+            node.loop.publish_schedule.restart()
+            node.loop.marker_schedule.restart()
+            gc.disable()
+            t0, k = time.process_time(), 0
+            while k < steps:
+                k += (node.world.step_clean(batch)[0] if key == 'world'
+                      else node._advance(batch))
+            t = (time.process_time() - t0) / k
+            gc.enable()
+            return t
+        keys = ('world', 'node', 'node_recording')
+        for key in keys:
+            run(key)                                  # warm-up
+        best = {key: math.inf for key in keys}
+        for _ in range(rounds):
+            for key in keys:
+                best[key] = min(best[key], run(key))
+        node.recorder = recorder
+        node.close()
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    return min(node_t), min(world_t), min(batch_t)
+        shutil.rmtree(tmp, ignore_errors=True)
+    return {k: v * 1e6 for k, v in best.items()}
 
 
-def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
+def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tree=None):
     """sim_node as users run it: its own process, real DDS (loopback only), as fast as
     possible (real_time_factor 0), /clock every step, /joint_states at the default 100 Hz,
     optionally recording, and with `subscribe` a subscriber on both in this process (which
     then shares the 2 cores with the node). Returns the real-time factors the node reports
     on /diagnostics (steps x dt / wall, once a second) after the first report (start-up),
-    and the messages the probe received."""
+    and the messages the probe received. `tree`: run another checkout's node."""
     import signal
     import subprocess
     try:
@@ -157,16 +206,19 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
         return None
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=str(80 + os.getpid() % 9),
-               PYTHONPATH=os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]),
-                                                        os.environ.get('PYTHONPATH')])))
+               PYTHONPATH=os.pathsep.join(filter(None, [
+                   str(Path(tree).resolve()) if tree else str(Path(__file__).resolve().parents[1]),
+                   os.environ.get('PYTHONPATH')])))
     args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p', 'real_time_factor:=0.0']
     if record_dir:                  # (rcl cannot parse an empty `record:=`; the default is off)
         args += ['-p', f'record:={record_dir}']
     args += list(extra_args)
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # (in the tree's directory: `python -m` puts the working directory first on sys.path)
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            cwd=str(Path(tree).resolve()) if tree else None)
     old_domain = os.environ.get('ROS_DOMAIN_ID')
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
-    rtfs, counts = [], {'clock': 0, 'states': 0}
+    rtfs, counts, marks = [], {'clock': 0, 'states': 0}, []
     rclpy.init()
     try:
         node = rclpy.create_node('bench_probe')
@@ -176,6 +228,7 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
                 kv = {k.key: k.value for k in st.values}
                 if 'real_time_factor_achieved' in kv and kv.get('paused') == 'False':
                     rtfs.append(float(kv['real_time_factor_achieved']))
+                    marks.append((float(kv['sim_time']), _cpu_seconds(proc.pid)))
 
         node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
         if subscribe:
@@ -200,7 +253,23 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=()):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-    return rtfs[1:], counts
+    # Simulated seconds per CPU second of the node's process between the first report and the
+    # last: the real-time factor the node would reach on a core of its own (None without /proc).
+    cpu_rtf = None
+    if len(marks) >= 2 and marks[0][1] is not None and marks[-1][1] is not None \
+            and marks[-1][1] > marks[0][1]:
+        cpu_rtf = (marks[-1][0] - marks[0][0]) / (marks[-1][1] - marks[0][1])
+    return rtfs[1:], counts, cpu_rtf
+
+
+def _cpu_seconds(pid):
+    """User + system CPU seconds of process `pid` so far (Linux /proc), None elsewhere."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def main(argv=None):
@@ -208,7 +277,24 @@ def main(argv=None):
     ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
     ap.add_argument('--no-peers', action='store_true', help='skip MuJoCo and PyBullet')
     ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
+    ap.add_argument('--node-only', action='store_true',
+                    help='only the sim_node section (default scene, demo_arm, KUKA iiwa)')
+    ap.add_argument('--node-old', metavar='CHECKOUT',
+                    help="also time another checkout's node in one process, side by side")
+    ap.add_argument('--node-overhead', metavar='SCENE', help=argparse.SUPPRESS)
+    ap.add_argument('--steps', type=int, default=4000, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.node_overhead:                    # the child process of _node_overhead_process
+        import json
+        res = node_overhead(args.steps, args.node_overhead)
+        print(json.dumps(res))
+        return 0 if res else 1
+    if args.node_only:
+        import robot_bench
+        print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
+              f'Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}')
+        node_section(args.quick, robot_bench.robot_path(), args.node_old)
+        return 0
 
     print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
           f'Python {platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f}, '
@@ -276,42 +362,98 @@ def main(argv=None):
     if 'chain 100' in per_step and 'chain 1000' in per_step:
         a, b = per_step['chain 100'], per_step['chain 1000']
         print(f'\ncost growth 100 -> 1000 links: x{b / a:.1f} (exponent {np.log10(b / a):.2f}; 1 = linear)')
-    if not args.no_node:
-        res = node_overhead(100 if args.quick else 500)
-        if res:
-            t_node, t_world, t_batch = res
-            print(f'\nsim_node step on the default scene: {t_node * 1e6:.0f} µs '
-                  f'vs World.step {t_world * 1e6:.0f} µs -> node overhead '
-                  f'{(t_node - t_world) * 1e6:.0f} µs/step; real-time factor with the node at '
-                  f'dt 1 ms: {1e-3 / t_node:.1f} one step at a time, {1e-3 / t_batch:.1f} in '
-                  f'batches of 16 while no command is pending ({t_batch * 1e6:.0f} µs/step)')
-        import tempfile
-        with tempfile.TemporaryDirectory() as tmp:
-            for label, rec, sub in (('no subscriber, not recording', None, False),
-                                    ('a subscriber on /clock and /joint_states', None, True),
-                                    ('no subscriber, recording', str(Path(tmp) / 'bag'), False)):
-                res = node_end_to_end(4 if args.quick else 8, rec, sub)
-                if res and res[0]:
-                    rtfs, counts = res
-                    print(f'sim_node end to end (own process, DDS, as fast as possible, default '
-                          f'scene, {label}): real-time factor median {statistics.median(rtfs):.1f} '
-                          f'(min {min(rtfs):.1f}, max {max(rtfs):.1f}; {len(rtfs)} one-second '
-                          f'reports on /diagnostics'
-                          + (f'; the probe received {counts["clock"]} /clock and '
-                             f'{counts["states"]} /joint_states)' if sub else ')'))
-                elif res is not None:
-                    print(f'sim_node end to end ({label}): no /diagnostics report received')
     # URDF robot (issue 11): a real robot description in all three engines, and in sim_node.
     import robot_bench
     robot = robot_bench.run(args.quick, peers=not args.no_peers)
-    if robot and not args.no_node:
-        res = node_end_to_end(4 if args.quick else 8, None, False,
-                              ['-p', f'scene:={robot[0]}'])
-        if res and res[0]:
-            print(f'sim_node end to end, KUKA iiwa URDF (own process, DDS, as fast as possible, '
-                  f'no subscriber, not recording): real-time factor median '
-                  f'{statistics.median(res[0]):.1f} (min {min(res[0]):.1f}, max {max(res[0]):.1f})')
+    if not args.no_node:
+        node_section(args.quick, robot[0] if robot else robot_bench.robot_path(), args.node_old)
     return 0
+
+
+def _node_overhead_process(tree, scene, steps):
+    """`node_overhead` in a process of its own (`tree`: another checkout, None: this one)."""
+    import json
+    import subprocess
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    if tree:
+        env['ABD_BENCH_TREE'] = str(Path(tree).resolve())
+    out = subprocess.run([sys.executable, __file__, '--node-overhead', scene, '--steps',
+                          str(steps)], env=env, capture_output=True, text=True, timeout=900)
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
+    if out.returncode or not lines:
+        print(f'node overhead ({scene}, {tree or "this tree"}): failed: '
+              f'{(out.stderr or out.stdout).strip().splitlines()[-1:]}')
+        return None
+    return json.loads(lines[-1])
+
+
+def node_section(quick, kuka_path=None, old_tree=None):
+    """sim_node on each of `node_scenes`: the per-step overhead in one process against the
+    World's own batch (`node_overhead`; with `old_tree`, that checkout's too, alternating),
+    then end to end in its own process over DDS with no
+    subscriber, with a subscriber on /clock and /joint_states, and recording (no subscriber);
+    the load average before each."""
+    import tempfile
+    scenes = node_scenes(kuka_path)
+    steps = 1000 if quick else 4000
+    print(f'\nsim_node per step in one process, {steps} steps from t = 1 s (CPU time, min of 7 '
+          "rounds; the node's `_advance` as fast as possible against `World.step_clean`, the "
+          'same trajectory; each tree in its own process' + (f', this tree and {old_tree} '
+                                                             'alternating' if old_tree else '')
+          + '):')
+    head = ['scene', 'World.step_clean µs/step (RTF ceiling at dt 1 ms)', 'node µs/step',
+            'node overhead', 'recording µs/step', 'recording overhead']
+    if old_tree:
+        head += ['old tree: World.step_clean', 'old: node', 'old: overhead', 'old: recording',
+                 'old: recording overhead']
+    print('| ' + ' | '.join(head + ['load']) + ' |')
+    print('|' + '---|' * (len(head) + 1))
+    for label, scene in scenes:
+        load = os.getloadavg()[0]
+        trees = [None] + ([old_tree] if old_tree else [])
+        best = {t: None for t in trees}
+        for _ in range(2):                    # alternating, the better of two processes each
+            for tree in trees:
+                res = _node_overhead_process(tree, scene, steps)
+                if res and (best[tree] is None or res['node'] < best[tree]['node']):
+                    best[tree] = res
+        cells = []
+        for tree in trees:
+            res = best[tree]
+            if res is None:
+                cells += ['–'] * 5
+                continue
+            w, n, r = res['world'], res['node'], res['node_recording']
+            cells += [f'{w:.1f}' + (f' ({1e3 / w:.0f})' if tree is None else ''), f'{n:.1f}',
+                      f'{n - w:.1f}', f'{r:.1f}', f'{r - w:.1f}']
+        print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
+    seconds = 4 if quick else 8
+    print(f'\nsim_node end to end (own process, DDS on loopback, as fast as possible, dt 1 ms, '
+          f'/clock every step, /joint_states at 100 Hz; the real-time factor it reports on '
+          f'/diagnostics, median (min–max) of {seconds} one-second reports after the first; '
+          'and simulated seconds per CPU second of the node process over the same reports, '
+          'the RTF on a core of its own):')
+    print('| scene | no subscriber | a subscriber on /clock and /joint_states | recording, no '
+          'subscriber | load |')
+    print('|---|---|---|---|---|')
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (label, scene) in enumerate(scenes):
+            for tree in [None] + ([old_tree] if old_tree else []):
+                load = os.getloadavg()[0]
+                cells = []
+                for mode, (rec, sub) in enumerate(((None, False), (None, True),
+                                                   (str(Path(tmp) / f'bag{k}_{tree is None}'),
+                                                    False))):
+                    res = node_end_to_end(seconds, rec, sub, ['-p', f'scene:={scene}'], tree)
+                    if res and res[0]:
+                        rtfs, counts, cpu_rtf = res
+                        cells.append(f'{statistics.median(rtfs):.1f} ({min(rtfs):.1f}–'
+                                     f'{max(rtfs):.1f})' + (f'; per CPU s {cpu_rtf:.1f}'
+                                                            if cpu_rtf else ''))
+                    else:
+                        cells.append('no report')
+                name = label if tree is None else f'{label}, old tree'
+                print(f'| {name} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
 
 
 if __name__ == '__main__':

@@ -268,3 +268,55 @@ def test_no_second_diagnostics_key_list(module):
     """The key set is written in ros/loop.py only."""
     text = (ROOT / module).read_text()
     assert "'not_converged_steps_total'" not in text and "'max_joint_separation'" not in text
+
+
+class Record(LoopOutput):
+    """Everything the loop hands over, in order, as the node gets it: /clock every step, the
+    joint state at publish_rate, the markers as CDR bytes (wanted, as while recording)."""
+
+    markers_wanted = True
+    markers_serialized = True
+
+    def __init__(self):
+        self.events: list[tuple] = []
+
+    def clock(self, t_ns):
+        self.events.append(('clock', t_ns))
+
+    def joint_state(self, t_ns, position, velocity, effort):
+        self.events.append(('joint_state', t_ns, list(position), list(velocity), list(effort)))
+
+    def markers(self, t_ns, data):
+        self.events.append(('markers', t_ns, bytes(data)))
+
+
+@pytest.mark.parametrize('scene_name', ['default', 'demo_arm'])
+def test_batched_publishing_is_what_single_steps_publish(scene_name):
+    """The loop's batched path (the node as fast as possible: advance(64), the loop ending
+    batches at marker steps) hands over exactly the events of one step at a time: every
+    /clock, the joint states at 100 Hz (the default publish_rate) and the 30 Hz markers
+    with the same stamps, values and bytes, in the same order."""
+    from abd_joint_sim.ros.loop import SimLoop
+    path = resolve_scene(scene_name)
+    scene = Scene.from_file(path)
+    runs = []
+    for batched in (True, False):
+        out = Record()
+        loop = SimLoop(scene, config_from_values({'scene': scene_name}), output=out)
+        loop.publish_state(force=True)
+        takes = []
+        real = loop.world.step_clean
+        loop.world.step_clean = lambda n, real=real: takes.append(n) or real(n)
+        for round_ in range(6):
+            loop.commands.command_array([1.5 * (-1) ** round_] * len(loop.commands.order))
+            if batched:
+                assert loop.advance(64) == 64
+            else:
+                for _ in range(64):
+                    assert loop.step_once()
+        runs.append(out.events)
+        assert (max(takes) > 16) if batched else not takes
+    kinds = [e[0] for e in runs[0]]
+    assert kinds.count('clock') == 6 * 64 + 1 and kinds.count('markers') >= 12
+    assert kinds.count('joint_state') >= 38
+    assert runs[0] == runs[1]

@@ -559,3 +559,42 @@ def test_cdr_stream_length_matches_an_independent_encoder():
         assert deserialize_message(cut, type(m)) == m, name
         slack += len(raw) - len(cut)
     assert slack > 0        # the slack exists (else this test would prove nothing)
+
+
+def test_fast_message_path_writes_the_bytes_of_mcaps_add_message(tmp_path, monkeypatch):
+    """BagWriter adds messages without mcap's per-field record writer (bag._FastMessages,
+    issue 15): the same messages through it and through ``mcap.Writer.add_message`` give
+    byte-identical MCAP files (several chunks, interleaved topics, times out of order), the
+    bag reads back in rosbags; and the once-per-process check can fail."""
+    from abd_joint_sim.record import bag as bagmod
+    from abd_joint_sim.ros import convert
+    assert bagmod.fast_messages_work()
+    files = []
+    for fast in (True, False):
+        path = tmp_path / str(fast) / 'bag'     # same name: the name is in the metadata
+        with BagWriter(path, chunk_size=4096, custom_data={'k': 'v'}) as w:
+            if not fast:
+                w._fast = None
+            w.add_topic('/clock', 'rosgraph_msgs/msg/Clock', qos='best_effort', depth=1)
+            w.add_topic('/joint_states', 'sensor_msgs/msg/JointState')
+            enc = convert.ClockEncoder()
+            for k in range(3000):
+                t = k * 1_000_000 if k != 1500 else 7
+                w.write_serialized('/clock', t, enc.encode(t))
+                if k % 10 == 0:
+                    w.write('/joint_states', t, convert.joint_state_msg(
+                        t, JOINTS, [k * 1e-3] * 3, [1.0] * 3, [-2.0] * 3))
+        files.append((path / f'{path.name}_0.mcap').read_bytes())
+    assert len(files[0]) > 3 * 4096 and files[0] == files[1]
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with AnyReader([tmp_path / 'True' / 'bag'], default_typestore=typestore) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        stamps = [t for _, t, _ in reader.messages()]
+    assert counts == {'/clock': 3000, '/joint_states': 300}
+    assert min(stamps) == 0 and max(stamps) == 2_999_000_000
+
+    monkeypatch.setattr(bagmod, '_FAST_MESSAGES_OK', None)
+    monkeypatch.setattr(bagmod, '_MESSAGE_OPCODE', 0x06)       # a wrong record opcode
+    assert not bagmod.fast_messages_work()
+    with BagWriter(tmp_path / 'slow') as w:
+        assert w._fast is None                                 # mcap's own add_message

@@ -21,12 +21,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from importlib.metadata import version
+import io
+import itertools
 import os
+import struct
 from pathlib import Path
 import time
 from types import TracebackType
 from typing import Any
 
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, IndexType, Writer
 from rclpy.serialization import serialize_message
 
@@ -87,6 +92,112 @@ class _FdSink:
         """Nothing is buffered here; ``os.write`` already handed the bytes to the kernel."""
 
 
+_MESSAGE_HEAD = struct.Struct('<BQHIQQ')   # opcode, record length, channel, seq, log, publish
+_MESSAGE_OPCODE = 0x05
+_MESSAGE_FIELDS = 22                          # record bytes before the data
+
+
+class _FastMessages:
+    """``mcap.Writer.add_message`` for a chunked writer, with less Python per message.
+
+    sim_node records a /clock message after every step; the writer's own path builds a
+    ``Message`` record object and writes it field by field (several calls per field). This
+    does exactly what that path does to the writer's state — statistics, the open chunk's
+    time range and message index, the record bytes, closing a full chunk — with one
+    ``struct`` pack per message (and one per chunk for its message index). It reaches into
+    ``mcap.Writer``'s private state (the pinned ``mcap`` version), so
+    :func:`fast_messages_work` checks, once per process, that a file written through it is
+    byte for byte the file ``add_message`` writes; if not (another mcap version), BagWriter
+    uses ``add_message``.
+    """
+
+    def __init__(self, writer: Writer) -> None:
+        self._writer = writer
+        self._stats = writer._Writer__statistics                  # noqa: SLF001
+        self._chunk = writer._Writer__chunk_builder               # noqa: SLF001
+        self._chunk_size = writer._Writer__chunk_size             # noqa: SLF001
+        self._finalize = writer._Writer__finalize_chunk           # noqa: SLF001
+        if self._chunk is None:
+            raise TypeError('the writer does not use chunks')
+
+    def add(self, channel_id: int, log_time: int, data) -> None:
+        """``writer.add_message(channel_id, log_time, data, publish_time=log_time,
+        sequence=0)``."""
+        st = self._stats
+        if st.message_count == 0 or log_time < st.message_start_time:
+            st.message_start_time = log_time
+        if log_time > st.message_end_time:
+            st.message_end_time = log_time
+        st.channel_message_counts[channel_id] += 1
+        st.message_count += 1
+        cb = self._chunk
+        if cb.num_messages == 0 or log_time < cb.message_start_time:
+            cb.message_start_time = log_time
+        if log_time > cb.message_end_time:
+            cb.message_end_time = log_time
+        index = cb.message_indices.get(channel_id)
+        if not index:
+            index = cb.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id,
+                                                                       records=[])
+        buffer = cb.record_writer._buffer                         # noqa: SLF001
+        index.records.append((log_time, buffer.tell()))
+        cb.num_messages += 1
+        buffer.write(_MESSAGE_HEAD.pack(_MESSAGE_OPCODE, _MESSAGE_FIELDS + len(data),
+                                        channel_id, 0, log_time, log_time))
+        buffer.write(data)
+        if buffer.tell() > self._chunk_size:
+            self._finalize()
+
+
+class _FastMessageIndex(MessageIndex):
+    """A chunk's message index written with one ``struct`` pack for all its entries (mcap
+    packs each time and offset separately: two calls per message of the chunk)."""
+
+    def write(self, stream) -> None:
+        records = self.records
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(records) * 16)
+        stream.write(struct.pack(f'<{2 * len(records)}Q',
+                                 *itertools.chain.from_iterable(records)))
+        stream.finish_record()
+
+
+_FAST_MESSAGES_OK: bool | None = None
+
+
+def fast_messages_work() -> bool:
+    """True if :class:`_FastMessages` writes the very bytes ``mcap.Writer.add_message``
+    writes (checked once per process on a small file of several chunks, two channels, and
+    times out of order)."""
+    global _FAST_MESSAGES_OK
+    if _FAST_MESSAGES_OK is None:
+        try:
+            files = []
+            for fast in (False, True):
+                out = io.BytesIO()
+                w = Writer(out, chunk_size=200, compression=CompressionType.NONE,
+                           index_types=IndexType.ALL, enable_crcs=True, enable_data_crcs=True)
+                w.start(profile=PROFILE, library='check')
+                sid = w.register_schema(name='s', encoding='ros2msg', data=b'int32 a')
+                ch = [w.register_channel(topic=f'/t{k}', message_encoding='cdr',
+                                         schema_id=sid) for k in range(2)]
+                adder = _FastMessages(w) if fast else None
+                for k, t in enumerate((5, 3, 9, 9, 1, 20, 7, 30, 2, 40, 41, 42)):
+                    data = bytes(range(k % 3 + 10))
+                    if adder:
+                        adder.add(ch[k % 2], t, data)
+                    else:
+                        w.add_message(channel_id=ch[k % 2], log_time=t, data=data,
+                                      publish_time=t, sequence=0)
+                w.finish()
+                files.append(out.getvalue())
+            _FAST_MESSAGES_OK = files[0] == files[1]
+        except Exception:  # noqa: BLE001 - another mcap version: its own add_message
+            _FAST_MESSAGES_OK = False
+    return _FAST_MESSAGES_OK
+
+
 @dataclass
 class _Topic:
     record: md.TopicRecord
@@ -138,6 +249,7 @@ class BagWriter:
         self._topics: dict[str, _Topic] = {}
         self._schema_ids: dict[str, int] = {}
         self._writer: Writer | None = None
+        self._fast: _FastMessages | None = None
         self._fd: int | None = None
         self._state = 'new'  # new -> open -> closed | failed -> closed
         self.error: str | None = None
@@ -164,6 +276,7 @@ class BagWriter:
                             use_statistics=True, use_summary_offsets=True,
                             enable_crcs=True, enable_data_crcs=True)
             writer.start(profile=PROFILE, library=LIBRARY)
+            self._fast = _FastMessages(writer) if fast_messages_work() else None
             now = time.time_ns()
             # log_time 0: the attachment belongs before the first simulated instant.
             for name, data in self._attachments.items():
@@ -281,7 +394,9 @@ class BagWriter:
     def write_serialized(self, topic: str, stamp_ns: int, data: bytes) -> None:
         """Record CDR bytes already serialised for ``topic``'s type (what a publisher sent,
         e.g. sim_node's /clock, convert.ClockEncoder). Same checks and errors as write()."""
-        entry = self._entry(topic)
+        entry = self._topics.get(topic) if self._state == 'open' else None
+        if entry is None:
+            entry = self._entry(topic)      # raises the error that says why
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise BagError(f"bag '{self.path}': topic '{topic}': serialized data must be bytes, "
                            f'got {type(data).__name__}')
@@ -295,13 +410,17 @@ class BagWriter:
         return entry
 
     def _add(self, topic: str, entry, stamp_ns: int, data) -> None:
-        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
+        if (type(stamp_ns) is not int and (isinstance(stamp_ns, bool)
+                                           or not isinstance(stamp_ns, int))) or stamp_ns < 0:
             raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
                            'an int >= 0 (nanoseconds)')
         assert self._writer is not None
         try:
-            self._writer.add_message(channel_id=entry.channel_id, log_time=stamp_ns,
-                                     data=data, publish_time=stamp_ns, sequence=0)
+            if self._fast is not None:
+                self._fast.add(entry.channel_id, stamp_ns, data)
+            else:
+                self._writer.add_message(channel_id=entry.channel_id, log_time=stamp_ns,
+                                         data=data, publish_time=stamp_ns, sequence=0)
         except OSError as exc:
             raise self._fail(f"writing a message on '{topic}' failed: {exc}") from None
         entry.record.message_count += 1
@@ -358,6 +477,7 @@ class BagWriter:
 
     def _release(self) -> None:
         self._writer = None
+        self._fast = None
         if self._fd is not None:
             try:
                 os.close(self._fd)

@@ -121,3 +121,65 @@ def trimmed(data: bytes, msg: Any) -> bytes:
     except (TypeError, AttributeError, ImportError, KeyError):
         return data
     return data[:end] if len(data) > end else data
+
+
+def field_offsets(msg: Any) -> dict[tuple, int]:
+    """Byte offsets, in ``serialize_message(msg)`` (encapsulation header included), of every
+    primitive field of `msg` and of the first element of every non-empty primitive sequence,
+    keyed by path: ``('header', 'stamp', 'sec')``, ``('position',)``, ``('markers', 2,
+    'pose', 'position', 'x')``, ``('markers', 5, 'points', 0, 'x')``. Lets an encoder patch a
+    serialised template in place instead of serialising a whole message again (the same
+    rules as :func:`message_end`)."""
+    out: dict[tuple, int] = {}
+    _walk(msg, 0, (), out, [])
+    return {path: HEADER + pos for path, pos in out.items()}
+
+
+def without_padding(data: bytes, msg: Any) -> bytes:
+    """`data` (the CDR bytes of `msg`) with every alignment padding byte set to 0, and cut
+    to the stream padded to 4 bytes (:func:`trimmed`). The serialiser leaves padding bytes
+    as it finds them in its buffer (they differ from call to call), so two serialisations of
+    one message compare equal only after this."""
+    pads: list[tuple[int, int]] = []
+    end = _walk(msg, 0, (), {}, pads)
+    pads.append((end, _align(end, 4)))
+    out = bytearray(data[:HEADER + _align(end, 4)])
+    for a, b in pads:
+        out[HEADER + a:HEADER + b] = bytes(b - a)
+    return bytes(out)
+
+
+def _walk(msg: Any, pos: int, path: tuple, out: dict, pads: list) -> int:
+    """:func:`message_end` that also notes field offsets (`out`) and padding (`pads`)."""
+    def align(pos: int, n: int) -> int:
+        pad = (-pos) % n
+        if pad:
+            pads.append((pos, pos + pad))
+        return pos + pad
+    for attr, kind, n, sub, counted in _plan(type(msg)):
+        value = getattr(msg, attr)
+        here = path + (attr.lstrip('_'),)       # rosidl slots are '_' + the field name
+        if kind == _PRIM:
+            pos = align(pos, n)
+            out[here] = pos
+            pos += n
+        elif kind == _STR:
+            pos = align(pos, 4) + 5 + len(value.encode('utf-8'))
+        elif kind == _MSG:
+            pos = _walk(value, pos, here, out, pads)
+        else:
+            if counted:
+                pos = align(pos, 4) + 4
+            if len(value) == 0:
+                continue
+            if kind == _PRIM_SEQ:
+                pos = align(pos, n)
+                out[here] = pos
+                pos += n * len(value)
+            elif kind == _STR_SEQ:
+                for item in value:
+                    pos = align(pos, 4) + 5 + len(item.encode('utf-8'))
+            else:
+                for i, item in enumerate(value):
+                    pos = _walk(item, pos, here + (i,), out, pads)
+    return pos

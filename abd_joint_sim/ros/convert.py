@@ -102,6 +102,76 @@ class ClockEncoder:
         return serialize_message(clock_msg(stamp_ns))
 
 
+class JointStateEncoder:
+    """/joint_states as serialized CDR, for ``Publisher.publish(bytes)`` and the bag.
+
+    The node publishes a JointState of fixed names and frame at 100 Hz and records it: letting
+    rclpy convert and serialise the message each time (and once more for the bag) costs more
+    than the rest of the publish. The CDR stream of a JointState with fixed names has a fixed
+    layout: only the stamp (int32 sec, uint32 nanosec) and the three float64 arrays change.
+    The template is ``serialize_message`` of the message itself, trimmed as the bag stores it
+    and with its alignment padding zeroed (``cdr.without_padding``); the offsets of those
+    fields come from ``cdr.field_offsets``, and ``encode`` packs the new values between the
+    template's constant pieces. The result is checked against ``serialize_message`` of the
+    filled message here, on several states; if that check fails, ``encode`` serialises
+    through rclpy instead (test_ros_encode.py compares both on many states, and decodes the
+    bytes with rosbags).
+    """
+
+    def __init__(self, names: Sequence[str], frame_id: str = '') -> None:
+        from abd_joint_sim.record import cdr
+        self.names = list(names)
+        self.frame_id = frame_id
+        n = len(self.names)
+        self._n = n
+        self._msg = joint_state_msg(0, self.names, [0.0] * n, [0.0] * n, [0.0] * n, frame_id)
+        template = cdr.without_padding(serialize_message(self._msg), self._msg)
+        offsets = cdr.field_offsets(self._msg)
+        stamp = offsets[('header', 'stamp', 'sec')]
+        cuts = [stamp, stamp + 8]
+        for attr in ('position', 'velocity', 'effort'):
+            if n:
+                cuts += [offsets[(attr,)], offsets[(attr,)] + 8 * n]
+        # Constant pieces between the variable fields: [head, between..., tail].
+        self._pieces = [template[a:b] for a, b in zip([0] + cuts[1::2], cuts[0::2] + [None])]
+        self._stamp = struct.Struct('<iI')
+        self._values = struct.Struct(f'<{n}d')
+        rng = np.random.default_rng(15)
+        self.checked = all(
+            self._pack(ns, *vals) == self._serialize(ns, *vals)
+            for ns, vals in ((0, ([0.0] * n,) * 3), (1_234_567_891_011, tuple(
+                rng.normal(size=(3, n)).tolist())), ((2 ** 31 - 1) * NS_PER_S + 7, tuple(
+                    (rng.normal(size=(3, n)) * 1e300).tolist()))))
+
+    def _serialize(self, stamp_ns: int, position, velocity, effort) -> bytes:
+        from abd_joint_sim.record import cdr
+        fill_joint_state(self._msg, stamp_ns, list(position), list(velocity), list(effort),
+                         self.frame_id)
+        return cdr.without_padding(serialize_message(self._msg), self._msg)
+
+    def _pack(self, stamp_ns: int, position, velocity, effort) -> bytes:
+        p = self._pieces
+        parts = [p[0], self._stamp.pack(*divmod(int(stamp_ns), NS_PER_S))]
+        if self._n:
+            pack = self._values.pack
+            parts += [p[1], pack(*position), p[2], pack(*velocity), p[3], pack(*effort), p[4]]
+        else:
+            parts.append(p[1])
+        return b''.join(parts)
+
+    def encode(self, stamp_ns: int, position: Sequence[float], velocity: Sequence[float],
+               effort: Sequence[float]) -> bytes:
+        """The CDR bytes of the JointState at `stamp_ns` (plain float lists, one per joint)."""
+        n = self._n
+        if not (len(position) == len(velocity) == len(effort) == n):
+            raise ValueError(
+                f'joint state arrays differ in length: name {n}, position {len(position)}, '
+                f'velocity {len(velocity)}, effort {len(effort)}')
+        if self.checked:
+            return self._pack(stamp_ns, position, velocity, effort)
+        return self._serialize(stamp_ns, position, velocity, effort)
+
+
 def float64_msg(value: float) -> Float64:
     return Float64(data=float(value))
 

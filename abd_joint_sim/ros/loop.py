@@ -65,6 +65,9 @@ class LoopOutput:
     """Hand over the joint state after every step, not only when ``publish_rate`` says."""
     world_each_step = False
     """`stepped` reads the world itself after every step: no batching."""
+    markers_serialized = False
+    """`markers` gets the MarkerArray as serialized CDR bytes
+    (``MarkerBuilder.build_serialized``) instead of a message."""
 
     def clock(self, t_ns: int) -> None:
         """After every step (and at start, reset and a forced publish)."""
@@ -73,7 +76,8 @@ class LoopOutput:
         """The joint state at `t_ns` when due (finite, plain floats)."""
 
     def markers(self, t_ns: int, msg: Any) -> None:
-        """The body markers when due (only while `markers_wanted`)."""
+        """The body markers when due (only while `markers_wanted`): a MarkerArray, or its
+        CDR bytes with `markers_serialized`."""
 
     def applied(self, applied: Applied) -> None:
         """Commands as they took effect at a step boundary."""
@@ -229,8 +233,13 @@ class SimLoop:
     def _after_batch(self, count: int, times, angles, velocities) -> None:
         self.fault = None
         self.steps += count
-        for t, position, velocity in zip(times, angles, velocities):
-            self.publish_state(t=t, position=position, velocity=velocity)
+        last = count - 1
+        if isinstance(times, np.ndarray):
+            times = times.tolist()
+        for i, t in enumerate(times):
+            # Only the batch's last step is the world's current one (markers need its poses).
+            self.publish_state(t=t, position=angles[i], velocity=velocities[i],
+                               current=i == last)
             if self.fault:              # the publish guard stopped it: say so once
                 break
 
@@ -266,51 +275,65 @@ class SimLoop:
 
     # ------------------------------------------------------------------ publishing ----
     def publish_state(self, force: bool = False, t: Optional[float] = None,
-                      position=None, velocity=None) -> None:
+                      position=None, velocity=None, current: Optional[bool] = None) -> None:
         """/clock after every step, markers and the joint state when due; never a non-finite
         value. A batch passes each step's time, joint angles and velocities (the efforts are
-        the world's: no command changes inside a batch); by default the world's current."""
+        the world's: no command changes inside a batch) and whether it is the world's
+        current step; by default the world's current."""
         out = self.output
         if t is None:
             t = self.world.time
         if not math.isfinite(t):
             self.stop_on_fault(f'non-finite time {t!r} s not published')
             return
-        t_ns = convert.seconds_to_ns(t)
-        current = position is None or t == self.world.time
+        t_ns = int(round(float(t) * convert.NS_PER_S))       # convert.seconds_to_ns
+        if current is None:
+            current = position is None or t == self.world.time
         out.clock(t_ns)
         if self.markers is not None and current:
             self._markers(t_ns, force)
-        due = self.publish_schedule.due(t_ns, self.config.publish_rate, force)
-        if due or out.every_state:
-            w = self.world
-            if position is None:
-                position, velocity = w.joint_angles(), w.joint_velocities()
-            position = np.asarray(position, dtype=float).tolist()
-            velocity = np.asarray(velocity, dtype=float).tolist()
-            effort = np.asarray(w.applied_torques(), dtype=float).tolist()
-            if not all(map(math.isfinite, position + velocity + effort)):
-                bad = [f'{name} {arr}' for name, arr in
-                       (('position', position), ('velocity', velocity), ('effort', effort))
-                       if not all(map(math.isfinite, arr))]
-                self.stop_on_fault(f'non-finite state at t={t!r} s ({"; ".join(bad)}) not '
-                                   'published')
-                return
-            out.joint_state(t_ns, position, velocity, effort)
+        schedule = self.publish_schedule
+        # (PublishSchedule.due's own test first: most steps publish no joint state)
+        if (force or t_ns >= schedule.next_ns or out.every_state
+                or self.config.publish_rate <= 0.0):
+            self._joint_state(t, t_ns, force, position, velocity)
         if self.diagnostics_period_ns:
             if force:               # start or reset: the diagnostics grid restarts too
                 self.next_diagnostics_ns = t_ns + self.diagnostics_period_ns
             elif t_ns >= self.next_diagnostics_ns:
                 self.next_diagnostics_ns = t_ns + self.diagnostics_period_ns
                 out.diagnostics(t_ns)
-        out.stepped(t_ns, force)
+        if type(out).stepped is not LoopOutput.stepped:     # (most outputs have none)
+            out.stepped(t_ns, force)
+
+    def _joint_state(self, t: float, t_ns: int, force: bool, position, velocity) -> None:
+        out = self.output
+        due = self.publish_schedule.due(t_ns, self.config.publish_rate, force)
+        if not (due or out.every_state):
+            return
+        w = self.world
+        if position is None:
+            position, velocity = w.joint_angles(), w.joint_velocities()
+        position = np.asarray(position, dtype=float).tolist()
+        velocity = np.asarray(velocity, dtype=float).tolist()
+        effort = np.asarray(w.applied_torques(), dtype=float).tolist()
+        if not all(map(math.isfinite, position + velocity + effort)):
+            bad = [f'{name} {arr}' for name, arr in
+                   (('position', position), ('velocity', velocity), ('effort', effort))
+                   if not all(map(math.isfinite, arr))]
+            self.stop_on_fault(f'non-finite state at t={t!r} s ({"; ".join(bad)}) not '
+                               'published')
+            return
+        out.joint_state(t_ns, position, velocity, effort)
 
     def _markers(self, t_ns: int, force: bool) -> None:
         if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
             return
         if not self.output.markers_wanted:
             return
-        msg = self.markers.build(t_ns, self.world.body_pose)
+        build = (self.markers.build_serialized if self.output.markers_serialized
+                 else self.markers.build)
+        msg = build(t_ns, self.world.body_pose)
         if msg is not None:     # a non-finite pose: the joint-state guard reports the fault
             self.output.markers(t_ns, msg)
 

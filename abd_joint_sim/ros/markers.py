@@ -35,6 +35,7 @@ not exist, and so each message replaces the previous one in RViz and Foxglove al
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
@@ -47,6 +48,10 @@ PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 
            (0.80, 0.25, 0.30, 1.0), (0.55, 0.40, 0.75, 1.0), (0.55, 0.35, 0.25, 1.0))
 FIXED_COLOUR = (0.55, 0.55, 0.55, 1.0)
 AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
+
+_STAMP = struct.Struct('<iI')      # builtin_interfaces/Time: int32 sec, uint32 nanosec
+_POSE = struct.Struct('<7d')       # geometry_msgs/Pose: position x y z, orientation x y z w
+_POINTS = struct.Struct('<6d')     # an arrow's two geometry_msgs/Point
 
 
 def nearest_rotation(A: np.ndarray) -> np.ndarray:
@@ -73,25 +78,28 @@ def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
 def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
     w, x, y, z is computed first, so no division by a small number)."""
-    R = np.asarray(R, dtype=float)
-    t = R[0, 0] + R[1, 1] + R[2, 2]
-    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    return _quaternion(np.asarray(R, dtype=float).tolist())
+
+
+def _quaternion(rows: list) -> tuple[float, float, float, float]:
+    """:func:`quaternion` of a rotation given as nested lists of plain floats (the same IEEE
+    arithmetic as numpy scalars, without their per-operation cost)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
+    t = r00 + r11 + r22
+    candidates = (t, r00, r11, r22)
+    k = max(range(4), key=candidates.__getitem__)      # the first largest, as np.argmax
     if k == 0:
         s = 2.0 * math.sqrt(1.0 + t)
-        w, x, y, z = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, \
-            (R[1, 0] - R[0, 1]) / s
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
     elif k == 1:
-        s = 2.0 * math.sqrt(max(1.0 + R[0, 0] - R[1, 1] - R[2, 2], 1e-300))
-        w, x, y, z = (R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, \
-            (R[0, 2] + R[2, 0]) / s
+        s = 2.0 * math.sqrt(max(1.0 + r00 - r11 - r22, 1e-300))
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
     elif k == 2:
-        s = 2.0 * math.sqrt(max(1.0 + R[1, 1] - R[0, 0] - R[2, 2], 1e-300))
-        w, x, y, z = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, \
-            (R[1, 2] + R[2, 1]) / s
+        s = 2.0 * math.sqrt(max(1.0 + r11 - r00 - r22, 1e-300))
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
     else:
-        s = 2.0 * math.sqrt(max(1.0 + R[2, 2] - R[0, 0] - R[1, 1], 1e-300))
-        w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, \
-            (R[1, 2] + R[2, 1]) / s, 0.25 * s
+        s = 2.0 * math.sqrt(max(1.0 + r22 - r00 - r11, 1e-300))
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
     return float(x), float(y), float(z), float(w)
@@ -168,6 +176,9 @@ class MarkerBuilder:
                 self.axes.append((j, joint.name, joint.parent, a, b))
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
+        self._packed: Optional[tuple] = None    # build_serialized's template and offsets
+        self._stacked: Optional[tuple] = None   # the parts' bodies, origins, arrows as arrays
+        self._packed_ok = False
 
     def _body_parts(self, body: Any, colour) -> list[_Part]:
         M = self.Marker
@@ -240,6 +251,78 @@ class MarkerBuilder:
         The same message object is refilled by every call (as sim_node does with its
         JointState): publish or serialise it before the next call.
         """
+        values = self._values(pose)
+        if values is None:
+            return None
+        poses, points = values
+        if self._msg is None:
+            self._msg = self._template()
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        markers = self._msg.markers
+        for m, (x, y, z, qx, qy, qz, qw) in zip(markers, poses):
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+            m.pose.position.x, m.pose.position.y, m.pose.position.z = x, y, z
+            o = m.pose.orientation
+            o.x, o.y, o.z, o.w = qx, qy, qz, qw
+        for m, xyz in zip(markers[len(self.parts):], points):
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+            for point, k in zip(m.points, (0, 3)):
+                point.x, point.y, point.z = xyz[k:k + 3]
+        return self._msg
+
+    def build_serialized(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[bytes]:
+        """:meth:`build` as serialized CDR bytes (what ``serialize_message`` gives for it,
+        trimmed as the bag stores it, padding zeroed: ``cdr.without_padding``), for
+        ``Publisher.publish(bytes)`` and ``BagWriter.write_serialized``; None if a pose is
+        not finite.
+
+        A MarkerArray of a scene has a fixed layout: only the stamps, poses and arrow points
+        change, so the array is serialised once and those fields are packed in place at the
+        offsets ``cdr.field_offsets`` finds (converting and serialising the whole message
+        costs far more than computing the poses). The first call checks the packed bytes
+        against ``serialize_message`` of :meth:`build`; should they differ, every call
+        serialises :meth:`build` instead."""
+        from rclpy.serialization import serialize_message
+        from abd_joint_sim.record import cdr
+        if self._packed is None:
+            msg = self.build(stamp_ns, pose)
+            if msg is None:
+                return None
+            offsets = cdr.field_offsets(msg)
+            n = len(self.parts)
+            self._packed = (
+                bytearray(cdr.without_padding(serialize_message(msg), msg)),
+                [offsets[('markers', i, 'header', 'stamp', 'sec')]
+                 for i in range(len(msg.markers))],
+                [offsets[('markers', i, 'pose', 'position', 'x')] for i in range(n)],
+                [offsets[('markers', n + i, 'points', 0, 'x')] for i in range(len(self.axes))])
+            expected = bytes(self._packed[0])
+            self._packed_ok = self._pack(stamp_ns, self._values(pose)) == expected
+            return expected
+        values = self._values(pose)
+        if values is None:
+            return None
+        if not self._packed_ok:
+            msg = self.build(stamp_ns, pose)
+            return cdr.without_padding(serialize_message(msg), msg)
+        return self._pack(stamp_ns, values)
+
+    def _pack(self, stamp_ns: int, values) -> bytes:
+        buf, stamps, pose_at, points_at = self._packed
+        poses, points = values
+        stamp = _STAMP.pack(*divmod(int(stamp_ns), 1_000_000_000))
+        for at in stamps:
+            buf[at:at + 8] = stamp
+        for at, v in zip(pose_at, poses):
+            _POSE.pack_into(buf, at, *v)
+        for at, v in zip(points_at, points):
+            _POINTS.pack_into(buf, at, *v)
+        return bytes(buf)
+
+    def _values(self, pose: Callable[[str], tuple]) -> Optional[tuple[list, list]]:
+        """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint
+        arrow]) of the current poses, plain floats; None if a pose is not finite. All parts
+        at once: position A t + p, orientation R R_v (module docstring)."""
         ps, As = [], []
         for name in self.body_names:
             p, A = pose(name)
@@ -249,31 +332,31 @@ class MarkerBuilder:
         A = np.asarray(As, dtype=float)
         if not (np.all(np.isfinite(P)) and np.all(np.isfinite(A))):
             return None
-        R = nearest_rotations(A)
-        index = self._index
-        if self._msg is None:
-            self._msg = self._template()
-        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-        markers = self._msg.markers
-        for m, part in zip(markers, self.parts):
-            k = index[part.body]
-            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
-            self._set_pose(m, A[k] @ part.t + P[k], R[k] @ part.R)
-        for m, (_j, _name, parent, a, b) in zip(markers[len(self.parts):], self.axes):
-            k = index[parent]
-            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
-            for point, x in zip(m.points, (A[k] @ a + P[k], A[k] @ b + P[k])):
-                point.x, point.y, point.z = float(x[0]), float(x[1]), float(x[2])
-        return self._msg
+        if self._stacked is None:
+            index = self._index
+            self._stacked = (
+                np.array([index[p.body] for p in self.parts], dtype=np.intp),
+                np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3, 1),
+                np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
+                np.array([index[parent] for _j, _n, parent, _a, _b in self.axes],
+                         dtype=np.intp),
+                np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
+                         dtype=float).reshape(-1, 2, 3).transpose(0, 2, 1))
+        k, t, Rv, ka, ab = self._stacked
+        poses = []
+        if len(k):
+            R = nearest_rotations(A)
+            position = (A[k] @ t)[:, :, 0] + P[k]
+            poses = [tuple(x) + _quaternion(r) for x, r in
+                     zip(position.tolist(), (R[k] @ Rv).tolist())]
+        points = []
+        if len(ka):
+            ends = A[ka] @ ab + P[ka][:, :, None]         # (K, 3, 2): both ends of each arrow
+            points = [tuple(e) for e in ends.transpose(0, 2, 1).reshape(-1, 6).tolist()]
+        return poses, points
 
     def _marker(self, ns: str, mid: int, kind: int):
         m = self.Marker()
         m.header.frame_id = self.frame_id
         m.ns, m.id, m.type, m.action = ns, int(mid), int(kind), self.Marker.ADD
         return m
-
-    @staticmethod
-    def _set_pose(m, position, R) -> None:
-        m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in position)
-        o = m.pose.orientation
-        o.x, o.y, o.z, o.w = quaternion(R)

@@ -56,6 +56,10 @@ def _qos(spec: TopicSpec) -> QoSProfile:
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
 BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
+# As fast as possible, commands wait for the end of the AFAP_BATCH_WALL round anyway, so the
+# wall clock is checked less often: fewer, longer compiled calls (the loop still ends a batch
+# at every boundary that needs one).
+AFAP_BATCH_STEPS = 64
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 
@@ -95,8 +99,14 @@ class SimNode(Node):
         self.joint_state_pub = self._publisher(JointState, TOPIC_JOINT_STATES)
         self.clock_pub = self._publisher(Clock, TOPIC_CLOCK)
         self.clock_encoder = convert.ClockEncoder()      # /clock as checked CDR bytes
-        zeros = [0.0] * len(self.joint_names)
-        self._joint_state = convert.joint_state_msg(0, self.joint_names, zeros, zeros, zeros)
+        # What clock_pub.publish(bytes) calls, without its per-call type dispatch and handle
+        # guard (the publisher lives as long as the node; only this node's executor thread
+        # publishes): /clock goes out after every step.
+        self.clock_publish_raw = self.clock_pub.handle.publish_raw
+        # /joint_states as checked CDR bytes too (fixed names and frame_id: read-only).
+        self.joint_state_encoder = convert.JointStateEncoder(self.joint_names,
+                                                             self.config.frame_id)
+        self._joint_states_topic = self._abs(TOPIC_JOINT_STATES)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
         # the run is recorded.
@@ -279,7 +289,7 @@ class SimNode(Node):
             deadline = time.monotonic() + AFAP_BATCH_WALL
             while (not self.paused and time.monotonic() < deadline
                    and not _STOP_SIGNAL['received'] and self.context.ok()):
-                if not self._advance(BATCH_STEPS):
+                if not self._advance(AFAP_BATCH_STEPS):
                     break
             return
         now = time.monotonic()
@@ -540,21 +550,25 @@ class _NodeOutput(LoopOutput):
         # (convert.ClockEncoder), serialised once instead of once per use.
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
-        node.clock_pub.publish(clock)
+        node.clock_publish_raw(clock)
         if node.recorder is not None:
             node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
+        # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
         node = self.node
-        msg = node._joint_state
-        convert.fill_joint_state(msg, t_ns, position, velocity, effort, node.config.frame_id)
-        node.joint_state_pub.publish(msg)
-        node._record(node._abs(TOPIC_JOINT_STATES), t_ns, msg)
+        data = node.joint_state_encoder.encode(t_ns, position, velocity, effort)
+        node.joint_state_pub.publish(data)
+        if node.recorder is not None:
+            node._record(node._joint_states_topic, t_ns, data, serialized=True)
 
-    def markers(self, t_ns: int, msg) -> None:
+    markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
+
+    def markers(self, t_ns: int, data) -> None:
         node = self.node
-        node.marker_pub.publish(msg)
-        node._record(node._abs(TOPIC_MARKERS), t_ns, msg)
+        node.marker_pub.publish(data)
+        if node.recorder is not None:
+            node._record(node._abs(TOPIC_MARKERS), t_ns, data, serialized=True)
 
     def applied(self, applied) -> None:
         if self.node.recorder is not None:

@@ -177,6 +177,8 @@ class BagRecorder(LoopOutput):
         sim.loop.diagnostics_period_ns = DIAGNOSTICS_PERIOD_NS
         sim.loop.next_diagnostics_ns = DIAGNOSTICS_PERIOD_NS
         self._joint_states = resolve_root(TOPIC_JOINT_STATES)
+        self._clock = convert.ClockEncoder()
+        self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
         self._markers = resolve_root(TOPIC_MARKERS)
         self._wall0 = time.monotonic()
         self.counts: dict[str, int] = {}
@@ -185,17 +187,24 @@ class BagRecorder(LoopOutput):
         self.writer.write(topic, t_ns, msg)
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
-    # -- LoopOutput -----------------------------------------------------------------------
-    def clock(self, t_ns: int) -> None:
-        self._write(TOPIC_CLOCK, t_ns, convert.clock_msg(t_ns))
+    def _write_serialized(self, topic: str, t_ns: int, data: bytes) -> None:
+        self.writer.write_serialized(topic, t_ns, data)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
 
-    def markers(self, t_ns: int, msg: Any) -> None:
-        self._write(self._markers, t_ns, msg)
+    # -- LoopOutput -----------------------------------------------------------------------
+    # /clock, the joint states and the markers as the node records them: the same checked
+    # CDR bytes (convert.ClockEncoder, JointStateEncoder, MarkerBuilder.build_serialized).
+    markers_serialized = True
+
+    def clock(self, t_ns: int) -> None:
+        self._write_serialized(TOPIC_CLOCK, t_ns, self._clock.encode(t_ns))
+
+    def markers(self, t_ns: int, data: bytes) -> None:
+        self._write_serialized(self._markers, t_ns, data)
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
-        self._write(self._joint_states, t_ns, convert.joint_state_msg(
-            t_ns, self.sim.loop.joint_names, position, velocity, effort,
-            self.sim.config.frame_id))
+        self._write_serialized(self._joint_states, t_ns,
+                               self._joint_state.encode(t_ns, position, velocity, effort))
 
     def applied(self, applied: Applied) -> None:
         record_applied(self._write, resolve_root, applied)
