@@ -57,66 +57,145 @@ def axis_at(q, parent, child, x_bar, j, e, es):
 
 
 @njit(cache=True, error_model='numpy')
-def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
-    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
-    written to `skipped` (parent side of every joint first, then child side); returns their
-    count."""
-    torque_joints, parent, child = m.torque_joints, m.joint_parent, m.joint_child
-    T = torque_joints.size
-    n_skipped = 0
-    e = np.empty((T, 3))
-    es = np.empty((2, 3))
-    for k in range(T):
+def any_active(m, torque_value, torque_enabled):
+    """Whether some joint's torque is enabled and nonzero (else F = 0)."""
+    for k in range(m.torque_joints.size):
         if torque_enabled[k] and torque_value[k] != 0.0:
-            axis_at(q, parent, child, m.joint_x_bar, torque_joints[k], e[k], es)
-    A = np.empty((3, 3))
-    inv = np.empty((3, 3))
-    for side in range(2):
+            return True
+    return False
+
+
+@njit(cache=True, error_model='numpy')
+def _work(m):
+    """One allocation for a call: (ê per torque joint (T,3), es (2,3), A (3,3), A⁻¹ (3,3), F (9,))."""
+    T = m.torque_joints.size
+    buf = np.empty(3 * T + 33)
+    return (buf[0:3 * T].reshape((T, 3)), buf[3 * T:3 * T + 6].reshape((2, 3)),
+            buf[3 * T + 6:3 * T + 15].reshape((3, 3)), buf[3 * T + 15:3 * T + 24].reshape((3, 3)),
+            buf[3 * T + 24:3 * T + 33])
+
+
+@njit(cache=True, error_model='numpy')
+def _inverse_if_regular(q, b, A, inv):
+    """inv = A_b⁻¹; False (no torque on the body) if |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
+    for r in range(3):
+        for c in range(3):
+            A[r, c] = q[b, 3 + 3 * r + c]
+    det = abs(det_inv3(A, inv))
+    scale = 1.0
+    for r in range(3):
+        scale *= math.sqrt(A[r, 0] * A[r, 0] + A[r, 1] * A[r, 1] + A[r, 2] * A[r, 2])
+    return det > SINGULAR_RATIO * scale
+
+
+@njit(cache=True, error_model='numpy')
+def _body_force(q, m, t, e, torque_value, torque_enabled, A, inv, f):
+    """f (9,) = F_b[3:12] of torque body t (b = m.torque_bodies[t]): Σ over its joints k of
+    (τ_k/2) [±ê_k]× A_b^{−T}, summed in the order of m.torque_body_entries (A_b⁻¹ computed
+    once per body). Returns -1 if no torque acts on it, 0 if the singular guard skips it, 1."""
+    b = m.torque_bodies[t]
+    entries = m.torque_body_entries
+    active = False
+    for i in range(m.torque_body_ptr[t], m.torque_body_ptr[t + 1]):
+        k = entries[i] // 2
+        if torque_enabled[k] and torque_value[k] != 0.0:
+            active = True
+    if not active:
+        return -1
+    if not _inverse_if_regular(q, b, A, inv):
+        return 0
+    for r in range(9):
+        f[r] = 0.0
+    for i in range(m.torque_body_ptr[t], m.torque_body_ptr[t + 1]):
+        k, side = entries[i] // 2, entries[i] % 2
+        tau = torque_value[k] if torque_enabled[k] else 0.0
+        if tau == 0.0:
+            continue
         sign = -1.0 if side == 0 else 1.0            # ê_i = −ê_j
-        for k in range(T):
+        ex, ey, ez = sign * e[k, 0], sign * e[k, 1], sign * e[k, 2]
+        # (τ/2) [ê]× A^{−T}: column c of A^{−T} is row c of A^{−1}
+        for c in range(3):
+            w0, w1, w2 = inv[c, 0], inv[c, 1], inv[c, 2]
+            f[c] += 0.5 * tau * (ey * w2 - ez * w1)
+            f[3 + c] += 0.5 * tau * (ez * w0 - ex * w2)
+            f[6 + c] += 0.5 * tau * (ex * w1 - ey * w0)
+    return 1
+
+
+@njit(cache=True, error_model='numpy')
+def _axes(q, m, torque_value, torque_enabled, e, es):
+    torque_joints, parent, child, x_bar = m.torque_joints, m.joint_parent, m.joint_child, m.joint_x_bar
+    for k in range(torque_joints.size):
+        if torque_enabled[k] and torque_value[k] != 0.0:
+            axis_at(q, parent, child, x_bar, torque_joints[k], e[k], es)
+
+
+@njit(cache=True, error_model='numpy')
+def _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv):
+    """The bodies the singular guard skips, once per (side, joint) in that order (parent side
+    of every joint first); returns their count. Runs only when some body was skipped."""
+    torque_joints, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    n_skipped = 0
+    for side in range(2):
+        for k in range(torque_joints.size):
             tau = torque_value[k] if torque_enabled[k] else 0.0
             if tau == 0.0:
                 continue
             j = torque_joints[k]
             b = parent[j] if side == 0 else child[j]
-            for r in range(3):
-                for c in range(3):
-                    A[r, c] = q[b, 3 + 3 * r + c]
-            det = abs(det_inv3(A, inv))
-            scale = 1.0
-            for r in range(3):
-                scale *= math.sqrt(A[r, 0] * A[r, 0] + A[r, 1] * A[r, 1] + A[r, 2] * A[r, 2])
-            if not det > SINGULAR_RATIO * scale:
+            if not _inverse_if_regular(q, b, A, inv):
                 skipped[n_skipped] = b
                 n_skipped += 1
-                continue
-            ex, ey, ez = sign * e[k, 0], sign * e[k, 1], sign * e[k, 2]
-            # (τ/2) [ê]× A^{−T}: column c of A^{−T} is row c of A^{−1}
-            for c in range(3):
-                w0, w1, w2 = inv[c, 0], inv[c, 1], inv[c, 2]
-                F[b, 3 + c] += 0.5 * tau * (ey * w2 - ez * w1)
-                F[b, 6 + c] += 0.5 * tau * (ez * w0 - ex * w2)
-                F[b, 9 + c] += 0.5 * tau * (ex * w1 - ey * w0)
     return n_skipped
 
 
 @njit(cache=True, error_model='numpy')
-def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
-    """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies."""
-    any_on = False
-    for k in range(m.torque_joints.size):
-        if torque_enabled[k] and torque_value[k] != 0.0:
-            any_on = True
-    if not any_on:
+def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
+    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
+    written to `skipped` (parent side of every joint first, then child side); returns their
+    count."""
+    if not any_active(m, torque_value, torque_enabled):
         return 0
-    B = q.shape[0]
-    F = np.zeros((B, 12))
-    n_skipped = generalized_force(q, m, torque_value, torque_enabled, F, skipped)
-    Minv = m.body_Minv
-    for b in range(B):
-        for r in range(12):
-            s = 0.0
-            for c in range(12):
-                s += Minv[b, r, c] * F[b, c]
-            acc[b, r] += s
-    return n_skipped
+    e, es, A, inv, f = _work(m)
+    _axes(q, m, torque_value, torque_enabled, e, es)
+    any_skipped = False
+    for t in range(m.torque_bodies.size):
+        status = _body_force(q, m, t, e, torque_value, torque_enabled, A, inv, f)
+        if status == 0:
+            any_skipped = True
+        elif status == 1:
+            b = m.torque_bodies[t]
+            for r in range(9):
+                F[b, 3 + r] += f[r]
+    if not any_skipped:
+        return 0
+    return _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv)
+
+
+@njit(cache=True, error_model='numpy')
+def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
+    """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
+    only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
+    (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product."""
+    if not any_active(m, torque_value, torque_enabled):
+        return 0
+    e, es, A, inv, f = _work(m)
+    _axes(q, m, torque_value, torque_enabled, e, es)
+    Minv_bar = m.body_Minv_bar
+    any_skipped = False
+    for t in range(m.torque_bodies.size):
+        status = _body_force(q, m, t, e, torque_value, torque_enabled, A, inv, f)
+        if status == 0:
+            any_skipped = True
+        if status != 1:
+            continue
+        b = m.torque_bodies[t]
+        for k in range(3):
+            Mi = Minv_bar[b, k]
+            f0, f1, f2 = f[3 * k], f[3 * k + 1], f[3 * k + 2]
+            acc[b, k] += Mi[0, 1] * f0 + Mi[0, 2] * f1 + Mi[0, 3] * f2
+            for i in range(3):
+                acc[b, 3 + 3 * k + i] += Mi[1 + i, 1] * f0 + Mi[1 + i, 2] * f1 + Mi[1 + i, 3] * f2
+    if not any_skipped:
+        return 0
+    return _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv)
