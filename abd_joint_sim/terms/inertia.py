@@ -53,16 +53,33 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    accumulate_gradient(q, m, ctx, grad)
-    Mbar, s = m.body_Mbar, ctx.scale
+    q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
     for b in m.free_bodies:
         Mb = Mbar[b]
+        _body_gradient(q, q_tilde, b, Mb, s, grad)
+        s00, s01, s02, s03 = s * Mb[0, 0], s * Mb[0, 1], s * Mb[0, 2], s * Mb[0, 3]
+        s10, s11, s12, s13 = s * Mb[1, 0], s * Mb[1, 1], s * Mb[1, 2], s * Mb[1, 3]
+        s20, s21, s22, s23 = s * Mb[2, 0], s * Mb[2, 1], s * Mb[2, 2], s * Mb[2, 3]
+        s30, s31, s32, s33 = s * Mb[3, 0], s * Mb[3, 1], s * Mb[3, 2], s * Mb[3, 3]
+        D = diag[b]
         for k in range(3):
-            for i in range(4):
-                r = k if i == 0 else 2 + 3 * k + i
-                for l in range(4):
-                    c = k if l == 0 else 2 + 3 * k + l
-                    diag[b, r, c] += s * Mb[i, l]
+            p, a0, a1, a2 = k, 3 + 3 * k, 4 + 3 * k, 5 + 3 * k
+            D[p, p] += s00
+            D[p, a0] += s01
+            D[p, a1] += s02
+            D[p, a2] += s03
+            D[a0, p] += s10
+            D[a0, a0] += s11
+            D[a0, a1] += s12
+            D[a0, a2] += s13
+            D[a1, p] += s20
+            D[a1, a0] += s21
+            D[a1, a1] += s22
+            D[a1, a2] += s23
+            D[a2, p] += s30
+            D[a2, a0] += s31
+            D[a2, a1] += s32
+            D[a2, a2] += s33
 
 
 @njit(cache=True, error_model='numpy')
@@ -70,10 +87,15 @@ def accumulate_gradient(q, m, ctx, grad):
     """∇E only (Newton with a reused factorisation needs no Hessian)."""
     q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
     for b in m.free_bodies:
-        Mb = Mbar[b]
-        for k in range(3):
-            d0, d1, d2, d3, m0, m1, m2, m3 = _row_products(q, q_tilde, b, k, Mb)
-            grad[b, k] += s * m0
-            grad[b, 3 + 3 * k] += s * m1
-            grad[b, 4 + 3 * k] += s * m2
-            grad[b, 5 + 3 * k] += s * m3
+        _body_gradient(q, q_tilde, b, Mbar[b], s, grad)
+
+
+@njit(cache=True, error_model='numpy')
+def _body_gradient(q, q_tilde, b, Mb, s, grad):
+    """grad[b] += s M (q − q̃)_b, row block by row block."""
+    for k in range(3):
+        d0, d1, d2, d3, m0, m1, m2, m3 = _row_products(q, q_tilde, b, k, Mb)
+        grad[b, k] += s * m0
+        grad[b, 3 + 3 * k] += s * m1
+        grad[b, 4 + 3 * k] += s * m2
+        grad[b, 5 + 3 * k] += s * m3

@@ -19,7 +19,6 @@ import math
 import numpy as np
 from numba import njit
 
-from ..smallmat import det_inv3
 
 SINGULAR_RATIO = 1e-6
 AXIS_EPS = 1e-12
@@ -59,82 +58,88 @@ def axis_at(q, parent, child, x_bar, j, e, es):
 @njit(cache=True, error_model='numpy')
 def any_active(m, torque_value, torque_enabled):
     """Whether some joint's torque is enabled and nonzero (else F = 0)."""
-    for k in range(m.torque_joints.size):
+    return _any_active(torque_value, torque_enabled)
+
+
+@njit(cache=True, error_model='numpy')
+def _any_active(torque_value, torque_enabled):
+    for k in range(torque_value.size):
         if torque_enabled[k] and torque_value[k] != 0.0:
             return True
     return False
 
 
 @njit(cache=True, error_model='numpy')
-def _work(m):
-    """One allocation for a call: (ê per torque joint (T,3), es (2,3), A (3,3), A⁻¹ (3,3), F (9,))."""
-    T = m.torque_joints.size
-    buf = np.empty(3 * T + 33)
-    return (buf[0:3 * T].reshape((T, 3)), buf[3 * T:3 * T + 6].reshape((2, 3)),
-            buf[3 * T + 6:3 * T + 15].reshape((3, 3)), buf[3 * T + 15:3 * T + 24].reshape((3, 3)),
-            buf[3 * T + 24:3 * T + 33])
+def _inverse_if_regular(q, b):
+    """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.det_inv3's adjugate / det, on scalars
+    (it runs per body); regular is False (no torque on the body) if
+    |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
+    a00, a01, a02 = q[b, 3], q[b, 4], q[b, 5]
+    a10, a11, a12 = q[b, 6], q[b, 7], q[b, 8]
+    a20, a21, a22 = q[b, 9], q[b, 10], q[b, 11]
+    c00 = a11 * a22 - a12 * a21
+    det = (a00 * c00 - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20))
+    scale = (math.sqrt(a00 * a00 + a01 * a01 + a02 * a02) * math.sqrt(a10 * a10 + a11 * a11 + a12 * a12)
+             * math.sqrt(a20 * a20 + a21 * a21 + a22 * a22))
+    return (abs(det) > SINGULAR_RATIO * scale,
+            c00 / det, (a02 * a21 - a01 * a22) / det, (a01 * a12 - a02 * a11) / det,
+            (a12 * a20 - a10 * a22) / det, (a00 * a22 - a02 * a20) / det, (a02 * a10 - a00 * a12) / det,
+            (a10 * a21 - a11 * a20) / det, (a01 * a20 - a00 * a21) / det, (a00 * a11 - a01 * a10) / det)
 
 
 @njit(cache=True, error_model='numpy')
-def _inverse_if_regular(q, b, A, inv):
-    """inv = A_b⁻¹; False (no torque on the body) if |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
-    for r in range(3):
-        for c in range(3):
-            A[r, c] = q[b, 3 + 3 * r + c]
-    det = abs(det_inv3(A, inv))
-    scale = 1.0
-    for r in range(3):
-        scale *= math.sqrt(A[r, 0] * A[r, 0] + A[r, 1] * A[r, 1] + A[r, 2] * A[r, 2])
-    return det > SINGULAR_RATIO * scale
-
-
-@njit(cache=True, error_model='numpy')
-def _body_force(q, m, t, e, torque_value, torque_enabled, A, inv, f):
-    """f (9,) = F_b[3:12] of torque body t (b = m.torque_bodies[t]): Σ over its joints k of
-    (τ_k/2) [±ê_k]× A_b^{−T}, summed in the order of m.torque_body_entries (A_b⁻¹ computed
-    once per body). Returns -1 if no torque acts on it, 0 if the singular guard skips it, 1."""
-    b = m.torque_bodies[t]
-    entries = m.torque_body_entries
+def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
+    """(status, F_b[3:12] as 9 scalars): Σ over the torque joints k of body b (entries[ptr0:ptr1]
+    of m.torque_body_entries, 2 k + side) of (τ_k/2) [±ê_k]× A_b^{−T}, in that order (A_b⁻¹
+    once per body). status -1: no torque acts on b, 0: the singular guard skips it, 1: F_b."""
+    f0 = f1 = f2 = f3 = f4 = f5 = f6 = f7 = f8 = 0.0
     active = False
-    for i in range(m.torque_body_ptr[t], m.torque_body_ptr[t + 1]):
-        k = entries[i] // 2
+    for i in range(ptr0, ptr1):
+        k = entries[i] >> 1
         if torque_enabled[k] and torque_value[k] != 0.0:
             active = True
     if not active:
-        return -1
-    if not _inverse_if_regular(q, b, A, inv):
-        return 0
-    for r in range(9):
-        f[r] = 0.0
-    for i in range(m.torque_body_ptr[t], m.torque_body_ptr[t + 1]):
-        k, side = entries[i] // 2, entries[i] % 2
+        return -1, f0, f1, f2, f3, f4, f5, f6, f7, f8
+    regular, i00, i01, i02, i10, i11, i12, i20, i21, i22 = _inverse_if_regular(q, b)
+    if not regular:
+        return 0, f0, f1, f2, f3, f4, f5, f6, f7, f8
+    for i in range(ptr0, ptr1):
+        k, side = entries[i] >> 1, entries[i] & 1
         tau = torque_value[k] if torque_enabled[k] else 0.0
         if tau == 0.0:
             continue
         sign = -1.0 if side == 0 else 1.0            # ê_i = −ê_j
         ex, ey, ez = sign * e[k, 0], sign * e[k, 1], sign * e[k, 2]
-        # (τ/2) [ê]× A^{−T}: column c of A^{−T} is row c of A^{−1}
-        for c in range(3):
-            w0, w1, w2 = inv[c, 0], inv[c, 1], inv[c, 2]
-            f[c] += 0.5 * tau * (ey * w2 - ez * w1)
-            f[3 + c] += 0.5 * tau * (ez * w0 - ex * w2)
-            f[6 + c] += 0.5 * tau * (ex * w1 - ey * w0)
-    return 1
+        # (τ/2) [ê]× A^{−T}: column c of A^{−T} is row c of A^{−1}; f[3r + c] = F_b[3 + 3r + c]
+        t = 0.5 * tau
+        f0 += t * (ey * i02 - ez * i01)
+        f3 += t * (ez * i00 - ex * i02)
+        f6 += t * (ex * i01 - ey * i00)
+        f1 += t * (ey * i12 - ez * i11)
+        f4 += t * (ez * i10 - ex * i12)
+        f7 += t * (ex * i11 - ey * i10)
+        f2 += t * (ey * i22 - ez * i21)
+        f5 += t * (ez * i20 - ex * i22)
+        f8 += t * (ex * i21 - ey * i20)
+    return 1, f0, f1, f2, f3, f4, f5, f6, f7, f8
 
 
 @njit(cache=True, error_model='numpy')
-def _axes(q, m, torque_value, torque_enabled, e, es):
-    torque_joints, parent, child, x_bar = m.torque_joints, m.joint_parent, m.joint_child, m.joint_x_bar
-    for k in range(torque_joints.size):
+def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled):
+    """ê (T,3) of the active torque joints (rows of the others unset; one allocation)."""
+    T = torque_joints.size
+    e = np.empty((T + 2, 3))
+    es = e[T:]
+    for k in range(T):
         if torque_enabled[k] and torque_value[k] != 0.0:
             axis_at(q, parent, child, x_bar, torque_joints[k], e[k], es)
+    return e
 
 
 @njit(cache=True, error_model='numpy')
-def _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv):
+def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled, skipped):
     """The bodies the singular guard skips, once per (side, joint) in that order (parent side
     of every joint first); returns their count. Runs only when some body was skipped."""
-    torque_joints, parent, child = m.torque_joints, m.joint_parent, m.joint_child
     n_skipped = 0
     for side in range(2):
         for k in range(torque_joints.size):
@@ -143,7 +148,7 @@ def _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv):
                 continue
             j = torque_joints[k]
             b = parent[j] if side == 0 else child[j]
-            if not _inverse_if_regular(q, b, A, inv):
+            if not _inverse_if_regular(q, b)[0]:
                 skipped[n_skipped] = b
                 n_skipped += 1
     return n_skipped
@@ -154,22 +159,30 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
     """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
     written to `skipped` (parent side of every joint first, then child side); returns their
     count."""
-    if not any_active(m, torque_value, torque_enabled):
+    if not _any_active(torque_value, torque_enabled):
         return 0
-    e, es, A, inv, f = _work(m)
-    _axes(q, m, torque_value, torque_enabled, e, es)
+    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
+    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
     any_skipped = False
-    for t in range(m.torque_bodies.size):
-        status = _body_force(q, m, t, e, torque_value, torque_enabled, A, inv, f)
-        if status == 0:
+    for t in range(bodies.size):
+        b = bodies[t]
+        f = _body_force(q, b, ptr[t], ptr[t + 1], entries, e, torque_value, torque_enabled)
+        if f[0] == 0:
             any_skipped = True
-        elif status == 1:
-            b = m.torque_bodies[t]
-            for r in range(9):
-                F[b, 3 + r] += f[r]
+        elif f[0] == 1:
+            F[b, 3] += f[1]
+            F[b, 4] += f[2]
+            F[b, 5] += f[3]
+            F[b, 6] += f[4]
+            F[b, 7] += f[5]
+            F[b, 8] += f[6]
+            F[b, 9] += f[7]
+            F[b, 10] += f[8]
+            F[b, 11] += f[9]
     if not any_skipped:
         return 0
-    return _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv)
+    return _list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
 
 
 @njit(cache=True, error_model='numpy')
@@ -177,25 +190,26 @@ def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
     """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
     only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
     (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product."""
-    if not any_active(m, torque_value, torque_enabled):
+    if not _any_active(torque_value, torque_enabled):
         return 0
-    e, es, A, inv, f = _work(m)
-    _axes(q, m, torque_value, torque_enabled, e, es)
-    Minv_bar = m.body_Minv_bar
+    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
+    bodies, ptr, entries, Minv_bar = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries, m.body_Minv_bar
     any_skipped = False
-    for t in range(m.torque_bodies.size):
-        status = _body_force(q, m, t, e, torque_value, torque_enabled, A, inv, f)
+    for t in range(bodies.size):
+        b = bodies[t]
+        status, f0, f1, f2, f3, f4, f5, f6, f7, f8 = _body_force(q, b, ptr[t], ptr[t + 1], entries, e,
+                                                                 torque_value, torque_enabled)
         if status == 0:
             any_skipped = True
         if status != 1:
             continue
-        b = m.torque_bodies[t]
         for k in range(3):
             Mi = Minv_bar[b, k]
-            f0, f1, f2 = f[3 * k], f[3 * k + 1], f[3 * k + 2]
-            acc[b, k] += Mi[0, 1] * f0 + Mi[0, 2] * f1 + Mi[0, 3] * f2
+            g0, g1, g2 = (f0, f1, f2) if k == 0 else ((f3, f4, f5) if k == 1 else (f6, f7, f8))
+            acc[b, k] += Mi[0, 1] * g0 + Mi[0, 2] * g1 + Mi[0, 3] * g2
             for i in range(3):
-                acc[b, 3 + 3 * k + i] += Mi[1 + i, 1] * f0 + Mi[1 + i, 2] * f1 + Mi[1 + i, 3] * f2
+                acc[b, 3 + 3 * k + i] += Mi[1 + i, 1] * g0 + Mi[1 + i, 2] * g1 + Mi[1 + i, 3] * g2
     if not any_skipped:
         return 0
-    return _list_skipped(q, m, torque_value, torque_enabled, skipped, A, inv)
+    return _list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
