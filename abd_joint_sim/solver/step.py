@@ -45,7 +45,7 @@ def predicted_rotation(m, q, q_tilde):
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
     for j in range(parent.size):
-        x = abs(angles.theta_and_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[1])
+        x = abs(angles.cos_sin_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[2])
         if x != x:
             out = np.nan
         elif out == out:
