@@ -77,7 +77,8 @@ def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
     rotation = 0.0
     finite = True
     for j in range(parent.size):
-        th, rate = angles.theta_and_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
+        c, s, rate = angles.cos_sin_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
+        th = math.atan2(s, c)
         rel = angles.unwrap(th, angle_start[j])
         new_angles[0, j] = rel + init_angle[j]
         new_angles[1, j] = rate

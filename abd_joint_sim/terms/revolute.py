@@ -36,7 +36,7 @@ def joint_separation(q, m, j):
     return _separation_norm(q, m.joint_parent[j], m.joint_child[j], m.joint_x_bar, j)
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', inline='always')
 def _separation_norm(q, i_body, j_body, x_bar, j):
     """max_a |x_i^a − x_j^a| of joint j (NaN wins); `separation`'s sums without its work
     array (the post-step check runs this on every joint). [m]"""

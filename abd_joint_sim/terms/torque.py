@@ -30,7 +30,7 @@ def axis(q, m, j, e):
     axis_at(q, m.joint_parent, m.joint_child, m.joint_x_bar, j, e, np.empty((2, 3)))
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', inline='always')
 def axis_at(q, parent, child, x_bar, j, e, es):
     """axis() on the model's arrays, es (2,3) a work array (it runs once per joint)."""
     usable = 0
