@@ -5,9 +5,9 @@ docs/speed.md.
 
     python bench/step_profile.py [--links 1 10 100] [--no-kuka]
 
-Columns are µs of CPU time per call, the fastest of 5 rounds. First table, Newton's parts: `solve` is assemble + solve minus
-assemble (the solve factors the assembled blocks in place); `step` is one whole compiled step
-(kernel `step.step`) called from Python. Second table, the step outside Newton (sections 1, 2
+Columns are µs of CPU time per call, the fastest of 5 rounds. First table, Newton's parts:
+`solve` is assemble + solve minus assemble (the solve factors the assembled blocks in place);
+`step` is one whole compiled step (kernel `step.step`) called from Python. Second table, the step outside Newton (sections 1, 2
 and 4 of solver/step.py): `forces` (gravity, torque axes, A⁻¹, M⁻¹F), `predict` (q̃),
 `pred_rot` (the predicted rotation), `velocity`, `angles` (θ, θ̇, unwrap), `separations`,
 `store` (q and warm start into the output), `finite` (one all_finite pass); `newton` the
@@ -196,7 +196,8 @@ def main(argv=None):
     print('|' + '---|' * (len(OUTSIDE) + 1))
     for links in scenes:
         r = outside(world(links), max(20000 // max(links, 7), 5))
-        print(f'| {label.get(links, links)} | ' + ' | '.join(f'{r[p]:.2f}' for p in OUTSIDE) + ' |', flush=True)
+        cells = ' | '.join(f'{r[p]:.2f}' for p in OUTSIDE)
+        print(f'| {label.get(links, links)} | {cells} |', flush=True)
 
 
 if __name__ == '__main__':

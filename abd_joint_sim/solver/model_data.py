@@ -71,11 +71,11 @@ FIELDS = (
     ('free_mass', '[kg] Σ m over free bodies (Newton energy tolerance)'),
     ('constant_diag', '(B,12,12) the constant Hessian blocks (UID 18) Newton starts from'),
     ('constant_pair', '(J,12,12) the same, off the diagonal'),
-    ('body_Mbar', '(B,4,4) M̄ of M = M̄ ⊗ I3 (docs/physics.md "Affine body"): the 4x4 block of row k, [p_k, A_k0, A_k1, A_k2]'),
-    ('body_Minv_bar', '(B,3,4,4) the same blocks of M⁻¹, one per row k (the inverse is not bit-exactly alike in each)'),
+    ('body_Mbar', '(B,4,4) M̄ of M = M̄ ⊗ I3: the block of row k, [p_k, A_k0, A_k1, A_k2]'),
+    ('body_Minv_bar', '(B,3,4,4) M⁻¹\'s blocks, one per row k (not rounded alike)'),
     ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
     ('torque_body_ptr', '(Tb+1,) CSR pointer into torque_body_entries per torque body'),
-    ('torque_body_entries', '(E,) 2 k + side of each torque joint k on that body, parent sides first, k ascending'),
+    ('torque_body_entries', '(E,) 2 k + side per torque joint k on the body: parent sides, then child'),
 )
 
 #: q indices of the row-k block [p_k, A_k0, A_k1, A_k2] of a body (q = [p, vec A], vec row-major)
@@ -200,7 +200,8 @@ def build(model, force_dense: bool = False) -> ModelData:
         # as numpy sums it (np.sum's pairwise order): the tolerance must not depend on layout
         free_mass=float(np.sum(m.body_mass[free])),
     )
-    values['body_Mbar'], values['body_Minv_bar'] = (_arr(x, np.float64) for x in mass_blocks(m.body_M, m.body_Minv))
+    values['body_Mbar'], values['body_Minv_bar'] = (_arr(x, np.float64)
+                                                    for x in mass_blocks(m.body_M, m.body_Minv))
     values['torque_bodies'], values['torque_body_ptr'], values['torque_body_entries'] = (
         _arr(x, np.int64) for x in torque_incidence(m.torque_joints, m.joint_parent, m.joint_child))
     values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)

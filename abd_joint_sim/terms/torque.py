@@ -194,7 +194,8 @@ def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
     e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
-    bodies, ptr, entries, Minv_bar = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries, m.body_Minv_bar
+    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
+    Minv_bar = m.body_Minv_bar
     any_skipped = False
     for t in range(bodies.size):
         b = bodies[t]
