@@ -159,7 +159,15 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess,
 @njit(cache=True, error_model='numpy')
 def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
     """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]
-    (pass a zero array as d_minus for d = d_plus). Computed without forming ∇θ:
+    (pass a zero array as d_minus for d = d_plus): θ = atan2(s, c) of cos_sin_slope_at."""
+    c, s, slope = cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j)
+    return math.atan2(s, c), slope
+
+
+@njit(cache=True, error_model='numpy', inline='always')
+def cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
+    """(c, s, ∇θ(q)·d) of joint j along d = d_plus − d_minus, without θ itself (no atan2: the
+    predicted rotation needs the slope only). Computed without forming ∇θ:
     dθ = (c ds − s dc)/(c² + s²), with dc, ds the derivatives of c, s along d, e.g.
     dc = ½(Δn_i·n_j + n_i·Δn_j + Δb_i·b_j + b_i·Δb_j), Δn_k = ΔA_k n̄_k."""
     i_body, j_body = parent[j], child[j]
@@ -189,7 +197,7 @@ def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
         ds += dbi * nj + bi * dnj - dni * bj - ni * dbj
     cs = 0.5 * (ninj + bibj)
     sn = 0.5 * (binj - nibj)
-    return math.atan2(sn, cs), 0.5 * (cs * ds - sn * dc) / (cs * cs + sn * sn)
+    return cs, sn, 0.5 * (cs * ds - sn * dc) / (cs * cs + sn * sn)
 
 
 @njit(cache=True, error_model='numpy')

@@ -1,15 +1,23 @@
 """Where the µs of a step go: each part of the compiled step timed on its own, called in a
-loop from compiled code (no Python between calls), on chains of 1/10/100/1000 links
-(dt 1 ms, torque 1 N m on every joint, state after 3 steps). For docs/speed.md.
+loop from compiled code (no Python between calls), on chains of 1/10/100/1000 links and the
+KUKA iiwa URDF with gravity (dt 1 ms, torque 1 N m on every joint, state after 3 steps). For
+docs/speed.md.
 
-    python bench/step_profile.py [--links 1 10 100]
+    python bench/step_profile.py [--links 1 10 100] [--no-kuka]
 
-Columns are µs per call; `solve` is assemble + solve minus assemble (the solve factors the
-assembled blocks in place); `step` is one whole compiled step (kernel `step.step`).
+Columns are µs of CPU time per call, the fastest of 5 rounds. First table, Newton's parts:
+`solve` is assemble + solve minus assemble (the solve factors the assembled blocks in place);
+`step` is one whole compiled step (kernel `step.step`) called from Python. Second table, the step outside Newton (sections 1, 2
+and 4 of solver/step.py): `forces` (gravity, torque axes, A⁻¹, M⁻¹F), `predict` (q̃),
+`pred_rot` (the predicted rotation), `velocity`, `angles` (θ, θ̇, unwrap), `separations`,
+`store` (q and warm start into the output), `finite` (one all_finite pass); `newton` the
+Newton solve from the step's own start point; `step_c` the whole step from a compiled loop,
+`outside` = step_c − newton, and `dispatch` = `step` − step_c, what the call from Python costs.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -24,10 +32,13 @@ from abd_joint_sim import Scene, World                          # noqa: E402
 from abd_joint_sim.builders import chain_scene                  # noqa: E402
 from abd_joint_sim.solver import linsolve, newton, step as kernel  # noqa: E402
 from abd_joint_sim.solver.retraction import retract             # noqa: E402
+from abd_joint_sim.solver import bdf                             # noqa: E402
 from abd_joint_sim.terms import inertia, ortho, revolute, torque  # noqa: E402
 
 PARTS = ('potential', 'assemble', 'ortho', 'revolute', 'inertia', 'solve', 'retract',
          'newton', 'torque', 'step')
+OUTSIDE = ('forces', 'predict', 'pred_rot', 'velocity', 'angles', 'separations', 'store', 'finite',
+           'newton', 'step_c', 'outside', 'dispatch')
 
 
 @njit
@@ -58,45 +69,135 @@ def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
     return acc
 
 
-def profile(links):
-    w = World(Scene.from_dict(chain_scene(links)))
+@njit
+def _outside(which, m, ctx, q, v, q_prev, v_prev, start, tv, te, ws, qvw, aw, skipped, h, n):
+    """Times part `which` of OUTSIDE (the step's own functions, on its own arrays)."""
+    acc = 0.0
+    for _ in range(n):
+        if which == 0:
+            acc += kernel.forces(m, q, q_prev, False, tv, te, ws, skipped)
+        elif which == 1:
+            acc += bdf.predict(m, q, v, q_prev, v_prev, ws.acc, h, False, ws.q_tilde)
+        elif which == 2:
+            acc += kernel.predicted_rotation(m, q, ws.q_tilde)
+        elif which == 3:
+            bdf.velocity(m, ws.q_new, q, q_prev, h, False, qvw[1])
+        elif which == 4:
+            acc += kernel.joint_rates(m, ws.q_new, qvw[1], ws.zero, ctx.angle_start, h, aw)[0]
+        elif which == 5:
+            acc += revolute.check_separations(ws.q_new, m)[0]
+        elif which == 6:
+            kernel.store(ws.q_new, ws.q_tilde, h * h, qvw)
+        elif which == 7:
+            acc += newton.all_finite(ws.q_new)
+        elif which == 8:
+            ws.q_new[:] = start
+            newton.minimize(m, ctx, ws.q_new, ws)
+    return acc
+
+
+ROUNDS = 5     # each figure is the fastest of this many rounds: the machine is shared
+
+
+def timed(call, n):
+    """µs per iteration of call(k) (which runs k iterations): this process's CPU time (time
+    waiting for a core on a shared machine does not count), the fastest of ROUNDS rounds of n."""
+    call(2)
+    best = math.inf
+    for _ in range(ROUNDS):
+        t0 = time.process_time()
+        call(n)
+        best = min(best, (time.process_time() - t0) / n * 1e6)
+    return best
+
+
+def outside(w, n):
+    """µs per call of each OUTSIDE part of World w's next step (BDF1, may split)."""
+    sv, st, c = w.solver, w.state, w.control
+    m, ws = sv.data, sv.work
+    qvw, aw = np.empty((3,) + st.q.shape), np.empty((2, w.model.joint_count))
+    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.joint_angle, c.torque_value,
+            c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt, False, True, ws,
+            qvw, aw, sv._skipped, sv._outcome)
+    kernel.step(*args)                               # leaves q̃ and the solved q in ws
+    q_tilde = ws.q_tilde.copy()
+    start = q_tilde + w.dt * w.dt * st.warm_start    # Newton's start in the step (BDF1: c = 1)
+    ctx = sv.context(st, c, w.dt, q_tilde=q_tilde)
+    out = {}
+    for i, name in enumerate(OUTSIDE[:9]):
+        call = (i, m, ctx, st.q, st.v, st.q_prev, st.v_prev, start, c.torque_value, c.torque_enabled,
+                ws, qvw, aw, sv._skipped, w.dt)
+        out[name] = timed(lambda k, call=call: _outside(*call, k), n)
+    out['step_c'] = timed(lambda k: _step_loop(k, *args), n)
+    out['dispatch'] = timed(lambda k: [kernel.step(*args) for _ in range(k)], n) - out['step_c']
+    out['outside'] = out['step_c'] - out['newton']
+    return out
+
+
+@njit
+def _step_loop(n, m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
+               drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw,
+               new_angles, skipped, outcome):
+    for _ in range(n):
+        kernel.step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
+                    drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw,
+                    new_angles, skipped, outcome)
+
+
+def world(links):
+    """A World on a chain of `links` links, or on the KUKA iiwa URDF (links = 0), torque 1 N m on
+    every joint, after 3 steps."""
+    if links:
+        w = World(Scene.from_dict(chain_scene(links)))
+    else:
+        import pybullet_data
+        w = World(Scene.from_urdf(os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf')))
     for j in w.actuated_joint_names:
         w.set_torque(j, 1.0)
     w.step(3)
+    return w
+
+
+def profile(links):
+    w = world(links)
     sv, st, c = w.solver, w.state, w.control
     m, ws = sv.data, sv.work
     ctx = sv.context(st, c, w.dt)
     q = st.q.copy()
-    n = max(20000 // links, 5)
+    n = max(20000 // max(links, 7), 5)
     out = {}
     for i, name in enumerate(PARTS[:-1]):
-        _run(i, m, ctx, q, ws, c.torque_value, c.torque_enabled, sv._skipped, 2)
-        t0 = time.perf_counter()
-        _run(i, m, ctx, q, ws, c.torque_value, c.torque_enabled, sv._skipped, n)
-        out[name] = (time.perf_counter() - t0) / n * 1e6
+        out[name] = timed(lambda k, i=i: _run(i, m, ctx, q, ws, c.torque_value, c.torque_enabled,
+                                              sv._skipped, k), n)
     qvw, aw = np.empty((3,) + q.shape), np.empty((2, w.model.joint_count))
     args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.joint_angle, c.torque_value,
             c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt, False, True, ws,
             qvw, aw, sv._skipped, sv._outcome)
-    kernel.step(*args)
-    t0 = time.perf_counter()
-    for _ in range(n):
-        kernel.step(*args)
-    out['step'] = (time.perf_counter() - t0) / n * 1e6
+    out['step'] = timed(lambda k: [kernel.step(*args) for _ in range(k)], n)
     return out
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--links', type=int, nargs='*', default=[1, 10, 100, 1000])
+    ap.add_argument('--no-kuka', action='store_true', help='skip the KUKA iiwa rows')
     args = ap.parse_args(argv)
+    scenes = list(args.links) + ([] if args.no_kuka else [0])
+    label = {0: 'KUKA iiwa'}
     print(f'load {os.getloadavg()[0]:.2f}; µs per call')
     print('| links | ' + ' | '.join(PARTS) + ' |')
     print('|' + '---|' * (len(PARTS) + 1))
-    for links in args.links:
+    for links in scenes:
         r = profile(links)
         r['solve'] -= r['assemble']
-        print(f'| {links} | ' + ' | '.join(f'{r[p]:.2f}' for p in PARTS) + ' |', flush=True)
+        print(f'| {label.get(links, links)} | ' + ' | '.join(f'{r[p]:.2f}' for p in PARTS) + ' |', flush=True)
+    print(f'\noutside Newton (load {os.getloadavg()[0]:.2f}); µs per call')
+    print('| links | ' + ' | '.join(OUTSIDE) + ' |')
+    print('|' + '---|' * (len(OUTSIDE) + 1))
+    for links in scenes:
+        r = outside(world(links), max(20000 // max(links, 7), 5))
+        cells = ' | '.join(f'{r[p]:.2f}' for p in OUTSIDE)
+        print(f'| {label.get(links, links)} | {cells} |', flush=True)
 
 
 if __name__ == '__main__':

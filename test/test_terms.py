@@ -4,6 +4,7 @@ oracle, gradient = FD of the energy, raw Hessian = FD of the gradient, symmetric
 Hessian PSD. The checker itself must fail on deliberately broken terms."""
 import numpy as np
 import pytest
+from numba import njit
 
 import oracle
 from abd_joint_sim import Scene, compile_scene
@@ -461,3 +462,95 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
             _, _, raw = dense(term, q, ctx, project=False)
             assert np.abs(H - ref).max() <= 1e-12 * np.abs(raw).max()
     assert signs >= {-1.0, 1.0}, signs
+
+# -- M = M̄ ⊗ I3: the structured inertia and M⁻¹F against the dense 12x12 sums ------------------
+# The dense loops below are the plain definitions (Σ_c M[r, c] d[c] over all 12 columns, in
+# column order); the terms' 4-term sums drop only exact zeros of M, so they must agree bit for bit.
+
+@njit
+def _dense_inertia(q, q_tilde, M, free, s, grad, diag):
+    E = 0.0
+    for b in free:
+        for r in range(12):
+            Md = 0.0
+            for c in range(12):
+                Md += M[b, r, c] * (q[b, c] - q_tilde[b, c])
+                diag[b, r, c] += s * M[b, r, c]
+            E += Md * (q[b, r] - q_tilde[b, r])
+            grad[b, r] += s * Md
+    return 0.5 * s * E
+
+
+@njit
+def _dense_apply(Minv, F, acc):
+    for b in range(F.shape[0]):
+        for r in range(12):
+            x = 0.0
+            for c in range(12):
+                x += Minv[b, r, c] * F[b, c]
+            acc[b, r] += x
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2, 3])
+def test_inertia_on_the_4x4_blocks_is_bit_identical_to_the_dense_mass_matrix(seed):
+    q, q_tilde = _state(seed, 0.3), _state(seed + 20, 0.1)
+    ctx = _ctx(q_tilde=q_tilde)
+    B, J = MODEL.body_count, MODEL.joint_count
+    g, d = np.zeros((B, 12)), np.zeros((B, 12, 12))
+    E_dense = _dense_inertia(q, q_tilde, MODEL.body_M, DATA.free_bodies, ctx.scale, g, d)
+    g1, d1 = np.zeros((B, 12)), np.zeros((B, 12, 12))
+    inertia.accumulate(q, DATA, ctx, g1, d1, np.zeros((J, 12, 12)), True)
+    g2 = np.zeros((B, 12))
+    inertia.accumulate_gradient(q, DATA, ctx, g2)
+    assert E_dense > 0.0 and inertia.energy(q, DATA, ctx) == E_dense
+    np.testing.assert_array_equal(g1, g)
+    np.testing.assert_array_equal(g2, g)
+    np.testing.assert_array_equal(d1, d)
+
+
+def test_torque_acceleration_is_bit_identical_to_dense_inverse_mass():
+    """add_acceleration (A⁻¹ once per body, M⁻¹F on the 4x4 blocks) = M⁻¹ (dense) applied to
+    generalized_force (checked against the oracle above); body b is the child of both joints,
+    so its force is a sum of two joints' in their order."""
+    B = MODEL.body_count
+    for seed in range(3):
+        q = _state(seed)
+        taus, on = np.array([2.5, -1.5]), np.ones(2, bool)
+        F = np.zeros((B, 12))
+        assert torque.generalized_force(q, DATA, taus, on, F, np.zeros(4, np.int64)) == 0
+        expected = np.full((B, 12), 0.25)
+        _dense_apply(MODEL.body_Minv, F, expected)
+        acc = np.full((B, 12), 0.25)
+        assert torque.add_acceleration(q, DATA, taus, on, acc, np.zeros(4, np.int64)) == 0
+        assert np.abs(acc - 0.25).max() > 1e-3
+        np.testing.assert_array_equal(acc, expected)
+
+
+def test_torque_singular_guard_lists_each_skipped_side_in_order():
+    """A singular A_b gets no torque from any of its joints and is listed once per (side, joint),
+    parent sides first: b is the child of both joints, a the parent of j0."""
+    names = list(MODEL.body_names)
+    a, b = names.index('a'), names.index('b')
+    taus, on = np.array([2.5, -1.5]), np.ones(2, bool)
+    for singular, listed in (([b], [b, b]), ([a], [a]), ([a, b], [a, b, b])):
+        q = _state(4)
+        for k in singular:
+            q[k, 9:12] = q[k, 3:6] + 1e-9 * q[k, 6:9]          # a3 ≈ a1: det A ≈ 0
+        F, skipped = np.zeros((MODEL.body_count, 12)), np.zeros(4, np.int64)
+        n = torque.generalized_force(q, DATA, taus, on, F, skipped)
+        assert skipped[:n].tolist() == listed
+        assert np.all(F[singular] == 0.0)
+        acc, skipped2 = np.zeros((MODEL.body_count, 12)), np.zeros(4, np.int64)
+        assert torque.add_acceleration(q, DATA, taus, on, acc, skipped2) == n
+        assert skipped2[:n].tolist() == listed and np.all(acc[singular] == 0.0)
+        others = [k for k in range(MODEL.body_count) if k not in singular and not MODEL.body_fixed[k]]
+        assert all(np.abs(acc[k]).max() > 0.0 for k in others)
+
+
+def test_mass_blocks_reject_a_mass_matrix_without_the_kron_structure():
+    M, Minv = MODEL.body_M.copy(), MODEL.body_Minv.copy()
+    Mbar, Minv_bar = model_data.mass_blocks(M, Minv)
+    np.testing.assert_array_equal(Mbar[:, 1:, 1:], M[:, 3:6, 3:6])
+    M[0, 4, 7] = 1e-3                                   # couples rows 0 and 1 of A
+    with pytest.raises(ValueError, match='M̄ ⊗ I3'):
+        model_data.mass_blocks(M, Minv)

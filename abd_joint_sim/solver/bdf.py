@@ -11,6 +11,8 @@ after a reset, a dt change or sub-stepping) the step is BDF1 (docs/decisions.md)
 """
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 BETA_BDF2 = 4.0 / 9.0
@@ -27,38 +29,42 @@ def force_point(q, q_prev, bdf2, out):
 @njit(cache=True, error_model='numpy')
 def predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde):
     """Fills q_tilde (B,12); returns s, the inertia term's scale (1 or 1/β)."""
-    B = q.shape[0]
-    if bdf2:
-        c1 = 2.0 / 9.0 * h
-        c2 = BETA_BDF2 * h * h
-        for b in range(B):
-            for r in range(12):
-                q_tilde[b, r] = ((4 * q[b, r] - q_prev[b, r]) / 3 + c1 * (4 * v[b, r] - v_prev[b, r])
-                                 + c2 * acc[b, r])
-        scale = 1.0 / BETA_BDF2
-    else:
-        hh = h * h
-        for b in range(B):
-            for r in range(12):
-                q_tilde[b, r] = q[b, r] + h * v[b, r] + hh * acc[b, r]
-        scale = 1.0
     fixed = m.body_fixed
-    for b in range(B):
+    c1 = 2.0 / 9.0 * h
+    c2 = BETA_BDF2 * h * h
+    hh = h * h
+    for b in range(q.shape[0]):
         if fixed[b]:
             for r in range(12):
                 q_tilde[b, r] = q[b, r]
-    return scale
+        elif bdf2:
+            for r in range(12):
+                q_tilde[b, r] = ((4 * q[b, r] - q_prev[b, r]) / 3 + c1 * (4 * v[b, r] - v_prev[b, r])
+                                 + c2 * acc[b, r])
+        else:
+            for r in range(12):
+                q_tilde[b, r] = q[b, r] + h * v[b, r] + hh * acc[b, r]
+    return 1.0 / BETA_BDF2 if bdf2 else 1.0
 
 
 @njit(cache=True, error_model='numpy')
 def velocity(m, q_new, q, q_prev, h, bdf2, v_new):
-    """Fills v_new (B,12) from the solved q_new (0 on fixed bodies)."""
+    """Fills v_new (B,12) from the solved q_new (0 on fixed bodies); returns whether every
+    entry is finite."""
     fixed = m.body_fixed
+    finite = True
     for b in range(q.shape[0]):
-        for r in range(12):
-            if fixed[b]:
+        if fixed[b]:
+            for r in range(12):
                 v_new[b, r] = 0.0
-            elif bdf2:
-                v_new[b, r] = (3 * q_new[b, r] - 4 * q[b, r] + q_prev[b, r]) / (2 * h)
-            else:
-                v_new[b, r] = (q_new[b, r] - q[b, r]) / h
+        elif bdf2:
+            for r in range(12):
+                x = (3 * q_new[b, r] - 4 * q[b, r] + q_prev[b, r]) / (2 * h)
+                v_new[b, r] = x
+                finite = finite and math.isfinite(x)
+        else:
+            for r in range(12):
+                x = (q_new[b, r] - q[b, r]) / h
+                v_new[b, r] = x
+                finite = finite and math.isfinite(x)
+    return finite

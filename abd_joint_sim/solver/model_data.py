@@ -71,7 +71,43 @@ FIELDS = (
     ('free_mass', '[kg] Σ m over free bodies (Newton energy tolerance)'),
     ('constant_diag', '(B,12,12) the constant Hessian blocks (UID 18) Newton starts from'),
     ('constant_pair', '(J,12,12) the same, off the diagonal'),
+    ('body_Mbar', '(B,4,4) M̄ of M = M̄ ⊗ I3: the block of row k, [p_k, A_k0, A_k1, A_k2]'),
+    ('body_Minv_bar', '(B,3,4,4) M⁻¹\'s blocks, one per row k (not rounded alike)'),
+    ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
+    ('torque_body_ptr', '(Tb+1,) CSR pointer into torque_body_entries per torque body'),
+    ('torque_body_entries', '(E,) 2 k + side per torque joint k on the body: parent sides, then child'),
 )
+
+#: q indices of the row-k block [p_k, A_k0, A_k1, A_k2] of a body (q = [p, vec A], vec row-major)
+BLOCK_ROWS = np.array([[k, 3 + 3 * k, 4 + 3 * k, 5 + 3 * k] for k in range(3)])
+
+
+def mass_blocks(body_M, body_Minv):
+    """(M̄ (B,4,4), M⁻¹'s blocks (B,3,4,4)) with M = M̄ ⊗ I3 in q's layout; raises
+    ValueError if a mass matrix lacks that structure (model.mass_matrix always builds it)."""
+    B = body_M.shape[0]
+    Mbar = body_M[:, BLOCK_ROWS[0][:, None], BLOCK_ROWS[0][None, :]]
+    Minv_bar = np.stack([body_Minv[:, i[:, None], i[None, :]] for i in BLOCK_ROWS], axis=1)
+    full, full_inv = np.zeros((B, 12, 12)), np.zeros((B, 12, 12))
+    for k, i in enumerate(BLOCK_ROWS):
+        full[:, i[:, None], i[None, :]] = Mbar
+        full_inv[:, i[:, None], i[None, :]] = Minv_bar[:, k]
+    if not (np.array_equal(full, body_M) and np.array_equal(full_inv, body_Minv)):
+        raise ValueError('a body mass matrix or its inverse is not M̄ ⊗ I3 (model.mass_matrix)')
+    return Mbar, Minv_bar
+
+
+def torque_incidence(torque_joints, parent, child):
+    """(torque_bodies, torque_body_ptr, torque_body_entries): per body, the torque joints acting
+    on it in the order terms/torque.py sums their forces (parent sides, then child sides)."""
+    per_body = {}
+    for side, ends in enumerate((parent, child)):
+        for k, j in enumerate(torque_joints):
+            per_body.setdefault(int(ends[j]), []).append(2 * k + side)
+    bodies = sorted(per_body)
+    ptr = np.cumsum([0] + [len(per_body[b]) for b in bodies])
+    entries = [e for b in bodies for e in per_body[b]]
+    return np.array(bodies, np.int64), np.array(ptr, np.int64), np.array(entries, np.int64)
 
 
 def constant_hessian(values, B, J):
@@ -164,6 +200,10 @@ def build(model, force_dense: bool = False) -> ModelData:
         # as numpy sums it (np.sum's pairwise order): the tolerance must not depend on layout
         free_mass=float(np.sum(m.body_mass[free])),
     )
+    values['body_Mbar'], values['body_Minv_bar'] = (_arr(x, np.float64)
+                                                    for x in mass_blocks(m.body_M, m.body_Minv))
+    values['torque_bodies'], values['torque_body_ptr'], values['torque_body_entries'] = (
+        _arr(x, np.int64) for x in torque_incidence(m.torque_joints, m.joint_parent, m.joint_child))
     values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)
     data = ModelData(*(values[name] for name, _ in FIELDS))
     data.__dict__.update(values)

@@ -45,12 +45,60 @@ def predicted_rotation(m, q, q_tilde):
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
     for j in range(parent.size):
-        x = abs(angles.theta_and_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[1])
+        x = abs(angles.cos_sin_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[2])
         if x != x:
             out = np.nan
         elif out == out:
             out = max(out, x)
     return out
+
+
+@njit(cache=True, error_model='numpy')
+def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
+    """Section 1: ws.acc = g_q + M⁻¹F, the torque at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2, ws.q_force,
+    formed only when a torque acts); returns the number of bodies the torque skipped."""
+    acc = ws.acc
+    acc[:] = 0.0
+    gravity.add_acceleration(q, m, acc)
+    if not torque.any_active(m, torque_value, torque_enabled):
+        return 0
+    if bdf2:
+        bdf.force_point(q, q_prev, bdf2, ws.q_force)
+        return torque.add_acceleration(ws.q_force, m, torque_value, torque_enabled, acc, skipped)
+    return torque.add_acceleration(q, m, torque_value, torque_enabled, acc, skipped)
+
+
+@njit(cache=True, error_model='numpy')
+def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
+    """Section 4's joint angles: new_angles (2,J) = unwrapped θ + init_angle, θ̇ = ∇θ·v; returns
+    (the largest |θ − θ_start| or |θ̇| h, NaN wins; whether every θ is finite)."""
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    init_angle = m.joint_init_angle
+    rotation = 0.0
+    finite = True
+    for j in range(parent.size):
+        c, s, rate = angles.cos_sin_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
+        th = math.atan2(s, c)
+        rel = angles.unwrap(th, angle_start[j])
+        new_angles[0, j] = rel + init_angle[j]
+        new_angles[1, j] = rate
+        if not math.isfinite(rel):
+            finite = False
+        turn, swept = abs(rel - angle_start[j]), abs(rate) * h     # NaN wins
+        if turn != turn or swept != swept:
+            rotation = np.nan
+        elif rotation == rotation:
+            rotation = max(rotation, turn, swept)
+    return rotation, finite
+
+
+@njit(cache=True, error_model='numpy')
+def store(q_new, q_tilde, cw, new_qvw):
+    """new_qvw[0] = q, new_qvw[2] = the next warm start (q − q̃)/(c h²) (cw = c h²)."""
+    for b in range(q_new.shape[0]):
+        for r in range(12):
+            new_qvw[0, b, r] = q_new[b, r]
+            new_qvw[2, b, r] = (q_new[b, r] - q_tilde[b, r]) / cw
 
 
 @njit(cache=True, error_model='numpy')
@@ -63,15 +111,10 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     outcome[:] = 0.0
     outcome[OUT_APART_JOINT] = -1.0
     # 1. forces
-    q_force = ws.q_force
-    bdf.force_point(q, q_prev, bdf2, q_force)
-    acc = ws.acc
-    acc[:] = 0.0
-    gravity.add_acceleration(q_force, m, acc)
-    outcome[OUT_SKIPPED] = torque.add_acceleration(q_force, m, torque_value, torque_enabled, acc, skipped)
+    outcome[OUT_SKIPPED] = forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped)
     # 2. prediction
     q_tilde = ws.q_tilde
-    scale = bdf.predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde)
+    scale = bdf.predict(m, q, v, q_prev, v_prev, ws.acc, h, bdf2, q_tilde)
     if may_split and J > 0:
         predicted = predicted_rotation(m, q, q_tilde)
         if predicted > m.max_step_rotation:
@@ -100,24 +143,9 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
         return
     # 4. velocities, joint angles, checks
     v_new = new_qvw[1]
-    bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    zero = ws.zero
-    rotation = 0.0
-    finite = True
-    for j in range(J):
-        th, rate = angles.theta_and_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
-        rel = angles.unwrap(th, angle_start[j])
-        new_angles[0, j] = rel + init_angle[j]
-        new_angles[1, j] = rate
-        if not math.isfinite(rel):
-            finite = False
-        turn, swept = abs(rel - angle_start[j]), abs(rate) * h     # NaN wins
-        if turn != turn or swept != swept:
-            rotation = np.nan
-        elif rotation == rotation:
-            rotation = max(rotation, turn, swept)
-    if not finite or not newton.all_finite(v_new):
+    v_finite = bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
+    rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles)
+    if not finite or not v_finite:
         outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
         return
     outcome[OUT_ROTATION] = rotation
@@ -126,10 +154,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     outcome[OUT_OVERLOADED] = 1.0 if overloaded else 0.0
     if apart >= 0:
         outcome[OUT_APART_JOINT], outcome[OUT_FAILURE] = apart, FAIL_JOINT_APART
-    for b in range(B):
-        for r in range(12):
-            new_qvw[0, b, r] = q_new[b, r]
-            new_qvw[2, b, r] = (q_new[b, r] - q_tilde[b, r]) / cw
+    store(q_new, q_tilde, cw, new_qvw)
 
 
 @njit(cache=True, error_model='numpy')

@@ -33,15 +33,25 @@ def separation(q, i_body, j_body, x_bar, j, a, d):
 @njit(cache=True, error_model='numpy')
 def joint_separation(q, m, j):
     """max_a |x_i^a − x_j^a| of joint j (NaN wins). [m]"""
-    return _joint_separation(q, m.joint_parent[j], m.joint_child[j], m.joint_x_bar, j, np.empty(3))
+    return _separation_norm(q, m.joint_parent[j], m.joint_child[j], m.joint_x_bar, j)
 
 
-@njit(cache=True, error_model='numpy')
-def _joint_separation(q, i_body, j_body, x_bar, j, d):
+@njit(cache=True, error_model='numpy', inline='always')
+def _separation_norm(q, i_body, j_body, x_bar, j):
+    """max_a |x_i^a − x_j^a| of joint j (NaN wins); `separation`'s sums without its work
+    array (the post-step check runs this on every joint). [m]"""
     out = 0.0
     for a in range(2):
-        separation(q, i_body, j_body, x_bar, j, a, d)
-        n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        n2 = 0.0
+        for r in range(3):
+            xi = q[i_body, r]
+            xj = q[j_body, r]
+            for c in range(3):
+                xi += q[i_body, 3 + 3 * r + c] * x_bar[j, 0, a, c]
+                xj += q[j_body, 3 + 3 * r + c] * x_bar[j, 1, a, c]
+            d = xi - xj
+            n2 += d * d
+        n = math.sqrt(n2)
         if n > out or n != n:
             out = n
     return out
@@ -51,10 +61,9 @@ def _joint_separation(q, i_body, j_body, x_bar, j, d):
 def max_separation(q, m):
     """The largest joint separation over all joints (0 without joints; NaN wins). [m]"""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
-    d = np.empty(3)
     out = 0.0
     for j in range(parent.size):
-        n = _joint_separation(q, parent[j], child[j], x_bar, j, d)
+        n = _separation_norm(q, parent[j], child[j], x_bar, j)
         if n > out or n != n:
             out = n
     return out
@@ -66,12 +75,11 @@ def check_separations(q, m):
     beyond m.joint_fault_separation or -1). [m]"""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
     warn, fault = m.joint_warn_separation, m.joint_fault_separation
-    d = np.empty(3)
     largest = 0.0
     overloaded = False
     apart = -1
     for j in range(parent.size):
-        n = _joint_separation(q, parent[j], child[j], x_bar, j, d)
+        n = _separation_norm(q, parent[j], child[j], x_bar, j)
         if n > largest or n != n:
             largest = n
         if n > warn[j]:

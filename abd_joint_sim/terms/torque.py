@@ -19,7 +19,6 @@ import math
 import numpy as np
 from numba import njit
 
-from ..smallmat import det_inv3
 
 SINGULAR_RATIO = 1e-6
 AXIS_EPS = 1e-12
@@ -31,7 +30,7 @@ def axis(q, m, j, e):
     axis_at(q, m.joint_parent, m.joint_child, m.joint_x_bar, j, e, np.empty((2, 3)))
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', inline='always')
 def axis_at(q, parent, child, x_bar, j, e, es):
     """axis() on the model's arrays, es (2,3) a work array (it runs once per joint)."""
     usable = 0
@@ -57,66 +56,161 @@ def axis_at(q, parent, child, x_bar, j, e, es):
 
 
 @njit(cache=True, error_model='numpy')
-def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
-    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
-    written to `skipped` (parent side of every joint first, then child side); returns their
-    count."""
-    torque_joints, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+def any_active(m, torque_value, torque_enabled):
+    """Whether some joint's torque is enabled and nonzero (else F = 0)."""
+    return _any_active(torque_value, torque_enabled)
+
+
+@njit(cache=True, error_model='numpy')
+def _any_active(torque_value, torque_enabled):
+    for k in range(torque_value.size):
+        if torque_enabled[k] and torque_value[k] != 0.0:
+            return True
+    return False
+
+
+@njit(cache=True, error_model='numpy')
+def _inverse_if_regular(q, b):
+    """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.det_inv3's adjugate / det, on scalars
+    (it runs per body); regular is False (no torque on the body) if
+    |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
+    a00, a01, a02 = q[b, 3], q[b, 4], q[b, 5]
+    a10, a11, a12 = q[b, 6], q[b, 7], q[b, 8]
+    a20, a21, a22 = q[b, 9], q[b, 10], q[b, 11]
+    c00 = a11 * a22 - a12 * a21
+    det = (a00 * c00 - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20))
+    scale = (math.sqrt(a00 * a00 + a01 * a01 + a02 * a02) * math.sqrt(a10 * a10 + a11 * a11 + a12 * a12)
+             * math.sqrt(a20 * a20 + a21 * a21 + a22 * a22))
+    return (abs(det) > SINGULAR_RATIO * scale,
+            c00 / det, (a02 * a21 - a01 * a22) / det, (a01 * a12 - a02 * a11) / det,
+            (a12 * a20 - a10 * a22) / det, (a00 * a22 - a02 * a20) / det, (a02 * a10 - a00 * a12) / det,
+            (a10 * a21 - a11 * a20) / det, (a01 * a20 - a00 * a21) / det, (a00 * a11 - a01 * a10) / det)
+
+
+@njit(cache=True, error_model='numpy')
+def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
+    """(status, F_b[3:12] as 9 scalars): Σ over the torque joints k of body b (entries[ptr0:ptr1]
+    of m.torque_body_entries, 2 k + side) of (τ_k/2) [±ê_k]× A_b^{−T}, in that order (A_b⁻¹
+    once per body). status -1: no torque acts on b, 0: the singular guard skips it, 1: F_b."""
+    f0 = f1 = f2 = f3 = f4 = f5 = f6 = f7 = f8 = 0.0
+    active = False
+    for i in range(ptr0, ptr1):
+        k = entries[i] >> 1
+        if torque_enabled[k] and torque_value[k] != 0.0:
+            active = True
+    if not active:
+        return -1, f0, f1, f2, f3, f4, f5, f6, f7, f8
+    regular, i00, i01, i02, i10, i11, i12, i20, i21, i22 = _inverse_if_regular(q, b)
+    if not regular:
+        return 0, f0, f1, f2, f3, f4, f5, f6, f7, f8
+    for i in range(ptr0, ptr1):
+        k, side = entries[i] >> 1, entries[i] & 1
+        tau = torque_value[k] if torque_enabled[k] else 0.0
+        if tau == 0.0:
+            continue
+        sign = -1.0 if side == 0 else 1.0            # ê_i = −ê_j
+        ex, ey, ez = sign * e[k, 0], sign * e[k, 1], sign * e[k, 2]
+        # (τ/2) [ê]× A^{−T}: column c of A^{−T} is row c of A^{−1}; f[3r + c] = F_b[3 + 3r + c]
+        t = 0.5 * tau
+        f0 += t * (ey * i02 - ez * i01)
+        f3 += t * (ez * i00 - ex * i02)
+        f6 += t * (ex * i01 - ey * i00)
+        f1 += t * (ey * i12 - ez * i11)
+        f4 += t * (ez * i10 - ex * i12)
+        f7 += t * (ex * i11 - ey * i10)
+        f2 += t * (ey * i22 - ez * i21)
+        f5 += t * (ez * i20 - ex * i22)
+        f8 += t * (ex * i21 - ey * i20)
+    return 1, f0, f1, f2, f3, f4, f5, f6, f7, f8
+
+
+@njit(cache=True, error_model='numpy')
+def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled):
+    """ê (T,3) of the active torque joints (rows of the others unset; one allocation)."""
     T = torque_joints.size
-    n_skipped = 0
-    e = np.empty((T, 3))
-    es = np.empty((2, 3))
+    e = np.empty((T + 2, 3))
+    es = e[T:]
     for k in range(T):
         if torque_enabled[k] and torque_value[k] != 0.0:
-            axis_at(q, parent, child, m.joint_x_bar, torque_joints[k], e[k], es)
-    A = np.empty((3, 3))
-    inv = np.empty((3, 3))
+            axis_at(q, parent, child, x_bar, torque_joints[k], e[k], es)
+    return e
+
+
+@njit(cache=True, error_model='numpy')
+def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled, skipped):
+    """The bodies the singular guard skips, once per (side, joint) in that order (parent side
+    of every joint first); returns their count. Runs only when some body was skipped."""
+    n_skipped = 0
     for side in range(2):
-        sign = -1.0 if side == 0 else 1.0            # ê_i = −ê_j
-        for k in range(T):
+        for k in range(torque_joints.size):
             tau = torque_value[k] if torque_enabled[k] else 0.0
             if tau == 0.0:
                 continue
             j = torque_joints[k]
             b = parent[j] if side == 0 else child[j]
-            for r in range(3):
-                for c in range(3):
-                    A[r, c] = q[b, 3 + 3 * r + c]
-            det = abs(det_inv3(A, inv))
-            scale = 1.0
-            for r in range(3):
-                scale *= math.sqrt(A[r, 0] * A[r, 0] + A[r, 1] * A[r, 1] + A[r, 2] * A[r, 2])
-            if not det > SINGULAR_RATIO * scale:
+            if not _inverse_if_regular(q, b)[0]:
                 skipped[n_skipped] = b
                 n_skipped += 1
-                continue
-            ex, ey, ez = sign * e[k, 0], sign * e[k, 1], sign * e[k, 2]
-            # (τ/2) [ê]× A^{−T}: column c of A^{−T} is row c of A^{−1}
-            for c in range(3):
-                w0, w1, w2 = inv[c, 0], inv[c, 1], inv[c, 2]
-                F[b, 3 + c] += 0.5 * tau * (ey * w2 - ez * w1)
-                F[b, 6 + c] += 0.5 * tau * (ez * w0 - ex * w2)
-                F[b, 9 + c] += 0.5 * tau * (ex * w1 - ey * w0)
     return n_skipped
 
 
 @njit(cache=True, error_model='numpy')
-def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
-    """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies."""
-    any_on = False
-    for k in range(m.torque_joints.size):
-        if torque_enabled[k] and torque_value[k] != 0.0:
-            any_on = True
-    if not any_on:
+def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
+    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
+    written to `skipped` (parent side of every joint first, then child side); returns their
+    count."""
+    if not _any_active(torque_value, torque_enabled):
         return 0
-    B = q.shape[0]
-    F = np.zeros((B, 12))
-    n_skipped = generalized_force(q, m, torque_value, torque_enabled, F, skipped)
-    Minv = m.body_Minv
-    for b in range(B):
-        for r in range(12):
-            s = 0.0
-            for c in range(12):
-                s += Minv[b, r, c] * F[b, c]
-            acc[b, r] += s
-    return n_skipped
+    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
+    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
+    any_skipped = False
+    for t in range(bodies.size):
+        b = bodies[t]
+        f = _body_force(q, b, ptr[t], ptr[t + 1], entries, e, torque_value, torque_enabled)
+        if f[0] == 0:
+            any_skipped = True
+        elif f[0] == 1:
+            F[b, 3] += f[1]
+            F[b, 4] += f[2]
+            F[b, 5] += f[3]
+            F[b, 6] += f[4]
+            F[b, 7] += f[5]
+            F[b, 8] += f[6]
+            F[b, 9] += f[7]
+            F[b, 10] += f[8]
+            F[b, 11] += f[9]
+    if not any_skipped:
+        return 0
+    return _list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
+
+
+@njit(cache=True, error_model='numpy')
+def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
+    """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
+    only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
+    (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product."""
+    if not _any_active(torque_value, torque_enabled):
+        return 0
+    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
+    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
+    Minv_bar = m.body_Minv_bar
+    any_skipped = False
+    for t in range(bodies.size):
+        b = bodies[t]
+        status, f0, f1, f2, f3, f4, f5, f6, f7, f8 = _body_force(q, b, ptr[t], ptr[t + 1], entries, e,
+                                                                 torque_value, torque_enabled)
+        if status == 0:
+            any_skipped = True
+        if status != 1:
+            continue
+        for k in range(3):
+            Mi = Minv_bar[b, k]
+            g0, g1, g2 = (f0, f1, f2) if k == 0 else ((f3, f4, f5) if k == 1 else (f6, f7, f8))
+            acc[b, k] += Mi[0, 1] * g0 + Mi[0, 2] * g1 + Mi[0, 3] * g2
+            for i in range(3):
+                acc[b, 3 + 3 * k + i] += Mi[1 + i, 1] * g0 + Mi[1 + i, 2] * g1 + Mi[1 + i, 3] * g2
+    if not any_skipped:
+        return 0
+    return _list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
