@@ -219,23 +219,6 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
                                grad, diag, pair, project, work)
 
 
-@njit(cache=True, error_model='numpy')
-def accumulate_angle_gradient(q, m, joints, d1s, n, grad):
-    """∇E = E'∇θ of accumulate_angle_hessian alone (Newton with a reused factorisation)."""
-    if n == 0:
-        return
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    G = np.empty(18)
-    work = np.empty(WORK_SHAPE)
-    for k in range(n):
-        j = joints[k]
-        theta_derivatives_at(q, parent, child, nbar, bbar, j, G, G.reshape((3, 6)), False, work)
-        i_body, j_body = parent[j], child[j]
-        for a in range(9):
-            grad[i_body, 3 + a] += d1s[k] * G[a]
-            grad[j_body, 3 + a] += d1s[k] * G[9 + a]
-
-
 # -- the angle terms' Hessian, joint by joint (issue 15) ---------------------------------------
 ANGLE_WORK_SHAPE = (25, 18)     #: work array of accumulate_angle_joint
 _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair carries nothing
@@ -245,8 +228,7 @@ _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair ca
 def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair, project,
                            work):
     """accumulate_angle_hessian for one joint j with E' = d1, E'' = d2 (`work`: an array of
-    ANGLE_WORK_SHAPE, reused across joints). The gradient is the very expression of
-    accumulate_angle_gradient (bit-identical)."""
+    ANGLE_WORK_SHAPE, reused across joints)."""
     G = work[8]
     tw = work[0:8]
     i_body, j_body = parent[j], child[j]

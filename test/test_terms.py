@@ -289,34 +289,6 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
             assert np.abs(Hp[np.ix_(idx, idx)] - gn).max() > 1e-3 * K
 
 
-@pytest.mark.parametrize('name', sorted(TERMS))
-@pytest.mark.parametrize('seed', [0, 1, 2])
-def test_gradient_alone_equals_assembled_gradient(name, seed):
-    """`accumulate_gradient` (Newton iterations on a reused factorisation) adds exactly the
-    gradient `accumulate` adds, bit for bit, on generic states with limits and drives active."""
-    term = TERMS[name]
-    q = _state(seed)
-    ctx = _ctx(q_tilde=_state(seed + 10, 0.05), angle_start=[0.1, -0.3])
-    B, J = MODEL.body_count, MODEL.joint_count
-    g_full = np.zeros((B, 12))
-    term.accumulate(q, DATA, ctx, g_full, np.zeros((B, 12, 12)), np.zeros((J, 12, 12)), True)
-    g_alone = np.zeros((B, 12))
-    term.accumulate_gradient(q, DATA, ctx, g_alone)
-    assert np.any(g_full != 0.0)
-    np.testing.assert_array_equal(g_alone, g_full)
-
-
-def test_newton_gradient_equals_assembled():
-    from abd_joint_sim.solver import newton
-    q = _state(3)
-    ctx = _ctx(q_tilde=_state(13, 0.05), angle_start=[0.1, -0.3])
-    B, J = MODEL.body_count, MODEL.joint_count
-    g1, g2 = np.zeros((B, 12)), np.zeros((B, 12))
-    newton.assemble(q, DATA, ctx, g1, np.zeros((B, 12, 12)), np.zeros((J, 12, 12)))
-    newton.gradient(q, DATA, ctx, g2)
-    np.testing.assert_array_equal(g2, g1)
-
-
 # -- the angle terms' projection (issue 15) ---------------------------------------------------
 def _reference_angle_projection(q, joints, d1s, d2s):
     """The former projection, kept here as the reference: per joint H = E''∇θ∇θᵀ + E'∇²θ

@@ -17,6 +17,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from . import linsolve, retraction
+from .bdf import BETA_BDF2
 
 # Joint anchors further apart than SEPARATION_WARN x the smaller body's size: the step warns
 # (an overloaded joint: torque or speed too large for strength_ratio and dt). Further than
@@ -76,6 +77,9 @@ FIELDS = (
     ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
     ('torque_body_ptr', '(Tb+1,) CSR pointer into torque_body_entries per torque body'),
     ('torque_body_entries', '(E,) 2 k + side per torque joint k on the body: parent sides, then child'),
+    ('inertia_scales', '(2,) the inertia term\'s scales s: 1 (BDF1) and 1/β (BDF2)'),
+    ('constant_diag_inertia', '(2,B,12,12) constant_diag + s M on the free bodies for each of '
+                              'inertia_scales: Newton\'s diagonal blocks before the shape and angle terms'),
 )
 
 #: q indices of the row-k block [p_k, A_k0, A_k1, A_k2] of a body (q = [p, vec A], vec row-major)
@@ -114,7 +118,8 @@ def constant_hessian(values, B, J):
     """(diag, pair): the UID 18 Hessian blocks, constant over the run, summed once (by the
     term's own accumulate, so the sum is written in one place)."""
     from ..terms import revolute
-    fields = dict(values, constant_diag=np.zeros((B, 12, 12)), constant_pair=np.zeros((J, 12, 12)))
+    fields = dict(values, constant_diag=np.zeros((B, 12, 12)), constant_pair=np.zeros((J, 12, 12)),
+                  inertia_scales=np.zeros(2), constant_diag_inertia=np.zeros((2, B, 12, 12)))
     partial = ModelData(*(fields[name] for name, _ in FIELDS))
     diag, pair = np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
     revolute.accumulate(np.zeros((B, 12)), partial, None, np.zeros((B, 12)), diag, pair, True)
@@ -205,6 +210,13 @@ def build(model, force_dense: bool = False) -> ModelData:
     values['torque_bodies'], values['torque_body_ptr'], values['torque_body_entries'] = (
         _arr(x, np.int64) for x in torque_incidence(m.torque_joints, m.joint_parent, m.joint_child))
     values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)
+    # s M added to the constant blocks as the inertia term adds it (one rounding per entry,
+    # c + s·M): the same numbers as adding it every iteration
+    scales = np.array([1.0, 1.0 / BETA_BDF2])
+    base = np.stack([values['constant_diag']] * 2)
+    for k, scale in enumerate(scales):
+        base[k, free] = values['constant_diag'][free] + scale * m.body_M[free]
+    values['inertia_scales'], values['constant_diag_inertia'] = scales, _arr(base, np.float64)
     data = ModelData(*(values[name] for name, _ in FIELDS))
     data.__dict__.update(values)
     return data

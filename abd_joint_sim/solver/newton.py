@@ -50,32 +50,27 @@ def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
     the joint blocks: `pair`, or m.constant_pair itself in a model without drives and limits
     (then only UID 18 has joint blocks, and copying them would be a pass over memory for
-    nothing). A term whose Hessian is constant (UID 18) has it summed into
-    m.constant_diag/pair once per model (model_data.constant_hessian) and adds only its
-    gradient here."""
+    nothing). The constant Hessians, UID 18's and the inertia term's s·M, are summed once per
+    model (model_data: constant_diag_inertia, one per BDF scale s); their terms add only
+    their gradients here."""
     grad[:] = 0.0
-    diag[:] = m.constant_diag               # UID 18's Hessian is constant: summed once per model
+    scales = m.inertia_scales
+    k = 0 if ctx.scale == scales[0] else (1 if ctx.scale == scales[1] else -1)
+    if k >= 0:
+        diag[:] = m.constant_diag_inertia[k]
+        inertia.accumulate_gradient(q, m, ctx, grad)
+    else:                                   # another s (a caller's own context)
+        diag[:] = m.constant_diag
+        inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     if m.drive_joints.size == 0 and m.limit_joints.size == 0:
         pair = m.constant_pair              # read only: no term below adds to it
     else:
         pair[:] = m.constant_pair
-    inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
     revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
     driving.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 19
     limit.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 670
     return pair
-
-
-@njit(cache=True, error_model='numpy')
-def gradient(q, m, ctx, grad):
-    """∇Π alone, the same sum as `assemble`'s (Newton iterations on a reused factorisation)."""
-    grad[:] = 0.0
-    inertia.accumulate_gradient(q, m, ctx, grad)
-    ortho.accumulate_gradient(q, m, ctx, grad)                 # UID 1
-    revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18
-    driving.accumulate_gradient(q, m, ctx, grad)               # UID 19
-    limit.accumulate_gradient(q, m, ctx, grad)                 # UID 670
 
 
 @njit(cache=True, error_model='numpy')

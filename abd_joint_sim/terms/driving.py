@@ -69,12 +69,3 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
             angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * (x - target[k]), K[k],
                                           grad, diag, pair, project, work)
-
-
-@njit(cache=True, error_model='numpy')
-def accumulate_gradient(q, m, ctx, grad):
-    """∇E only (Newton with a reused factorisation)."""
-    if m.drive_joints.size == 0:
-        return
-    joints, d1s, _, n = active_joints(q, m, ctx)
-    angles.accumulate_angle_gradient(q, m, joints, d1s, n, grad)

@@ -84,7 +84,8 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
 
 @njit(cache=True, error_model='numpy')
 def accumulate_gradient(q, m, ctx, grad):
-    """∇E only (Newton with a reused factorisation needs no Hessian)."""
+    """∇E only: Newton's assembly starts from s·M summed into the constant blocks once per
+    model (model_data.constant_diag_inertia)."""
     q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
     for b in m.free_bodies:
         _body_gradient(q, q_tilde, b, Mbar[b], s, grad)

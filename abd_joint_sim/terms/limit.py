@@ -92,12 +92,3 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
             angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
                                           project, work)
-
-
-@njit(cache=True, error_model='numpy')
-def accumulate_gradient(q, m, ctx, grad):
-    """∇E only (Newton with a reused factorisation)."""
-    if m.limit_joints.size == 0:
-        return
-    joints, d1s, _, n = active_joints(q, m, ctx)
-    angles.accumulate_angle_gradient(q, m, joints, d1s, n, grad)

@@ -106,22 +106,3 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                 x = wl * vecs[k, a]
                 for c in range(9):
                     Hb[a, c] += x * vecs[k, c]
-
-
-@njit(cache=True, error_model='numpy')
-def accumulate_gradient(q, m, ctx, grad):
-    """∇E only, 4h²κv̄ C A (Newton with a reused factorisation needs no Hessian)."""
-    hh = ctx.h * ctx.h
-    weight = m.ortho_weight
-    for b in m.free_bodies:
-        w = 4.0 * hh * weight[b]
-        for r in range(3):
-            for c in range(3):
-                acc = 0.0
-                for k in range(3):
-                    C_rk = (q[b, 3 + 3 * r] * q[b, 3 + 3 * k] + q[b, 4 + 3 * r] * q[b, 4 + 3 * k]
-                            + q[b, 5 + 3 * r] * q[b, 5 + 3 * k])
-                    if r == k:
-                        C_rk -= 1.0
-                    acc += C_rk * q[b, 3 + 3 * k + c]
-                grad[b, 3 + 3 * r + c] += w * acc
