@@ -11,7 +11,10 @@ over rounds (and the minimum, the round least disturbed by other jobs) of the me
 `World.step()` call
 (one step per call, as the node's single steps), and for this tree also `World.step(n)` (n
 steps in one call: the clean ones batched in compiled code). Torque on every joint (the
-scene's, else 1 N m), 3 warm-up steps first.
+scene's, else 1 N m), 3 warm-up steps first. `kuka` is the KUKA iiwa URDF of pybullet_data
+(gravity, joint limits; the torques swing it into its limits). Each checkout compiles into its
+own kernel cache directory (abd_joint_sim/cache.py keys it on the kernel sources; checkouts
+from before that share one and recompile over each other: give them ABD_KERNEL_CACHE).
 """
 from __future__ import annotations
 
@@ -35,6 +38,9 @@ import inspect
 kw = {'backend': 'numba'} if 'backend' in inspect.signature(World).parameters else {}
 if name == 'default':
     d = Scene.from_yaml(sys.argv[1] + '/abd_joint_sim/scenes/default.yaml')
+elif name == 'kuka':
+    import pybullet_data
+    d = Scene.from_urdf(pybullet_data.getDataPath() + '/kuka_iiwa/model.urdf')
 else:
     d = Scene.from_dict(chain_scene(int(name[5:])))
 def make():
@@ -57,7 +63,8 @@ batched = (time.process_time() - t0) / steps
 print(json.dumps(dict(single=single, batched=batched, its=its, angle=float(w.joint_angles()[-1]))))
 '''
 
-SCENES = {'default': 2000, 'chain1': 2000, 'chain10': 1000, 'chain100': 200, 'chain1000': 20}
+SCENES = {'default': 2000, 'chain1': 2000, 'chain10': 1000, 'chain100': 200, 'chain1000': 20,
+          'kuka': 1000}
 
 
 def run(root, name, steps, which):
