@@ -658,9 +658,16 @@ def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
     assert 2 <= split.solver.batch_limit
     assert whole.solver.batch_limit >= 25
     split.solver.batch_limit = 4
+    sizes, batch = [], split.solver._batch
+
+    def counted(s, c, n):
+        sizes.append(n)
+        return batch(s, c, n)
+    split.solver._batch = counted
     for _ in range(25):
         one.step()
     split.step(25)
+    assert len(sizes) >= 6 and max(sizes) <= 4      # (a last single step goes through step())
     whole.step(25)
     for w in (split, whole):
         for x, y in zip(_state_fields(one), _state_fields(w)):
