@@ -32,7 +32,7 @@ from abd_joint_sim import Scene, World                          # noqa: E402
 from abd_joint_sim.builders import chain_scene                  # noqa: E402
 from abd_joint_sim.solver import linsolve, newton, step as kernel  # noqa: E402
 from abd_joint_sim.solver.retraction import retract             # noqa: E402
-from abd_joint_sim.solver import bdf                             # noqa: E402
+from abd_joint_sim.solver import bdf, subnormals                 # noqa: E402
 from abd_joint_sim.terms import inertia, ortho, revolute, torque  # noqa: E402
 
 PARTS = ('potential', 'assemble', 'ortho', 'revolute', 'inertia', 'solve', 'retract',
@@ -44,6 +44,7 @@ OUTSIDE = ('forces', 'predict', 'pred_rot', 'velocity', 'angles', 'separations',
 @njit
 def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
     acc = 0.0
+    saved = subnormals.enter()          # as in the step
     for _ in range(n):
         if which == 0:
             acc += newton.potential(q, m, ctx)
@@ -66,6 +67,7 @@ def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
         elif which == 8:
             ws.acc[:] = 0.0
             torque.add_acceleration(q, m, c_tv, c_te, ws.acc, skipped)
+    subnormals.leave(saved)
     return acc
 
 
@@ -73,6 +75,7 @@ def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
 def _outside(which, m, ctx, q, v, q_prev, v_prev, start, tv, te, ws, qvw, aw, skipped, h, n):
     """Times part `which` of OUTSIDE (the step's own functions, on its own arrays)."""
     acc = 0.0
+    saved = subnormals.enter()          # as in the step
     for _ in range(n):
         if which == 0:
             acc += kernel.forces(m, q, q_prev, False, tv, te, ws, skipped)
@@ -93,6 +96,7 @@ def _outside(which, m, ctx, q, v, q_prev, v_prev, start, tv, te, ws, qvw, aw, sk
         elif which == 8:
             ws.q_new[:] = start
             newton.minimize(m, ctx, ws.q_new, ws)
+    subnormals.leave(saved)
     return acc
 
 

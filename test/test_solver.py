@@ -674,3 +674,29 @@ def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
             assert np.array_equal(x, y)
     big = _world(chain_dict(1000, torque=0.0))
     assert 2 <= big.solver.batch_limit < 10        # ~1 MB of states per batch
+
+
+def _subnormal_count(*arrays):
+    tiny = np.finfo(float).tiny
+    return sum(int(np.count_nonzero((a != 0.0) & (np.abs(a) < tiny))) for a in arrays)
+
+
+def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
+    """A disturbance decays ~10^0.7 per link along a chain, so after a few steps the far links'
+    zero entries would hold subnormals (< 2.2e-308), each operation on which is ~100× slower on
+    x86 (docs/decisions.md). The step flushes them to zero while it runs, and only while it
+    runs: numpy after a step still keeps a subnormal."""
+    from abd_joint_sim.builders import chain_scene
+    from abd_joint_sim.solver import subnormals
+    if not subnormals.X86:
+        pytest.skip('FTZ/DAZ are set on x86-64 only')      # pragma: no cover
+    w = World(Scene.from_dict(chain_scene(600)))
+    before = subnormals.flags()
+    w.step(4)
+    s = w.state
+    assert _subnormal_count(s.q, s.v, s.q_prev, s.v_prev, s.warm_start) == 0
+    # the disturbance reached far enough down the chain to have made subnormals
+    moved = np.abs(s.q - w.model.body_q0).max(axis=1)
+    assert np.any((moved > 0.0) & (moved < 1e-290)) and np.any(moved > 1e-4)
+    assert subnormals.flags() & subnormals.FTZ_DAZ == before & subnormals.FTZ_DAZ
+    assert np.array([1e-310])[0] * 1.0 == 1e-310

@@ -23,7 +23,7 @@ from numba import njit
 from .. import angles
 from ..terms import gravity, revolute, torque
 from ..terms.context import StepContext
-from . import bdf, newton
+from . import bdf, newton, subnormals
 
 # columns of a step's outcome row
 OUT_STATUS = 0           #: newton status code
@@ -106,7 +106,9 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
          drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw, new_angles,
          skipped, outcome):
     """One step of size h, working in ws (workspace.Workspace). new_qvw (3,B,12) = new q, v, warm_start; new_angles (2,J) = joint
-    angle, joint velocity; skipped[:outcome[OUT_SKIPPED]] = bodies without torque."""
+    angle, joint velocity; skipped[:outcome[OUT_SKIPPED]] = bodies without torque. Subnormal
+    numbers are flushed to zero while it runs (subnormals.py)."""
+    saved = subnormals.enter()
     B, J = q.shape[0], m.joint_parent.size
     outcome[:] = 0.0
     outcome[OUT_APART_JOINT] = -1.0
@@ -119,6 +121,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
         predicted = predicted_rotation(m, q, q_tilde)
         if predicted > m.max_step_rotation:
             outcome[OUT_ROTATION], outcome[OUT_FAILURE] = predicted, FAIL_PREDICTED_ROTATION
+            subnormals.leave(saved)
             return
     # 3. Newton
     init_angle = m.joint_init_angle
@@ -140,6 +143,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
     if status == newton.NONFINITE or not newton.all_finite(q_new):
         outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
+        subnormals.leave(saved)
         return
     # 4. velocities, joint angles, checks
     v_new = new_qvw[1]
@@ -147,6 +151,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles)
     if not finite or not v_finite:
         outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
+        subnormals.leave(saved)
         return
     outcome[OUT_ROTATION] = rotation
     separation, overloaded, apart = revolute.check_separations(q_new, m)
@@ -155,6 +160,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
     if apart >= 0:
         outcome[OUT_APART_JOINT], outcome[OUT_FAILURE] = apart, FAIL_JOINT_APART
     store(q_new, q_tilde, cw, new_qvw)
+    subnormals.leave(saved)
 
 
 @njit(cache=True, error_model='numpy')
