@@ -354,3 +354,84 @@ def eigh_ql_in(S, w, V, e):
 def _eigh_fallback(S, w, V):
     jacobi_eigh(S, w, V)
     return False
+
+
+@njit(cache=True, error_model='numpy')
+def nearest_rotation_in(A, R, work):
+    """R = the rotation nearest the 3x3 A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ
+    from svd3. work: (5, 3, 3) scratch."""
+    U, V = work[0], work[1]
+    S = work[2, 0]
+    svd3_in(A, U, S, V, work[3:5])
+    d = (U[0, 0] * (U[1, 1] * U[2, 2] - U[1, 2] * U[2, 1])
+         - U[0, 1] * (U[1, 0] * U[2, 2] - U[1, 2] * U[2, 0])
+         + U[0, 2] * (U[1, 0] * U[2, 1] - U[1, 1] * U[2, 0]))
+    e = (V[0, 0] * (V[1, 1] * V[2, 2] - V[1, 2] * V[2, 1])
+         - V[0, 1] * (V[1, 0] * V[2, 2] - V[1, 2] * V[2, 0])
+         + V[0, 2] * (V[1, 0] * V[2, 1] - V[1, 1] * V[2, 0]))
+    flip = -1.0 if d * e < 0.0 else 1.0
+    for r in range(3):
+        for c in range(3):
+            R[r, c] = U[r, 0] * V[c, 0] + U[r, 1] * V[c, 1] + flip * U[r, 2] * V[c, 2]
+
+
+@njit(cache=True, error_model='numpy')
+def quaternion_in(R, out):
+    """out[:4] = (x, y, z, w) of the rotation R, w ≥ 0, by Shepperd's method (the largest of
+    w, x, y, z first, so no division by a small number)."""
+    t = R[0, 0] + R[1, 1] + R[2, 2]
+    k, best = 0, t
+    for i in range(3):
+        if R[i, i] > best:
+            k, best = i + 1, R[i, i]
+    if k == 0:
+        s = 2.0 * math.sqrt(1.0 + t)
+        w, x, y, z = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
+    elif k == 1:
+        s = 2.0 * math.sqrt(max(1.0 + R[0, 0] - R[1, 1] - R[2, 2], 1e-300))
+        w, x, y, z = (R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s
+    elif k == 2:
+        s = 2.0 * math.sqrt(max(1.0 + R[1, 1] - R[0, 0] - R[2, 2], 1e-300))
+        w, x, y, z = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + R[2, 2] - R[0, 0] - R[1, 1], 1e-300))
+        w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    out[0], out[1], out[2], out[3] = x, y, z, w
+
+
+@njit(cache=True, error_model='numpy')
+def frame_poses(P, A, body, t, Rv, ends_body, ends, poses, points):
+    """Poses of frames attached to affine bodies (x = A x̄ + p per body: P (B,3), A (B,3,3)):
+    poses[i] = (x, y, z, qx, qy, qz, qw) of frame i on body[i] at body-frame offset t[i] (3,)
+    with rotation Rv[i] (3,3): position A t + p, orientation R Rv with R the rotation nearest
+    A; points[i] = A x + p of each point ends[i] (3,) on body ends_body[i]. The rotation of a
+    body is computed once. Returns False (outputs partly written) if an input is not finite."""
+    B = P.shape[0]
+    for b in range(B):
+        for r in range(3):
+            if not math.isfinite(P[b, r]):
+                return False
+            for c in range(3):
+                if not math.isfinite(A[b, r, c]):
+                    return False
+    work = np.empty((5, 3, 3))
+    R = np.empty((B, 3, 3))
+    done = np.zeros(B, dtype=np.bool_)
+    Rp = np.empty((3, 3))
+    for i in range(body.size):
+        b = body[i]
+        if not done[b]:
+            nearest_rotation_in(A[b], R[b], work)
+            done[b] = True
+        for r in range(3):
+            poses[i, r] = A[b, r, 0] * t[i, 0] + A[b, r, 1] * t[i, 1] + A[b, r, 2] * t[i, 2] + P[b, r]
+            for c in range(3):
+                Rp[r, c] = R[b, r, 0] * Rv[i, 0, c] + R[b, r, 1] * Rv[i, 1, c] + R[b, r, 2] * Rv[i, 2, c]
+        quaternion_in(Rp, poses[i, 3:7])
+    for i in range(ends_body.size):
+        b = ends_body[i]
+        for r in range(3):
+            points[i, r] = A[b, r, 0] * ends[i, 0] + A[b, r, 1] * ends[i, 1] + A[b, r, 2] * ends[i, 2] + P[b, r]
+    return True

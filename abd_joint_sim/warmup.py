@@ -66,6 +66,12 @@ def _run_kernels():
         ctx = solver.context(state, control, model.dt)
         for term in (ortho, revolute, driving, limit):
             term.energy(state.q, solver.data, ctx)
+    # the body markers' poses (ros/markers.py)
+    import numpy as np
+    from .smallmat import frame_poses
+    one = np.zeros(1, dtype=np.intp)
+    frame_poses(np.zeros((1, 3)), np.eye(3)[None], one, np.zeros((1, 3)), np.eye(3)[None], one,
+                np.zeros((1, 3)), np.empty((1, 7)), np.empty((1, 3)))
 
 
 def ensure_compiled(verbose: bool = True) -> dict:

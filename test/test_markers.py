@@ -52,6 +52,38 @@ def test_nearest_rotation_is_scipys_polar_factor():
     np.testing.assert_allclose(R, np.eye(3), atol=1e-12)
 
 
+def test_compiled_frame_poses_match_the_numpy_reference():
+    """smallmat.frame_poses (what the markers use, compiled) against nearest_rotation (numpy's
+    SVD) and quaternion: the same poses to rounding, the quaternion on the same rotation bit
+    for bit, the reflection case, and False (not a traceback) for a non-finite body."""
+    from abd_joint_sim.smallmat import frame_poses, quaternion_in
+    rng = np.random.default_rng(7)
+    B, F = 6, 9
+    A = np.array([Rotation.random(random_state=rng).as_matrix()
+                  @ (np.eye(3) + 0.05 * rng.standard_normal((3, 3))) for _ in range(B)])
+    A[2] = np.diag([1.0, 2.0, -0.5])                              # det < 0: a reflection
+    P = rng.standard_normal((B, 3))
+    body = rng.integers(0, B, F).astype(np.intp)
+    t = rng.standard_normal((F, 3))
+    Rv = np.array([Rotation.random(random_state=rng).as_matrix() for _ in range(F)])
+    ends_body = rng.integers(0, B, 4).astype(np.intp)
+    ends = rng.standard_normal((4, 3))
+    poses, points = np.empty((F, 7)), np.empty((4, 3))
+    assert frame_poses(P, A, body, t, Rv, ends_body, ends, poses, points)
+    for i, b in enumerate(body):
+        R = nearest_rotation(A[b]) @ Rv[i]
+        np.testing.assert_allclose(poses[i, :3], A[b] @ t[i] + P[b], rtol=0, atol=1e-14)
+        q = np.array(quaternion(R))
+        np.testing.assert_allclose(poses[i, 3:], q, rtol=0, atol=1e-12)
+        out = np.empty(4)
+        quaternion_in(R, out)
+        assert tuple(out) == quaternion(R)                          # the same arithmetic
+    for i, b in enumerate(ends_body):
+        np.testing.assert_allclose(points[i], A[b] @ ends[i] + P[b], rtol=0, atol=1e-14)
+    A[4, 1, 2] = np.nan
+    assert not frame_poses(P, A, body, t, Rv, ends_body, ends, poses, points)
+
+
 def test_quaternion_matches_scipy():
     rng = np.random.default_rng(2)
     mats = [Rotation.random(random_state=rng).as_matrix() for _ in range(200)]

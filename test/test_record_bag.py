@@ -570,24 +570,41 @@ def test_fast_message_path_writes_the_bytes_of_mcaps_add_message(tmp_path, monke
     from abd_joint_sim.ros import convert
     assert bagmod.fast_messages_work()
     files = []
-    for fast in (True, False):
-        path = tmp_path / str(fast) / 'bag'     # same name: the name is in the metadata
+    # fast/slow: one write per message; 'many': the /clock runs between two joint states in
+    # one write_serialized_many call (sim_node's batches), with and without the fast path
+    for mode in ('fast', 'slow', 'many', 'many_slow'):
+        path = tmp_path / mode / 'bag'     # same name: the name is in the metadata
         with BagWriter(path, chunk_size=4096, custom_data={'k': 'v'}) as w:
-            if not fast:
+            if mode in ('slow', 'many_slow'):
                 w._fast = None
             w.add_topic('/clock', 'rosgraph_msgs/msg/Clock', qos='best_effort', depth=1)
             w.add_topic('/joint_states', 'sensor_msgs/msg/JointState')
             enc = convert.ClockEncoder()
+            held = ([], [])
             for k in range(3000):
                 t = k * 1_000_000 if k != 1500 else 7
-                w.write_serialized('/clock', t, enc.encode(t))
+                if mode.startswith('many'):
+                    held[0].append(t)
+                    held[1].append(enc.encode(t))
+                else:
+                    w.write_serialized('/clock', t, enc.encode(t))
                 if k % 10 == 0:
+                    if held[0]:
+                        w.write_serialized_many('/clock', *held)
+                        held = ([], [])
                     w.write('/joint_states', t, convert.joint_state_msg(
                         t, JOINTS, [k * 1e-3] * 3, [1.0] * 3, [-2.0] * 3))
+            w.write_serialized_many('/clock', *held)
         files.append((path / f'{path.name}_0.mcap').read_bytes())
-    assert len(files[0]) > 3 * 4096 and files[0] == files[1]
+    assert len(files[0]) > 3 * 4096 and files[0] == files[1] == files[2] == files[3]
+    with BagWriter(tmp_path / 'bad') as w:
+        w.add_topic('/clock', 'rosgraph_msgs/msg/Clock', qos='best_effort', depth=1)
+        with pytest.raises(BagError, match='2 stamps for 1 messages'):
+            w.write_serialized_many('/clock', [1, 2], [b'x'])
+        with pytest.raises(BagError, match='stamp_ns -5 is not an int >= 0'):
+            w.write_serialized_many('/clock', [1, -5], [enc.encode(1), enc.encode(2)])
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    with AnyReader([tmp_path / 'True' / 'bag'], default_typestore=typestore) as reader:
+    with AnyReader([tmp_path / 'fast' / 'bag'], default_typestore=typestore) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         stamps = [t for _, t, _ in reader.messages()]
     assert counts == {'/clock': 3000, '/joint_states': 300}
@@ -596,5 +613,5 @@ def test_fast_message_path_writes_the_bytes_of_mcaps_add_message(tmp_path, monke
     monkeypatch.setattr(bagmod, '_FAST_MESSAGES_OK', None)
     monkeypatch.setattr(bagmod, '_MESSAGE_OPCODE', 0x06)       # a wrong record opcode
     assert not bagmod.fast_messages_work()
-    with BagWriter(tmp_path / 'slow') as w:
+    with BagWriter(tmp_path / 'slow_check') as w:
         assert w._fast is None                                 # mcap's own add_message

@@ -91,6 +91,13 @@ class LoopOutput:
     def stepped(self, t_ns: int, force: bool) -> None:
         """After the above, once per step or forced publish."""
 
+    def batch_begin(self) -> None:
+        """Before the outputs of a batch of steps (their /clock may be held back and written
+        in one call, provided it is written before anything else is and by `batch_end`)."""
+
+    def batch_end(self) -> None:
+        """After the outputs of a batch of steps, also when one of them raised."""
+
     def log(self, level: str, text: str, key: Any = None) -> None:
         """A message for a person; `key` set: throttle repeats of this kind."""
 
@@ -236,12 +243,17 @@ class SimLoop:
         last = count - 1
         if isinstance(times, np.ndarray):
             times = times.tolist()
-        for i, t in enumerate(times):
-            # Only the batch's last step is the world's current one (markers need its poses).
-            self.publish_state(t=t, position=angles[i], velocity=velocities[i],
-                               current=i == last)
-            if self.fault:              # the publish guard stopped it: say so once
-                break
+        out = self.output
+        out.batch_begin()
+        try:
+            for i, t in enumerate(times):
+                # Only the batch's last step is the world's current one (markers need its poses).
+                self.publish_state(t=t, position=angles[i], velocity=velocities[i],
+                                   current=i == last)
+                if self.fault:              # the publish guard stopped it: say so once
+                    break
+        finally:
+            out.batch_end()
 
     def _on_applied(self, applied: Applied) -> None:
         for joint in applied.timed_out:

@@ -40,6 +40,8 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from abd_joint_sim.smallmat import frame_poses
+
 TOPIC_MARKERS = 'markers'
 MARKER_TYPE = 'visualization_msgs/msg/MarkerArray'
 
@@ -322,7 +324,8 @@ class MarkerBuilder:
     def _values(self, pose: Callable[[str], tuple]) -> Optional[tuple[list, list]]:
         """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint
         arrow]) of the current poses, plain floats; None if a pose is not finite. All parts
-        at once: position A t + p, orientation R R_v (module docstring)."""
+        at once, compiled (smallmat.frame_poses): position A t + p, orientation R R_v
+        (module docstring)."""
         ps, As = [], []
         for name in self.body_names:
             p, A = pose(name)
@@ -330,30 +333,22 @@ class MarkerBuilder:
             As.append(A)
         P = np.asarray(ps, dtype=float)
         A = np.asarray(As, dtype=float)
-        if not (np.all(np.isfinite(P)) and np.all(np.isfinite(A))):
-            return None
         if self._stacked is None:
             index = self._index
+            ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)
             self._stacked = (
                 np.array([index[p.body] for p in self.parts], dtype=np.intp),
-                np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3, 1),
+                np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3),
                 np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
-                np.array([index[parent] for _j, _n, parent, _a, _b in self.axes],
-                         dtype=np.intp),
+                np.repeat(ka, 2),
                 np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
-                         dtype=float).reshape(-1, 2, 3).transpose(0, 2, 1))
-        k, t, Rv, ka, ab = self._stacked
-        poses = []
-        if len(k):
-            R = nearest_rotations(A)
-            position = (A[k] @ t)[:, :, 0] + P[k]
-            poses = [tuple(x) + _quaternion(r) for x, r in
-                     zip(position.tolist(), (R[k] @ Rv).tolist())]
-        points = []
-        if len(ka):
-            ends = A[ka] @ ab + P[ka][:, :, None]         # (K, 3, 2): both ends of each arrow
-            points = [tuple(e) for e in ends.transpose(0, 2, 1).reshape(-1, 6).tolist()]
-        return poses, points
+                         dtype=float).reshape(-1, 3),
+                np.empty((len(self.parts), 7)), np.empty((2 * len(self.axes), 3)))
+        k, t, Rv, ends_body, ends, poses, points = self._stacked
+        if not frame_poses(P, A, k, t, Rv, ends_body, ends, poses, points):
+            return None
+        return ([tuple(v) for v in poses.tolist()],
+                [tuple(v) for v in points.reshape(-1, 6).tolist()])
 
     def _marker(self, ns: str, mid: int, kind: int):
         m = self.Marker()

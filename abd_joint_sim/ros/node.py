@@ -78,6 +78,7 @@ class SimNode(Node):
         # tools). Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene
         self.scene = self._load_scene(Scene)
+        self._held_clock = None     # /clock (stamps, CDR) held back during a batch of steps
         self._output = _NodeOutput(self)
         self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,
                             paused=bool(self.config.start_paused))
@@ -460,6 +461,10 @@ class SimNode(Node):
     def _record(self, topic: str, stamp_ns: int, msg, serialized: bool = False) -> None:
         if self.recorder is None:
             return
+        if self._held_clock is not None and self._held_clock[0]:
+            self._write_held_clock()            # first: the bag keeps the order of the steps
+            if self.recorder is None:
+                return
         try:
             if serialized:
                 self.recorder.write_serialized(topic, stamp_ns, msg)
@@ -467,6 +472,17 @@ class SimNode(Node):
                 self.recorder.write(topic, stamp_ns, msg)
         except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
             self._recording_failed(f'writing {topic} failed: {exc}')
+
+    def _write_held_clock(self) -> None:
+        """The /clock messages a batch held back (_NodeOutput.clock), in one bag call."""
+        stamps, datas = self._held_clock
+        self._held_clock = ([], [])
+        if self.recorder is None or not stamps:
+            return
+        try:
+            self.recorder.write_serialized_many(TOPIC_CLOCK, stamps, datas)
+        except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
+            self._recording_failed(f'writing {TOPIC_CLOCK} failed: {exc}')
 
     def _recording_failed(self, why: str) -> None:
         self.recording_error = why
@@ -547,12 +563,29 @@ class _NodeOutput(LoopOutput):
 
     def clock(self, t_ns: int) -> None:
         # /clock after every step: 12 bytes of CDR published and recorded as they are
-        # (convert.ClockEncoder), serialised once instead of once per use.
+        # (convert.ClockEncoder), serialised once instead of once per use. In a batch the
+        # recording is held back and written in one call (batch_end, or before any other
+        # message: SimNode._record), the same bytes in the same order.
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
         node.clock_publish_raw(clock)
-        if node.recorder is not None:
+        held = node._held_clock
+        if held is not None:
+            held[0].append(t_ns)
+            held[1].append(clock)
+        elif node.recorder is not None:
             node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
+
+    def batch_begin(self) -> None:
+        node = self.node
+        if node.recorder is not None:
+            node._held_clock = ([], [])
+
+    def batch_end(self) -> None:
+        node = self.node
+        if node._held_clock is not None:
+            node._write_held_clock()
+            node._held_clock = None
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
         # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
