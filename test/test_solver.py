@@ -700,3 +700,45 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
     assert np.any((moved > 0.0) & (moved < 1e-290)) and np.any(moved > 1e-4)
     assert subnormals.flags() & subnormals.FTZ_DAZ == before & subnormals.FTZ_DAZ
     assert np.array([1e-310])[0] * 1.0 == 1e-310
+
+
+def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
+    """forward_block12 and schur_update12 are compiled with LLVM's SLP vectoriser
+    (linsolve.slp_vectorized; numba keeps it off by default after miscompilations). Against
+    the same Python functions compiled without it, and against the loop forms they
+    replace (forward_block; the lower-half loop of the Schur update), bit for bit."""
+    from numba import njit
+    plain_forward = njit(linsolve.forward_block12.py_func)
+    plain_schur = njit(linsolve.schur_update12.py_func)
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        a = rng.standard_normal((12, 12))
+        W = a @ a.T + 0.5 * np.eye(12)
+        d = np.empty(12)
+        assert linsolve.factor_block(W, d)
+        X0 = rng.standard_normal((12, 12)) * 10.0 ** rng.integers(-3, 4)
+        outs = []
+        for forward in (linsolve.forward_block12, plain_forward):
+            X = X0.copy()
+            forward(W, d, X)
+            outs.append(X)
+        X = X0.copy()
+        linsolve.forward_block(W, d, X, 12)
+        outs.append(X)
+        assert np.array_equal(outs[0], outs[1]) and np.array_equal(outs[0], outs[2])
+        D0, y, b0 = rng.standard_normal((12, 12)), rng.standard_normal(12), rng.standard_normal(12)
+        results = []
+        for schur in (linsolve.schur_update12, plain_schur):
+            D, b = D0.copy(), b0.copy()
+            schur(X, y, D, b)
+            results.append((D, b))
+        D, b = D0.copy(), b0.copy()
+        for k in range(12):                  # the loop form, lower half
+            for r in range(12):
+                for c in range(r + 1):
+                    D[r, c] -= X[k, r] * X[k, c]
+                b[r] -= X[k, r] * y[k]
+        for got, want in ((results[0], results[1]), (results[0], (D, b))):
+            assert np.array_equal(np.tril(got[0]), np.tril(want[0]))
+            assert np.array_equal(got[1], want[1])
+        assert np.array_equal(results[0][0], results[1][0])
