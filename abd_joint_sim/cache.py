@@ -40,6 +40,8 @@ def sources_hash() -> str:
             if b'njit(' in text:
                 h.update(f.relative_to(PACKAGE).as_posix().encode())
                 h.update(text)
+    from .solver import vectorize        # a build without the SLP vectoriser is another build
+    h.update(b'slp' if vectorize.ENABLED else b'no-slp')
     return h.hexdigest()[:20]
 
 

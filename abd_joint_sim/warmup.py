@@ -88,7 +88,9 @@ def ensure_compiled(verbose: bool = True) -> dict:
               file=sys.stderr, flush=True)
     _done = True
     try:
-        _run_kernels()
+        from .solver import vectorize
+        with vectorize.enabled():
+            _run_kernels()
     except BaseException:
         _done = False
         raise

@@ -742,3 +742,46 @@ def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
             assert np.array_equal(np.tril(got[0]), np.tril(want[0]))
             assert np.array_equal(got[1], want[1])
         assert np.array_equal(results[0][0], results[1][0])
+
+
+_SLP_PROBE = r'''
+import hashlib, os, sys
+import numpy as np
+import pybullet_data
+from abd_joint_sim import Scene, World
+from abd_joint_sim.builders import chain_scene
+from abd_joint_sim.warmup import _loop_scene, _tiny_scene
+scenes = {
+    'chain': Scene.from_dict(chain_scene(6, torque=0.8)),
+    'bdf2 drives limits': _tiny_scene(),
+    'loop (dense solve)': _loop_scene(),
+    'kuka': Scene.from_urdf(os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf')),
+}
+for name, scene in scenes.items():
+    w = World(scene)
+    for k, j in enumerate(w.actuated_joint_names):
+        w.set_torque(j, (-1.0) ** k * 2.0)
+    w.step(150)
+    h = hashlib.sha256()
+    for a in (w.state.q, w.state.v, w.state.warm_start, w.joint_angles(), w.joint_velocities()):
+        h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+    print(name, w.last_step.newton_iterations, h.hexdigest())
+'''
+
+
+def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
+    """The kernels are compiled with LLVM's SLP vectoriser (solver/vectorize.py), which numba
+    keeps off because it once miscompiled. A build with ABD_SLP=0 (every kernel scalar,
+    compiled afresh into its own cache) steps four scenes (tree and dense solves, BDF1 and
+    BDF2, drives, limits, gravity, the KUKA arm into its limits) to the same bits."""
+    def run(extra):
+        env = dict(os.environ, **extra)
+        out = subprocess.run([sys.executable, '-c', _SLP_PROBE], env=env, capture_output=True,
+                             text=True, timeout=600, cwd=str(REPO))
+        assert out.returncode == 0, out.stderr[-3000:]
+        return [line for line in out.stdout.splitlines() if line.strip()]
+    vectorised = run({})
+    scalar = run({'ABD_SLP': '0', 'ABD_KERNEL_CACHE': str(tmp_path / 'cache')})
+    assert len(vectorised) == 4
+    assert any((tmp_path / 'cache').rglob('*.nbi'))          # it did compile its own build
+    assert vectorised == scalar

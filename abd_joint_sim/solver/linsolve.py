@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..smallmat import cholesky, lower_solve, upper_solve
+from .vectorize import slp_vectorized
 
 DENSE, TREE = 0, 1
 DENSE_MAX_DOF = 12 * 64     # a loop of 64 free bodies: ~10⁸ flops per Newton iteration
@@ -191,34 +192,11 @@ def forward_block(L, inv_d, X, ncol):
             X[i, c] *= di
 
 
-def slp_vectorized(dispatcher):
-    """Compile `dispatcher`'s overloads with LLVM's SLP vectoriser on (numba keeps it off by
-    default since numba#8852: miscompilations in the LLVM of 2023). Only the two 12x12 block
-    kernels below use it: written out over 12 columns, their rows become 4-wide vector
-    operations, ~2x faster, where the loop vectoriser never acts (the compiler unrolls loops
-    of 12 first). The vectoriser changes no result here (elementwise operations only, no
-    reassociation); test_solver.py compares each kernel bit for bit with a build without
-    it, which would catch a miscompilation. The setting is numba's global one, restored
-    after each compile: no other function is compiled with it."""
-    compile_ = dispatcher.compile
-
-    def compile(sig):
-        from numba.core import config
-        before = config.SLP_VECTORIZE
-        config.SLP_VECTORIZE = 1
-        try:
-            return compile_(sig)
-        finally:
-            config.SLP_VECTORIZE = before
-    dispatcher.compile = compile
-    return dispatcher
-
-
 @slp_vectorized
 @njit(cache=True, error_model='numpy')
 def forward_block12(L, inv_d, X):
     """forward_block(L, inv_d, X, 12), written out over the 12 columns: row i is held in 12
-    locals while the rows above are subtracted, so the vectoriser (slp_vectorized) makes
+    locals while the rows above are subtracted, so the SLP vectoriser (vectorize.py) makes
     each run of 4 columns one vector operation. The same operations in the same order as
     forward_block: the same bits (test_solver.py checks)."""
     for i in range(12):
