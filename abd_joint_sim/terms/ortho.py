@@ -96,13 +96,24 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             lam[n] = sq + S[i] * S[j]
             lam[n + 1] = sq - S[i] * S[j]
             n += 2
-        # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a third)
-        Hb = diag[b, 3:12, 3:12]
+        # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a
+        # third); v_k held in locals and each row of the A-block written out, so the SLP
+        # vectoriser (solver/vectorize.py) makes it vector operations: the same bits
         for k in range(9):
             if not lam[k] > 0.0:
                 continue
             wl = w * lam[k]
+            v0, v1, v2, v3, v4 = vecs[k, 0], vecs[k, 1], vecs[k, 2], vecs[k, 3], vecs[k, 4]
+            v5, v6, v7, v8 = vecs[k, 5], vecs[k, 6], vecs[k, 7], vecs[k, 8]
             for a in range(9):
                 x = wl * vecs[k, a]
-                for c in range(9):
-                    Hb[a, c] += x * vecs[k, c]
+                r = 3 + a
+                diag[b, r, 3] += x * v0
+                diag[b, r, 4] += x * v1
+                diag[b, r, 5] += x * v2
+                diag[b, r, 6] += x * v3
+                diag[b, r, 7] += x * v4
+                diag[b, r, 8] += x * v5
+                diag[b, r, 9] += x * v6
+                diag[b, r, 10] += x * v7
+                diag[b, r, 11] += x * v8
