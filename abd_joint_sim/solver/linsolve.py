@@ -288,13 +288,23 @@ def solve_tree(m, diag, pair, grad, dq, ws):
         if p < 0:
             continue
         bs = free_idx[s]
-        Xs[:] = 0.0
         for e in range(edge_ptr[s], edge_ptr[s + 1]):       # U = H[s, p] = Σ pair or pairᵀ
             j = edge_joint[e]
+            # the first block is written as 0.0 + it (the sum's first term: -0.0 becomes
+            # +0.0 as when adding to a zeroed X) instead of zeroing X first: one pass, not two
             if jp[j] == bs:
+                if e == edge_ptr[s]:
+                    for r in range(12):
+                        for c in range(12):
+                            Xs[r, c] = 0.0 + pair[j, r, c]
+                else:
+                    for r in range(12):
+                        for c in range(12):
+                            Xs[r, c] += pair[j, r, c]
+            elif e == edge_ptr[s]:
                 for r in range(12):
                     for c in range(12):
-                        Xs[r, c] += pair[j, r, c]
+                        Xs[r, c] = 0.0 + pair[j, c, r]
             else:
                 for r in range(12):
                     for c in range(12):
