@@ -132,6 +132,8 @@ class World:
         self.state = State.initial(self.model)
         self.control = Control.initial(self.model)
         self.last_step = StepReport(max_joint_separation=self.max_joint_separation())
+        #: body states after each step of the last `step_clean` batch, (count, B, 12)
+        self.last_clean_q = np.empty((0, self.model.body_count, 12))
 
     # -- diagnostics --------------------------------------------------------------------
     def max_joint_separation(self) -> float:
@@ -190,11 +192,14 @@ class World:
         (for sim_node's batches). Returns (count, times, joint angles (count,J), joint
         velocities (count,J)); state and `last_step` are exactly as after `count` calls of
         `step`. Fewer than n (possibly 0) when a step is not clean: the caller then takes that
-        step with `step`, which sub-steps, warns or raises as usual."""
+        step with `step`, which sub-steps, warns or raises as usual. `last_clean_q` holds the
+        body states after each of the batch's steps, (count, B, 12) (sim_node's markers)."""
         J = self.model.joint_count
         if n <= 0:
+            self.last_clean_q = np.empty((0, self.model.body_count, 12))
             return 0, [], np.empty((0, J)), np.empty((0, J))
         batch = self.solver.clean_steps(self.state, self.control, int(n))
         if batch.count:
             self.state, self.last_step = batch.state, batch.report
+        self.last_clean_q = batch.q
         return batch.count, batch.times, batch.joint_angles, batch.joint_velocities

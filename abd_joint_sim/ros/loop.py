@@ -136,6 +136,11 @@ class SimLoop:
         config.joints = list(self.commands.order)
         self.markers = (MarkerBuilder(scene, config.marker_frame_id, config.marker_joint_axes)
                         if config.marker_rate > 0.0 else None)
+        # rows of the marker bodies in the world's states: markers inside a batch come from
+        # the batch's states (World.last_clean_q), so a batch need not end at a marker step
+        self._marker_rows = (None if self.markers is None else np.array(
+            [self.world.model.body_names.index(n) for n in self.markers.body_names],
+            dtype=np.intp))
         self.publish_schedule = PublishSchedule()
         self.marker_schedule = PublishSchedule()
         self.raise_faults = raise_faults
@@ -184,7 +189,8 @@ class SimLoop:
 
     def _batch_limit(self, remaining: int) -> int:
         """Steps the next batch may take: up to the next boundary that needs the world or
-        the command buffer (a command timeout, markers due, diagnostics due)."""
+        the command buffer (a command timeout, diagnostics due). Markers do not end a batch:
+        they are built from the batch's states."""
         if remaining < 2 or self.output.world_each_step:
             return 1
         limit = min(remaining, self.max_batch)
@@ -197,9 +203,6 @@ class SimLoop:
             limit = min(limit, max(1, int((expiry - now) / dt - 1e-6)))
         dt_ns = max(1, convert.seconds_to_ns(dt))
         now_ns = convert.seconds_to_ns(now)
-        if self.markers is not None and self.output.markers_wanted:
-            ahead = self.marker_schedule.next_ns - now_ns
-            limit = min(limit, max(1, -(-ahead // dt_ns)))      # end on the due step
         if self.diagnostics_period_ns:
             ahead = self.next_diagnostics_ns - now_ns
             limit = min(limit, max(1, -(-ahead // dt_ns)))
@@ -244,12 +247,14 @@ class SimLoop:
         if isinstance(times, np.ndarray):
             times = times.tolist()
         out = self.output
+        states = self.world.last_clean_q
         out.batch_begin()
         try:
             for i, t in enumerate(times):
-                # Only the batch's last step is the world's current one (markers need its poses).
+                # Only the batch's last step is the world's current one; the markers of the
+                # others come from the batch's states.
                 self.publish_state(t=t, position=angles[i], velocity=velocities[i],
-                                   current=i == last)
+                                   current=i == last, states=states[i])
                 if self.fault:              # the publish guard stopped it: say so once
                     break
         finally:
@@ -287,11 +292,12 @@ class SimLoop:
 
     # ------------------------------------------------------------------ publishing ----
     def publish_state(self, force: bool = False, t: Optional[float] = None,
-                      position=None, velocity=None, current: Optional[bool] = None) -> None:
+                      position=None, velocity=None, current: Optional[bool] = None,
+                      states=None) -> None:
         """/clock after every step, markers and the joint state when due; never a non-finite
         value. A batch passes each step's time, joint angles and velocities (the efforts are
-        the world's: no command changes inside a batch) and whether it is the world's
-        current step; by default the world's current."""
+        the world's: no command changes inside a batch), whether it is the world's current
+        step (by default the world's current) and the body states (B, 12) of that step."""
         out = self.output
         if t is None:
             t = self.world.time
@@ -302,8 +308,9 @@ class SimLoop:
         if current is None:
             current = position is None or t == self.world.time
         out.clock(t_ns)
-        if self.markers is not None and current:
-            self._markers(t_ns, force)
+        if self.markers is not None and (current or states is not None) and (
+                force or t_ns >= self.marker_schedule.next_ns):   # (markers_due's own test)
+            self._markers(t_ns, force, states)
         schedule = self.publish_schedule
         # (PublishSchedule.due's own test first: most steps publish no joint state)
         if (force or t_ns >= schedule.next_ns or out.every_state
@@ -338,14 +345,15 @@ class SimLoop:
             return
         out.joint_state(t_ns, position, velocity, effort)
 
-    def _markers(self, t_ns: int, force: bool) -> None:
+    def _markers(self, t_ns: int, force: bool, states=None) -> None:
         if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
             return
         if not self.output.markers_wanted:
             return
         build = (self.markers.build_serialized if self.output.markers_serialized
                  else self.markers.build)
-        msg = build(t_ns, self.world.body_pose)
+        msg = build(t_ns, self.world.body_pose if states is None
+                    else states[self._marker_rows])
         if msg is not None:     # a non-finite pose: the joint-state guard reports the fault
             self.output.markers(t_ns, msg)
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import struct
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -246,9 +246,10 @@ class MarkerBuilder:
             out.markers.append(m)
         return out
 
-    def build(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[Any]:
+    def build(self, stamp_ns: int, pose) -> Optional[Any]:
         """The MarkerArray at `stamp_ns` with body poses from `pose(name) -> (p, A)`
-        (``World.body_pose``); None if a pose is not finite (nothing to draw honestly).
+        (``World.body_pose``), or from the (bodies, 12) states [p, A] of `body_names` in
+        that order; None if a pose is not finite (nothing to draw honestly).
 
         The same message object is refilled by every call (as sim_node does with its
         JointState): publish or serialise it before the next call.
@@ -272,7 +273,7 @@ class MarkerBuilder:
                 point.x, point.y, point.z = xyz[k:k + 3]
         return self._msg
 
-    def build_serialized(self, stamp_ns: int, pose: Callable[[str], tuple]) -> Optional[bytes]:
+    def build_serialized(self, stamp_ns: int, pose) -> Optional[bytes]:
         """:meth:`build` as serialized CDR bytes (what ``serialize_message`` gives for it,
         trimmed as the bag stores it, padding zeroed: ``cdr.without_padding``), for
         ``Publisher.publish(bytes)`` and ``BagWriter.write_serialized``; None if a pose is
@@ -321,18 +322,23 @@ class MarkerBuilder:
             _POINTS.pack_into(buf, at, *v)
         return bytes(buf)
 
-    def _values(self, pose: Callable[[str], tuple]) -> Optional[tuple[list, list]]:
+    def _values(self, pose) -> Optional[tuple[list, list]]:
         """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint
         arrow]) of the current poses, plain floats; None if a pose is not finite. All parts
         at once, compiled (smallmat.frame_poses): position A t + p, orientation R R_v
-        (module docstring)."""
-        ps, As = [], []
-        for name in self.body_names:
-            p, A = pose(name)
-            ps.append(p)
-            As.append(A)
-        P = np.asarray(ps, dtype=float)
-        A = np.asarray(As, dtype=float)
+        (module docstring). `pose`: World.body_pose, or the (bodies, 12) states [p, A] of
+        `body_names` in that order (a step inside sim_node's batches)."""
+        if isinstance(pose, np.ndarray):
+            P = np.ascontiguousarray(pose[:, :3], dtype=float)
+            A = np.ascontiguousarray(pose[:, 3:12], dtype=float).reshape(-1, 3, 3)
+        else:
+            ps, As = [], []
+            for name in self.body_names:
+                p, A = pose(name)
+                ps.append(p)
+                As.append(A)
+            P = np.asarray(ps, dtype=float)
+            A = np.asarray(As, dtype=float)
         if self._stacked is None:
             index = self._index
             ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)

@@ -54,6 +54,7 @@ class CleanSteps:
     times: list                 #: [s] (count,) time after each step
     joint_angles: np.ndarray    #: [rad] (count, J)
     joint_velocities: np.ndarray  #: [rad/s] (count, J)
+    q: np.ndarray               #: (count, B, 12) body states after each step (read only)
 
 
 class _Tally:
@@ -342,7 +343,7 @@ class Solver:
 
     def _clean_result(self, s, count, qvw, aw, out) -> CleanSteps:
         if count == 0:
-            return CleanSteps(0, s, None, [], aw[:0, 0], aw[:0, 1])
+            return CleanSteps(0, s, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
         h = self.model.dt
         times = []
         t = s.time
@@ -360,4 +361,4 @@ class Solver:
                             line_search_iterations=int(o[kernel.OUT_LINE_SEARCH]),
                             max_joint_separation=float(o[kernel.OUT_SEPARATION]),
                             max_step_rotation=max(0.0, float(o[kernel.OUT_ROTATION])))
-        return CleanSteps(count, state, report, times, aw[:count, 0], aw[:count, 1])
+        return CleanSteps(count, state, report, times, aw[:count, 0], aw[:count, 1], qvw[:count, 0])
