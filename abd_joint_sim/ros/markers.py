@@ -40,7 +40,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from abd_joint_sim.smallmat import frame_poses
+from abd_joint_sim.smallmat import frame_poses, nearest_rotation_in, quaternion_in
 
 TOPIC_MARKERS = 'markers'
 MARKER_TYPE = 'visualization_msgs/msg/MarkerArray'
@@ -58,17 +58,18 @@ _POINTS = struct.Struct('<6d')     # an arrow's two geometry_msgs/Point
 
 def nearest_rotation(A: np.ndarray) -> np.ndarray:
     """The rotation nearest to A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ from
-    the SVD A = U S Vᵀ."""
+    the SVD A = U S Vᵀ (smallmat.nearest_rotation_in, what the markers use)."""
     return nearest_rotations(np.asarray(A, dtype=float)[None])[0]
 
 
 def nearest_rotations(A: np.ndarray) -> np.ndarray:
-    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3), in one SVD call."""
-    U, _, Vt = np.linalg.svd(np.asarray(A, dtype=float))
-    d = np.where(np.linalg.det(U @ Vt) < 0.0, -1.0, 1.0)
-    U = U.copy()
-    U[:, :, 2] *= d[:, None]
-    return U @ Vt
+    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3)."""
+    A = np.ascontiguousarray(A, dtype=float)
+    R = np.empty_like(A)
+    work = np.empty((5, 3, 3))
+    for k in range(A.shape[0]):
+        nearest_rotation_in(A[k], R[k], work)
+    return R
 
 
 def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
@@ -79,32 +80,11 @@ def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
 
 def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
-    w, x, y, z is computed first, so no division by a small number)."""
-    return _quaternion(np.asarray(R, dtype=float).tolist())
-
-
-def _quaternion(rows: list) -> tuple[float, float, float, float]:
-    """:func:`quaternion` of a rotation given as nested lists of plain floats (the same IEEE
-    arithmetic as numpy scalars, without their per-operation cost)."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
-    t = r00 + r11 + r22
-    candidates = (t, r00, r11, r22)
-    k = max(range(4), key=candidates.__getitem__)      # the first largest, as np.argmax
-    if k == 0:
-        s = 2.0 * math.sqrt(1.0 + t)
-        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
-    elif k == 1:
-        s = 2.0 * math.sqrt(max(1.0 + r00 - r11 - r22, 1e-300))
-        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
-    elif k == 2:
-        s = 2.0 * math.sqrt(max(1.0 + r11 - r00 - r22, 1e-300))
-        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
-    else:
-        s = 2.0 * math.sqrt(max(1.0 + r22 - r00 - r11, 1e-300))
-        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
-    if w < 0.0:
-        x, y, z, w = -x, -y, -z, -w
-    return float(x), float(y), float(z), float(w)
+    w, x, y, z is computed first, so no division by a small number; smallmat.quaternion_in,
+    what the markers use)."""
+    out = np.empty(4)
+    quaternion_in(np.ascontiguousarray(R, dtype=float), out)
+    return tuple(out.tolist())
 
 
 def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
