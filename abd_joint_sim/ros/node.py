@@ -37,7 +37,7 @@ from .markers import TOPIC_MARKERS
 from .params import (check_live_value, config_from_values, conflicting_parameter_sources,
                      default_scene_path, NODE_NAME, PARAMS, PARAMS_BY_NAME,
                      undeclared_parameters)
-from .recording import (add_node_topics, bag_custom_data, parameter_event_msg,
+from .recording import (add_node_topics, bag_custom_data, HeldMessages, parameter_event_msg,
                         record_applied)
 from .topics import (BEST_EFFORT, TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL,
                      TOPIC_ENABLE_JOINT, TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
@@ -78,7 +78,7 @@ class SimNode(Node):
         # tools). Imported here so that `--help`-like failures stay cheap.
         from abd_joint_sim import Scene
         self.scene = self._load_scene(Scene)
-        self._held_clock = None     # /clock (stamps, CDR) held back during a batch of steps
+        self._held_clock = HeldMessages(TOPIC_CLOCK)     # /clock held back in a batch
         self._output = _NodeOutput(self)
         self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,
                             paused=bool(self.config.start_paused))
@@ -461,7 +461,7 @@ class SimNode(Node):
     def _record(self, topic: str, stamp_ns: int, msg, serialized: bool = False) -> None:
         if self.recorder is None:
             return
-        if self._held_clock is not None and self._held_clock[0]:
+        if self._held_clock:
             self._write_held_clock()            # first: the bag keeps the order of the steps
             if self.recorder is None:
                 return
@@ -475,12 +475,8 @@ class SimNode(Node):
 
     def _write_held_clock(self) -> None:
         """The /clock messages a batch held back (_NodeOutput.clock), in one bag call."""
-        stamps, datas = self._held_clock
-        self._held_clock = ([], [])
-        if self.recorder is None or not stamps:
-            return
         try:
-            self.recorder.write_serialized_many(TOPIC_CLOCK, stamps, datas)
+            self._held_clock.flush(self.recorder)
         except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
             self._recording_failed(f'writing {TOPIC_CLOCK} failed: {exc}')
 
@@ -569,23 +565,17 @@ class _NodeOutput(LoopOutput):
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
         node.clock_publish_raw(clock)
-        held = node._held_clock
-        if held is not None:
-            held[0].append(t_ns)
-            held[1].append(clock)
+        if node._held_clock.active:
+            node._held_clock.hold(t_ns, clock)
         elif node.recorder is not None:
             node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
 
     def batch_begin(self) -> None:
-        node = self.node
-        if node.recorder is not None:
-            node._held_clock = ([], [])
+        self.node._held_clock.active = self.node.recorder is not None
 
     def batch_end(self) -> None:
-        node = self.node
-        if node._held_clock is not None:
-            node._write_held_clock()
-            node._held_clock = None
+        self.node._write_held_clock()
+        self.node._held_clock.active = False
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
         # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.

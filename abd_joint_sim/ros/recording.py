@@ -164,6 +164,36 @@ def joint_command_msg(t_ns: int, names, position=(), effort=()):
     return msg
 
 
+class HeldMessages:
+    """Serialized messages of one topic held back during a batch of steps and written with
+    one ``BagWriter.write_serialized_many`` call (sim_node's and the headless recorder's
+    /clock, one per step). The holder flushes before it writes any other message and at the
+    batch's end, so the bag gets the order and the bytes of one write per message."""
+
+    __slots__ = ('topic', 'active', '_stamps', '_datas')
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.active = False         #: in a batch: `hold` rather than write
+        self._stamps: list = []
+        self._datas: list = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def hold(self, stamp_ns: int, data: bytes) -> None:
+        self._stamps.append(stamp_ns)
+        self._datas.append(data)
+
+    def flush(self, writer: Any) -> int:
+        """Write what is held into `writer` (None: drop it); returns how many were held."""
+        stamps, datas = self._stamps, self._datas
+        self._stamps, self._datas = [], []
+        if stamps and writer is not None:
+            writer.write_serialized_many(self.topic, stamps, datas)
+        return len(stamps)
+
+
 class PublishSchedule:
     """When ``/joint_states`` is due: ``publish_rate`` Hz of simulated time (0 = every step).
 

@@ -22,7 +22,8 @@ from abd_joint_sim.ros.commands import Applied, CommandBuffer
 from abd_joint_sim.ros.loop import LoopOutput, queue_command, SimLoop, steps_until
 from abd_joint_sim.ros.markers import TOPIC_MARKERS
 from abd_joint_sim.ros.params import NODE_NAME, SimConfig
-from abd_joint_sim.ros.recording import (add_node_topics, bag_custom_data, parameter_event_msg,
+from abd_joint_sim.ros.recording import (add_node_topics, bag_custom_data, HeldMessages,
+                                         parameter_event_msg,
                                          record_applied, resolve_root, TOPIC_CLOCK,
                                          TOPIC_DIAGNOSTICS, TOPIC_JOINT_STATES,
                                          TOPIC_PARAMETER_EVENTS)
@@ -182,26 +183,23 @@ class BagRecorder(LoopOutput):
         self._markers = resolve_root(TOPIC_MARKERS)
         self._wall0 = time.monotonic()
         self.counts: dict[str, int] = {}
-        self._held: Optional[tuple[list, list]] = None   # /clock held back in a batch
+        self._held = HeldMessages(TOPIC_CLOCK)       # /clock held back in a batch
 
     def _write(self, topic: str, t_ns: int, msg: Any) -> None:
-        if self._held is not None and self._held[0]:
+        if self._held:
             self._write_held()
         self.writer.write(topic, t_ns, msg)
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def _write_serialized(self, topic: str, t_ns: int, data: bytes) -> None:
-        if self._held is not None and self._held[0]:
+        if self._held:
             self._write_held()
         self.writer.write_serialized(topic, t_ns, data)
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def _write_held(self) -> None:
         """The /clock messages a batch held back (clock), in one call, before anything else."""
-        stamps, datas = self._held
-        self._held = ([], [])
-        self.writer.write_serialized_many(TOPIC_CLOCK, stamps, datas)
-        self.counts[TOPIC_CLOCK] = self.counts.get(TOPIC_CLOCK, 0) + len(stamps)
+        self.counts[TOPIC_CLOCK] = self.counts.get(TOPIC_CLOCK, 0) + self._held.flush(self.writer)
 
     # -- LoopOutput -----------------------------------------------------------------------
     # /clock, the joint states and the markers as the node records them: the same checked
@@ -209,21 +207,19 @@ class BagRecorder(LoopOutput):
     markers_serialized = True
 
     def clock(self, t_ns: int) -> None:
-        if self._held is not None:          # in a batch: written in one call (as sim_node)
-            self._held[0].append(t_ns)
-            self._held[1].append(self._clock.encode(t_ns))
+        if self._held.active:               # in a batch: written in one call (as sim_node)
+            self._held.hold(t_ns, self._clock.encode(t_ns))
         else:
             self._write_serialized(TOPIC_CLOCK, t_ns, self._clock.encode(t_ns))
 
     def batch_begin(self) -> None:
-        self._held = ([], [])
+        self._held.active = True
 
     def batch_end(self) -> None:
         try:
-            if self._held is not None and self._held[0]:
-                self._write_held()
+            self._write_held()
         finally:
-            self._held = None
+            self._held.active = False
 
     def markers(self, t_ns: int, data: bytes) -> None:
         self._write_serialized(self._markers, t_ns, data)
