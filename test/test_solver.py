@@ -716,12 +716,12 @@ def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
         a = rng.standard_normal((12, 12))
         W = a @ a.T + 0.5 * np.eye(12)
         d = np.empty(12)
-        assert linsolve.factor_block(W, d)
+        assert linsolve.factor_block(W[None], 0, d[None], 0)     # (in place: views of W, d)
         X0 = rng.standard_normal((12, 12)) * 10.0 ** rng.integers(-3, 4)
         outs = []
         for forward in (linsolve.forward_block12, plain_forward):
             X = X0.copy()
-            forward(W, d, X)
+            forward(W[None], 0, d[None], X[None], 0)
             outs.append(X)
         X = X0.copy()
         linsolve.forward_block(W, d, X, 12)
@@ -729,15 +729,16 @@ def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
         assert np.array_equal(outs[0], outs[1]) and np.array_equal(outs[0], outs[2])
         y0 = X0[:, 0].copy()
         y1, y2 = y0.copy(), y0.copy()
-        linsolve.forward_vector12(W, d, y1)
+        linsolve.forward_vector12(W[None], 0, d[None], y1[None], 0)
         linsolve.forward_block(W, d, y2.reshape((12, 1)), 1)
         assert np.array_equal(y1, y2)
         D0, y, b0 = rng.standard_normal((12, 12)), rng.standard_normal(12), rng.standard_normal(12)
         results = []
         for schur in (linsolve.schur_update12, plain_schur):
             D, b = D0.copy(), b0.copy()
-            schur(X, y, D, b)
-            results.append((D, b))
+            ys = np.stack([y, b])             # the child's y, then the parent's b
+            schur(X[None], ys, 0, D[None], 0, 1)
+            results.append((D, ys[1]))
         D, b = D0.copy(), b0.copy()
         for k in range(12):                  # the loop form, lower half
             for r in range(12):

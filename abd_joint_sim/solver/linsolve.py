@@ -159,10 +159,13 @@ def solve_dense(m, diag, pair, grad, dq, ws):
 
 
 @njit(cache=True, error_model='numpy')
-def factor_block(W, inv_d):
-    """Lower Cholesky factor of the 12x12 W in place, row by row (the inner loops run along
-    rows, which the compiler vectorises), with inv_d = 1/diag(L) so the triangular solves
-    multiply instead of divide. False if W is not PD."""
+def factor_block(blocks, b, inv_ds, slot):
+    """Lower Cholesky factor of the 12x12 W = blocks[b] in place, row by row (the inner loops
+    run along rows, which the compiler vectorises), with inv_d = inv_ds[slot] = 1/diag(L) so the
+    triangular solves multiply instead of divide. False if W is not PD. (The block kernels
+    take an array and an index, not a view made by the caller: a view made in a loop costs
+    two atomic reference-count operations that numba cannot remove, docs/speed.md.)"""
+    W, inv_d = blocks[b], inv_ds[slot]
     for i in range(12):
         for j in range(i + 1):
             s = W[i, j]
@@ -195,9 +198,11 @@ def forward_block(L, inv_d, X, ncol):
 
 
 @njit(cache=True, error_model='numpy')
-def forward_vector12(L, inv_d, y):
-    """y = L⁻¹ y for a 12-vector: forward_block(L, inv_d, y.reshape((12, 1)), 1) with the
-    loop bounds known to the compiler (~4x faster); the same operations in the same order."""
+def forward_vector12(blocks, b, inv_ds, ys, slot):
+    """y = L⁻¹ y for the 12-vector y = ys[slot], L = blocks[b] factored by factor_block (its
+    inv_ds[slot]): forward_block(L, inv_d, y.reshape((12, 1)), 1) with the loop bounds known
+    to the compiler (~4x faster); the same operations in the same order."""
+    L, inv_d, y = blocks[b], inv_ds[slot], ys[slot]
     for i in range(12):
         acc = y[i]
         for k in range(i):
@@ -207,11 +212,13 @@ def forward_vector12(L, inv_d, y):
 
 @slp_vectorized
 @njit(cache=True, error_model='numpy')
-def forward_block12(L, inv_d, X):
-    """forward_block(L, inv_d, X, 12), written out over the 12 columns: row i is held in 12
+def forward_block12(blocks, b, inv_ds, Xs, slot):
+    """X = L⁻¹ X for X = Xs[slot], L = blocks[b] and inv_d = inv_ds[slot] (factor_block):
+    forward_block(L, inv_d, X, 12), written out over the 12 columns: row i is held in 12
     locals while the rows above are subtracted, so the SLP vectoriser (vectorize.py) makes
     each run of 4 columns one vector operation. The same operations in the same order as
     forward_block: the same bits (test_solver.py checks)."""
+    L, inv_d, X = blocks[b], inv_ds[slot], Xs[slot]
     for i in range(12):
         x0, x1, x2, x3, x4, x5 = X[i, 0], X[i, 1], X[i, 2], X[i, 3], X[i, 4], X[i, 5]
         x6, x7, x8, x9, x10, x11 = X[i, 6], X[i, 7], X[i, 8], X[i, 9], X[i, 10], X[i, 11]
@@ -246,12 +253,14 @@ def forward_block12(L, inv_d, X):
 
 @slp_vectorized
 @njit(cache=True, error_model='numpy')
-def schur_update12(X, y, W, b):
-    """W −= XᵀX and b −= Xᵀy for 12x12 X, W (the elimination of a child block into its
-    parent): row k of X held in 12 locals, each row of W updated whole (vectorised, as
+def schur_update12(Xs, ys, slot, blocks, bp, p):
+    """W −= XᵀX and b −= Xᵀy for the 12x12 X = Xs[slot], y = ys[slot], W = blocks[bp],
+    b = ys[p] (the elimination of a child block into its parent): row k of X held in 12
+    locals, each row of W updated whole (vectorised, as
     forward_block12). The lower half, the only half the factorisation reads, gets the
     operations of a loop over it in the same order: the same bits; the upper half, never
     read, is updated alike from its own values."""
+    X, y, W, b = Xs[slot], ys[slot], blocks[bp], ys[p]
     for k in range(12):
         x0, x1, x2, x3, x4, x5 = X[k, 0], X[k, 1], X[k, 2], X[k, 3], X[k, 4], X[k, 5]
         x6, x7, x8, x9, x10, x11 = X[k, 6], X[k, 7], X[k, 8], X[k, 9], X[k, 10], X[k, 11]
@@ -292,15 +301,14 @@ def solve_tree(m, diag, pair, grad, dq, ws):
     ok = True
     for t in range(nf):
         s = order[t]
-        Ws, Xs, ys, ds = diag[free_idx[s]], X[s], y[s], inv_d[s]
-        if not factor_block(Ws, ds):
+        bs = free_idx[s]
+        if not factor_block(diag, bs, inv_d, s):
             ok = False
             break
-        forward_vector12(Ws, ds, ys)
+        forward_vector12(diag, bs, inv_d, y, s)
         p = eparent[s]
         if p < 0:
             continue
-        bs = free_idx[s]
         for e in range(edge_ptr[s], edge_ptr[s + 1]):       # U = H[s, p] = Σ pair or pairᵀ
             j = edge_joint[e]
             # the first block is written as 0.0 + it (the sum's first term: -0.0 becomes
@@ -309,21 +317,21 @@ def solve_tree(m, diag, pair, grad, dq, ws):
                 if e == edge_ptr[s]:
                     for r in range(12):
                         for c in range(12):
-                            Xs[r, c] = 0.0 + pair[j, r, c]
+                            X[s, r, c] = 0.0 + pair[j, r, c]
                 else:
                     for r in range(12):
                         for c in range(12):
-                            Xs[r, c] += pair[j, r, c]
+                            X[s, r, c] += pair[j, r, c]
             elif e == edge_ptr[s]:
                 for r in range(12):
                     for c in range(12):
-                        Xs[r, c] = 0.0 + pair[j, c, r]
+                        X[s, r, c] = 0.0 + pair[j, c, r]
             else:
                 for r in range(12):
                     for c in range(12):
-                        Xs[r, c] += pair[j, c, r]
-        forward_block12(Ws, ds, Xs)
-        schur_update12(Xs, ys, diag[free_idx[p]], y[p])     # D_p −= XᵀX, b_p −= Xᵀy
+                        X[s, r, c] += pair[j, c, r]
+        forward_block12(diag, bs, inv_d, X, s)
+        schur_update12(X, y, s, diag, free_idx[p], p)      # D_p −= XᵀX, b_p −= Xᵀy
     if not ok:
         for s in range(nf):
             for r in range(12):
@@ -332,19 +340,18 @@ def solve_tree(m, diag, pair, grad, dq, ws):
     for t in range(nf - 1, -1, -1):
         s = order[t]
         p = eparent[s]
-        Ws, ys, ds = diag[free_idx[s]], y[s], inv_d[s]
+        b = free_idx[s]
         if p >= 0:
-            Xs, yp = X[s], y[p]
             for r in range(12):
                 acc = 0.0
                 for c in range(12):
-                    acc += Xs[r, c] * yp[c]
-                ys[r] -= acc
+                    acc += X[s, r, c] * y[p, c]
+                y[s, r] -= acc
         for i in range(11, -1, -1):                         # Lᵀ x = y
-            acc = ys[i]
+            acc = y[s, i]
             for k in range(i + 1, 12):
-                acc -= Ws[k, i] * ys[k]
-            ys[i] = acc * ds[i]
+                acc -= diag[b, k, i] * y[s, k]
+            y[s, i] = acc * inv_d[s, i]
     for s in range(nf):
         for r in range(12):
             dq[free_idx[s], r] = y[s, r]

@@ -37,16 +37,19 @@ def active(x, lower, upper):
 
 
 @njit(cache=True, error_model='numpy')
+def angle(q, m, ctx, k):
+    """The unwrapped angle x of limit k's joint at q (relative to init_angle). [rad]"""
+    j = m.limit_joints[k]
+    return angles.unwrap(angles.theta_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j),
+                         ctx.angle_start[j])
+
+
+@njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
-    start = ctx.angle_start
+    lower, upper, strength = m.limit_lower, m.limit_upper, m.limit_strength
     E = 0.0
-    if joints.size == 0:
-        return E
-    for k in range(joints.size):
-        j = joints[k]
-        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+    for k in range(lower.size):
+        x = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             E += phi(x, lower[k], upper[k], strength[k])[0]
     return E
@@ -56,19 +59,16 @@ def energy(q, m, ctx):
 def active_joints(q, m, ctx):
     """(joints, E', E'', n): the n limits outside their range at q, with their slopes."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
-    start = ctx.angle_start
     L = limit_joints.size
     joints = np.empty(L, dtype=np.int64)
     d1s = np.empty(L)
     d2s = np.empty(L)
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     n = 0
     for k in range(L):
-        j = limit_joints[k]
-        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+        x = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
-            joints[n] = j
+            joints[n] = limit_joints[k]
             d1s[n] = d1
             d2s[n] = d2
             n += 1
@@ -77,18 +77,26 @@ def active_joints(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the active limits: active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint, into one work array."""
+    """∇E and the (projected) Hessian of the active limits (active_joints and
+    angles.accumulate_angle_hessian fused, joint by joint). A robot's limits are mostly
+    inactive: this only looks for the first active one, and allocates nothing (an
+    allocation here would also keep numba from removing the call's reference counts)."""
+    lower, upper = m.limit_lower, m.limit_upper
+    for k in range(lower.size):
+        if active(angle(q, m, ctx, k), lower[k], upper[k]):
+            _accumulate_from(q, m, ctx, grad, diag, pair, project, k)
+            return
+
+
+@njit(cache=True, error_model='numpy')
+def _accumulate_from(q, m, ctx, grad, diag, pair, project, first):
+    """accumulate's work from limit `first` (active) on, in one work array."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
-    if limit_joints.size == 0:              # no allocations for a scene without limits
-        return
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    start = ctx.angle_start
     work = np.empty(angles.ANGLE_WORK_SHAPE)
-    for k in range(limit_joints.size):
-        j = limit_joints[k]
-        x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+    for k in range(first, limit_joints.size):
+        x = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
-            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
-                                          project, work)
+            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, limit_joints[k], d1, d2, grad,
+                                          diag, pair, project, work)

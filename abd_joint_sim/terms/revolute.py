@@ -13,21 +13,27 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 
 @njit(cache=True, error_model='numpy')
-def separation(q, i_body, j_body, x_bar, j, a, d):
-    """d = x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body
-    (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor). [m]"""
-    for r in range(3):
-        xi = q[i_body, r]
-        xj = q[j_body, r]
-        for c in range(3):
-            xi += q[i_body, 3 + 3 * r + c] * x_bar[j, 0, a, c]
-            xj += q[j_body, 3 + 3 * r + c] * x_bar[j, 1, a, c]
-        d[r] = xi - xj
+def separation(q, i_body, j_body, x_bar, j, a):
+    """x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body, as a
+    tuple (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor; a tuple,
+    not a work array: an array costs an allocation and atomic reference counts). [m]"""
+    return (_gap(q, i_body, j_body, x_bar, j, a, 0), _gap(q, i_body, j_body, x_bar, j, a, 1),
+            _gap(q, i_body, j_body, x_bar, j, a, 2))
+
+
+@njit(cache=True, error_model='numpy', inline='always')
+def _gap(q, i_body, j_body, x_bar, j, a, r):
+    """Row r of separation."""
+    xi = q[i_body, r]
+    xj = q[j_body, r]
+    for c in range(3):
+        xi += q[i_body, 3 + 3 * r + c] * x_bar[j, 0, a, c]
+        xj += q[j_body, 3 + 3 * r + c] * x_bar[j, 1, a, c]
+    return xi - xj
 
 
 @njit(cache=True, error_model='numpy')
@@ -38,20 +44,11 @@ def joint_separation(q, m, j):
 
 @njit(cache=True, error_model='numpy', inline='always')
 def _separation_norm(q, i_body, j_body, x_bar, j):
-    """max_a |x_i^a − x_j^a| of joint j (NaN wins); `separation`'s sums without its work
-    array (the post-step check runs this on every joint). [m]"""
+    """max_a |x_i^a − x_j^a| of joint j (NaN wins). [m]"""
     out = 0.0
     for a in range(2):
-        n2 = 0.0
-        for r in range(3):
-            xi = q[i_body, r]
-            xj = q[j_body, r]
-            for c in range(3):
-                xi += q[i_body, 3 + 3 * r + c] * x_bar[j, 0, a, c]
-                xj += q[j_body, 3 + 3 * r + c] * x_bar[j, 1, a, c]
-            d = xi - xj
-            n2 += d * d
-        n = math.sqrt(n2)
+        d0, d1, d2 = separation(q, i_body, j_body, x_bar, j, a)
+        n = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if n > out or n != n:
             out = n
     return out
@@ -94,13 +91,12 @@ def energy(q, m, ctx):
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     if parent.size == 0:
         return 0.0
-    d = np.empty(3)
     E = 0.0
     for j in range(parent.size):
         acc = 0.0
         for a in range(2):
-            separation(q, parent[j], child[j], x_bar, j, a, d)
-            acc += d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+            d0, d1, d2 = separation(q, parent[j], child[j], x_bar, j, a)
+            acc += d0 * d0 + d1 * d1 + d2 * d2
         E += K[j] * acc
     return 0.5 * E
 
@@ -125,20 +121,17 @@ def accumulate_gradient(q, m, ctx, grad):
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     if parent.size == 0:
         return
-    buf = np.empty(9)
-    Kd = buf[0:6].reshape((2, 3))
-    d = buf[6:9]
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
-        for a in range(2):
-            separation(q, i_body, j_body, x_bar, j, a, d)
-            for r in range(3):
-                Kd[a, r] = K[j] * d[r]
+        d0, d1, d2 = separation(q, i_body, j_body, x_bar, j, 0)
+        Kd0 = (K[j] * d0, K[j] * d1, K[j] * d2)             # K d at anchor P0
+        d0, d1, d2 = separation(q, i_body, j_body, x_bar, j, 1)
+        Kd1 = (K[j] * d0, K[j] * d1, K[j] * d2)             # and at P1
         for side in range(2):
             b = i_body if side == 0 else j_body
             sign = 1.0 if side == 0 else -1.0
             for r in range(3):
-                grad[b, r] += sign * (Kd[0, r] + Kd[1, r])
+                grad[b, r] += sign * (Kd0[r] + Kd1[r])
                 for c in range(3):
-                    grad[b, 3 + 3 * r + c] += sign * (Kd[0, r] * x_bar[j, side, 0, c]
-                                                      + Kd[1, r] * x_bar[j, side, 1, c])
+                    grad[b, 3 + 3 * r + c] += sign * (Kd0[r] * x_bar[j, side, 0, c]
+                                                      + Kd1[r] * x_bar[j, side, 1, c])
