@@ -22,12 +22,18 @@ class State:
     step_count: int = 0
     history_dt: float = 0.0     #: [s] step size q_prev/v_prev belong to; 0 = no history (BDF2 restarts)
     #: (B,12) Newton's last correction (q − q̃)/(c h²), c = 1 (BDF1) or 4/9 (BDF2): the next
-    #: step starts Newton from q̃ + c h² warm_start (MuJoCo's qacc_warmstart). None = zeros.
+    #: step starts Newton from q̃ + c h² (2 warm_start − warm_start_prev), the correction
+    #: extrapolated linearly in time (MuJoCo's qacc_warmstart, to first order). None = zeros.
     warm_start: np.ndarray | None = None
+    #: (B,12) the warm start one step (of history_dt) before; the same array as warm_start
+    #: when unknown or that step was of another size (then no extrapolation). None = that.
+    warm_start_prev: np.ndarray | None = None
 
     def __post_init__(self):
         if self.warm_start is None:
             self.warm_start = np.zeros_like(self.q)
+        if self.warm_start_prev is None:
+            self.warm_start_prev = self.warm_start
 
     @classmethod
     def initial(cls, model) -> 'State':
@@ -39,7 +45,7 @@ class State:
     def copy(self) -> 'State':
         return State(self.time, self.q.copy(), self.v.copy(), self.q_prev.copy(), self.v_prev.copy(),
                      self.joint_angle.copy(), self.joint_velocity.copy(), self.step_count,
-                     self.history_dt, self.warm_start.copy())
+                     self.history_dt, self.warm_start.copy(), self.warm_start_prev.copy())
 
 
 @dataclass

@@ -63,7 +63,7 @@ def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
             retract(q, ws.dq, 1.0, m, ws.trial)
         elif which == 7:
             ws.q_new[:] = q
-            newton.minimize(m, ctx, ws.q_new, ws)
+            newton.minimize(m, ctx, ws.q_new, ws, False)
         elif which == 8:
             ws.acc[:] = 0.0
             torque.add_acceleration(q, m, c_tv, c_te, ws.acc, skipped)
@@ -95,7 +95,7 @@ def _outside(which, m, ctx, q, v, q_prev, v_prev, start, tv, te, ws, qvw, aw, sk
             acc += newton.all_finite(ws.q_new)
         elif which == 8:
             ws.q_new[:] = start
-            newton.minimize(m, ctx, ws.q_new, ws)
+            newton.minimize(m, ctx, ws.q_new, ws, False)
     subnormals.leave(saved)
     return acc
 
@@ -120,12 +120,13 @@ def outside(w, n):
     sv, st, c = w.solver, w.state, w.control
     m, ws = sv.data, sv.work
     qvw, aw = np.empty((3,) + st.q.shape), np.empty((2, w.model.joint_count))
-    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.joint_angle, c.torque_value,
-            c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt, False, True, ws,
-            qvw, aw, sv._skipped, sv._outcome)
+    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev, st.joint_angle,
+            c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt,
+            False, st.history_dt == w.dt, True, ws, qvw, aw, sv._skipped, sv._outcome)
     kernel.step(*args)                               # leaves q̃ and the solved q in ws
     q_tilde = ws.q_tilde.copy()
-    start = q_tilde + w.dt * w.dt * st.warm_start    # Newton's start in the step (BDF1: c = 1)
+    # Newton's start in the step (BDF1: c = 1; the warm start extrapolated over two steps)
+    start = q_tilde + w.dt * w.dt * (2.0 * st.warm_start - st.warm_start_prev)
     ctx = sv.context(st, c, w.dt, q_tilde=q_tilde)
     out = {}
     for i, name in enumerate(OUTSIDE[:9]):
@@ -139,13 +140,13 @@ def outside(w, n):
 
 
 @njit
-def _step_loop(n, m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-               drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw,
-               new_angles, skipped, outcome):
+def _step_loop(n, m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
+               torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, extrapolate,
+               may_split, ws, new_qvw, new_angles, skipped, outcome):
     for _ in range(n):
-        kernel.step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-                    drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw,
-                    new_angles, skipped, outcome)
+        kernel.step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
+                    torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, extrapolate,
+                    may_split, ws, new_qvw, new_angles, skipped, outcome)
 
 
 def world(links):
@@ -174,9 +175,9 @@ def profile(links):
         out[name] = timed(lambda k, i=i: _run(i, m, ctx, q, ws, c.torque_value, c.torque_enabled,
                                               sv._skipped, k), n)
     qvw, aw = np.empty((3,) + q.shape), np.empty((2, w.model.joint_count))
-    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.joint_angle, c.torque_value,
-            c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt, False, True, ws,
-            qvw, aw, sv._skipped, sv._outcome)
+    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev, st.joint_angle,
+            c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt,
+            False, st.history_dt == w.dt, True, ws, qvw, aw, sv._skipped, sv._outcome)
     out['step'] = timed(lambda k: [kernel.step(*args) for _ in range(k)], n)
     return out
 

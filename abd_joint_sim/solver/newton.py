@@ -108,14 +108,21 @@ def step_within_tolerance(dq, m, h):
 
 
 @njit(cache=True, error_model='numpy')
-def minimize(m, ctx, q, ws):
-    """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (the
-    warm start never starts Newton above the plain prediction). Returns
+def minimize(m, ctx, q, ws, try_alt):
+    """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (a
+    warm start never starts Newton above the plain prediction). With `try_alt`, q is an
+    extrapolated start and ws.q_alt a plain one: where q̃ beats q (the extrapolation
+    overshot, at a jump of the input) Newton starts from the lowest of the three. Returns
     (status, iterations, line-search halvings)."""
     h, scale = ctx.h, ctx.scale
     B, J = q.shape[0], m.joint_parent.size
     E = potential(q, m, ctx)
     E_tilde = potential(ctx.q_tilde, m, ctx)
+    if try_alt and E_tilde < E:
+        E_alt = potential(ws.q_alt, m, ctx)
+        if E_alt < E:
+            q[:] = ws.q_alt
+            E = E_alt
     if E_tilde < E:
         q[:] = ctx.q_tilde
         E = E_tilde

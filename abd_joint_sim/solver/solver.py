@@ -96,7 +96,7 @@ class Solver:
         #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
         self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + kernel.OUT_COLUMNS)))
         self._entry = None              # the compiled step's entry point (_control_checked)
-        self._made = (None,) * 6        # state arrays the last step made (_compute)
+        self._made = (None,) * 7        # state arrays the last step made (_compute)
         self._control = (None,) * 5     # Control arrays checked for the entry point
         self._qvw_shape, self._aw_shape = (3, B, 12), (2, J)
         self._bdf2 = model.integrator == 'bdf2'
@@ -186,12 +186,15 @@ class Solver:
         qvw = np.empty(self._qvw_shape)
         aw = np.empty(self._aw_shape)
         out = self._outcome
-        args = (self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
-                c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive,
-                h, self._bdf2 and s.history_dt == h, may_split, self.work, qvw, aw, self._skipped, out)
+        uniform = s.history_dt == h
+        args = (self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.warm_start_prev,
+                s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
+                c.drive_passive, h, self._bdf2 and uniform, uniform, may_split, self.work, qvw, aw,
+                self._skipped, out)
         k = self._made
         if (s.q is k[0] and s.v is k[1] and s.q_prev is k[2] and s.v_prev is k[3]
-                and s.warm_start is k[4] and s.joint_angle is k[5] and self._control_checked(c)):
+                and s.warm_start is k[4] and (s.warm_start_prev is k[4] or s.warm_start_prev is k[6])
+                and s.joint_angle is k[5] and self._control_checked(c)):
             self._entry(*args)
         else:
             kernel.step(*args)
@@ -199,7 +202,7 @@ class Solver:
         # indexed once: each qvw[0] is a new view object, and the check is by identity
         qvw, aw = (qvw[0], qvw[1], qvw[2]), (aw[0], aw[1])
         self._made = (qvw[0], qvw[1], s.q if s.q is k[0] else None, s.v if s.v is k[1] else None,
-                      qvw[2], aw[0])
+                      qvw[2], aw[0], s.warm_start if s.warm_start is k[4] else None)
         return qvw, aw, out
 
     def _control_checked(self, c) -> bool:
@@ -227,8 +230,8 @@ class Solver:
                 z = np.zeros(self._qvw_shape[1:])
                 j = np.zeros(self._aw_shape[1:])
                 sig = tuple(kernel.step.typeof_pyval(a) for a in (
-                    m, z, z, z, z, z, j, *arrays, 1.0, True, True, s, np.empty(self._qvw_shape),
-                    np.empty(self._aw_shape), self._skipped, self._outcome))
+                    m, z, z, z, z, z, z, j, *arrays, 1.0, True, True, True, s,
+                    np.empty(self._qvw_shape), np.empty(self._aw_shape), self._skipped, self._outcome))
                 self._entry = kernel.step.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
                 self._entry = None
@@ -237,7 +240,8 @@ class Solver:
     def _state(self, s, h, qvw, aw):
         """The State after a step from s."""
         return State(s.time + h, qvw[0], qvw[1], s.q, s.v, aw[0],
-                     aw[1] if self._shape[1] else s.joint_velocity, s.step_count + 1, h, qvw[2])
+                     aw[1] if self._shape[1] else s.joint_velocity, s.step_count + 1, h, qvw[2],
+                     s.warm_start if s.history_dt == h else qvw[2])
 
     def _decode(self, s, h, qvw, aw, out, tally):
         m = self.model
@@ -334,11 +338,12 @@ class Solver:
         aw = np.empty((n, 2, J))
         out = np.empty((n, kernel.OUT_COLUMNS))
         bdf2 = m.integrator == 'bdf2'
-        count = kernel.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.joint_angle,
-                             c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
-                             c.drive_passive, m.dt, bdf2 and s.history_dt == m.dt, bdf2,
-                             self._may_split, int(n), self._clean_rotation, self.work,
-                             qvw, aw, self._skipped, out)
+        uniform = s.history_dt == m.dt
+        count = kernel.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start,
+                             s.warm_start_prev, s.joint_angle, c.torque_value, c.torque_enabled,
+                             c.drive_aim, c.drive_enabled, c.drive_passive, m.dt, bdf2 and uniform,
+                             bdf2, uniform, self._may_split, int(n), self._clean_rotation,
+                             self.work, qvw, aw, self._skipped, out)
         return int(count), qvw, aw, out
 
     def _clean_result(self, s, count, qvw, aw, out) -> CleanSteps:
@@ -355,7 +360,9 @@ class Solver:
         state = State(time=t, q=qvw[k, 0], v=qvw[k, 1],
                       q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,
                       joint_angle=aw[k, 0], joint_velocity=aw[k, 1] if J else s.joint_velocity,
-                      step_count=s.step_count + count, history_dt=h, warm_start=qvw[k, 2])
+                      step_count=s.step_count + count, history_dt=h, warm_start=qvw[k, 2],
+                      warm_start_prev=(qvw[k - 1, 2] if k else
+                                       s.warm_start if s.history_dt == h else qvw[0, 2]))
         o = out[k]
         report = StepReport(time=t, newton_iterations=int(o[kernel.OUT_NEWTON]),
                             line_search_iterations=int(o[kernel.OUT_LINE_SEARCH]),

@@ -4,7 +4,9 @@
     2. prediction q̃ (bdf.predict); may_split: refuse a step whose linearised joint rotation
        ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (BDF1 saturates the solved rotation below
        any limit, so only the prediction can see a too-large step)
-    3. Newton minimises Π from q̃ + c h² warm_start (c = 1 BDF1, β BDF2)     newton.minimize
+    3. Newton minimises Π from q̃ + c h² w (c = 1 BDF1, β BDF2), w = 2 warm_start −
+       warm_start_prev (the last two corrections extrapolated to this step), or from
+       q̃ + c h² warm_start or q̃ where Π is lower                            newton.minimize
     4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), unwrapped joint angles and
        θ̇ = ∇θ·v, the largest joint rotation of the step, joint separations.
 
@@ -102,11 +104,13 @@ def store(q_new, q_tilde, cw, new_qvw):
 
 
 @njit(cache=True, error_model='numpy')
-def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-         drive_aim, drive_enabled, drive_passive, h, bdf2, may_split, ws, new_qvw, new_angles,
-         skipped, outcome):
-    """One step of size h, working in ws (workspace.Workspace). new_qvw (3,B,12) = new q, v, warm_start; new_angles (2,J) = joint
-    angle, joint velocity; skipped[:outcome[OUT_SKIPPED]] = bodies without torque. Subnormal
+def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
+         torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, extrapolate, may_split,
+         ws, new_qvw, new_angles, skipped, outcome):
+    """One step of size h, working in ws (workspace.Workspace). new_qvw (3,B,12) = new q, v,
+    warm_start; new_angles (2,J) = joint angle, joint velocity; skipped[:outcome[OUT_SKIPPED]]
+    = bodies without torque. `extrapolate`: the last step had size h too, so Newton starts
+    from the warm start extrapolated over the two (else from warm_start alone). Subnormal
     numbers are flushed to zero while it runs (subnormals.py)."""
     saved = subnormals.enter()
     B, J = q.shape[0], m.joint_parent.size
@@ -135,11 +139,21 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
         drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
     ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled)
     cw = h * h / scale
-    q_new = ws.q_new
+    q_new, q_alt = ws.q_new, ws.q_alt
+    # The correction (q − q̃)/(c h²) is the acceleration the stiff terms add to the explicit
+    # prediction; it changes smoothly, so its value one step on is ~2 w_n − w_(n−1). Measured
+    # on arms from pybullet_data: the first Newton correction ~20x smaller than from w_n
+    # alone, and one Newton iteration per step where w_n alone took two. Across a jump (a
+    # torque switched) it overshoots: Newton then starts from w_n, or q̃, where Π is lower
+    # (docs/decisions.md).
     for b in range(B):
         for r in range(12):
-            q_new[b, r] = q_tilde[b, r] + cw * warm_start[b, r]
-    status, iterations, halvings = newton.minimize(m, ctx, q_new, ws)
+            w = warm_start[b, r]
+            q_alt[b, r] = q_tilde[b, r] + cw * w
+            if extrapolate:
+                w = 2.0 * w - warm_start_prev[b, r]
+            q_new[b, r] = q_tilde[b, r] + cw * w
+    status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
     outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
     if status == newton.NONFINITE or not newton.all_finite(q_new):
         outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
@@ -164,9 +178,10 @@ def step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_
 
 
 @njit(cache=True, error_model='numpy')
-def steps(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-          drive_aim, drive_enabled, drive_passive, h, bdf2_first, bdf2_next, may_split, n,
-          clean_rotation, ws, new_qvw, new_angles, skipped, outcome):
+def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
+          torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first, bdf2_next,
+          extrapolate_first, may_split, n, clean_rotation, ws, new_qvw, new_angles, skipped,
+          outcome):
     """Up to n consecutive steps, each `step` on the previous one's output, stopping before the
     first that is not clean: a failure, an unconverged Newton, a skipped torque, a rotation
     above `clean_rotation` or an overloaded joint (the steps on which the Solver sub-steps or
@@ -175,18 +190,21 @@ def steps(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque
     done = 0
     for k in range(n):
         if k == 0:
-            step(m, q, v, q_prev, v_prev, warm_start, joint_angle, torque_value, torque_enabled,
-                 drive_aim, drive_enabled, drive_passive, h, bdf2_first, may_split, ws,
-                 new_qvw[0], new_angles[0], skipped, outcome[0])
+            step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
+                 torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
+                 extrapolate_first, may_split, ws, new_qvw[0], new_angles[0], skipped, outcome[0])
         elif k == 1:
-            step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], new_angles[0, 0],
+            # (the State after step 0 would hold warm_start as its previous warm start only
+            # if the step before had size h too: State.warm_start_prev)
+            prev = warm_start if extrapolate_first else new_qvw[0, 2]
+            step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], prev, new_angles[0, 0],
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
-                 bdf2_next, may_split, ws, new_qvw[1], new_angles[1], skipped, outcome[1])
+                 bdf2_next, True, may_split, ws, new_qvw[1], new_angles[1], skipped, outcome[1])
         else:
             step(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], new_qvw[k - 2, 0], new_qvw[k - 2, 1],
-                 new_qvw[k - 1, 2], new_angles[k - 1, 0], torque_value, torque_enabled,
-                 drive_aim, drive_enabled, drive_passive, h, bdf2_next, may_split, ws,
-                 new_qvw[k], new_angles[k], skipped, outcome[k])
+                 new_qvw[k - 1, 2], new_qvw[k - 2, 2], new_angles[k - 1, 0], torque_value,
+                 torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_next, True,
+                 may_split, ws, new_qvw[k], new_angles[k], skipped, outcome[k])
         o = outcome[k]
         if (o[OUT_FAILURE] != FAIL_NONE or o[OUT_STATUS] != newton.CONVERGED or o[OUT_SKIPPED] != 0.0
                 or not o[OUT_ROTATION] <= clean_rotation or o[OUT_OVERLOADED] != 0.0):

@@ -18,6 +18,7 @@ FIELDS = (
     ('acc', '(B,12) their acceleration'),
     ('q_tilde', '(B,12) prediction q̃'),
     ('q_new', '(B,12) Newton iterate'),
+    ('q_alt', "(B,12) Newton's other start: q̃ + c h² warm_start, not extrapolated"),
     ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
     ('drive_target', '(D,) UID 19 target'),
     ('grad', '(B,12) ∇Π'),
@@ -52,7 +53,8 @@ def build(model, data) -> Workspace:
     B, J, D = model.body_count, model.joint_count, len(model.drive_joints)
     F = int(data.free_bodies.size)
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
-    shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), angle_start=(J,),
+    shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), q_alt=(B, 12),
+                  angle_start=(J,),
                   drive_target=(D,), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12))
