@@ -5,7 +5,7 @@ iterations and peak memory for the default scene, the reference hinge, chains of
 gives the ratio (noise on a shared machine mostly cancels). The engines' joint angles are
 compared on a 3-link chain before anything is timed; a mismatch exits 1. A real robot
 description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
-same file, and in sim_node (bench/robot_bench.py).
+same file, and in sim_node (bench/robot_bench.py), then more robots of pybullet_data against MuJoCo.
 
     python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only] [--node-old DIR]
 
@@ -365,6 +365,7 @@ def main(argv=None):
     # URDF robot (issue 11): a real robot description in all three engines, and in sim_node.
     import robot_bench
     robot = robot_bench.run(args.quick, peers=not args.no_peers)
+    robot_bench.robots(args.quick, peers=not args.no_peers)
     if not args.no_node:
         node_section(args.quick, robot[0] if robot else robot_bench.robot_path(), args.node_old)
     return 0

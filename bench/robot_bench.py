@@ -3,6 +3,10 @@ shipped in the pybullet wheel (`pybullet_data/kuka_iiwa/model.urdf`, 7 revolute 
 loaded by `Scene.from_urdf`, MuJoCo (its URDF import) and PyBullet (`loadURDF`): per-step
 cost at dt = 1 ms with gravity and a torque on every joint, each engine's default
 integrator (ours: bdf1; MuJoCo: Euler; PyBullet: its semi-implicit Euler), from Python.
+Then `robots`: more robots of pybullet_data (arms, legged robots with a fixed base), n steps
+per call on both sides, ours against MuJoCo where MuJoCo loads the file.
+
+    python bench/robot_bench.py [--quick]        # this section alone
 """
 from __future__ import annotations
 
@@ -119,3 +123,70 @@ def run(quick=False, peers=True):
         print(f'n steps per call on both sides: ours World.step(n) {t_n * 1e6:.1f} µs/step, MuJoCo '
               f'mj_step(m, d, n) {mj_n * 1e6:.1f} µs/step: ours/MuJoCo {t_n / mj_n:.1f}')
     return path, t
+
+
+#: robots of pybullet_data with only revolute/continuous joints that Scene.from_urdf loads
+ROBOTS = ('kuka_iiwa/model.urdf', 'xarm/xarm6_robot.urdf', 'pendulum5.urdf', 'a1/a1.urdf',
+          'laikago/laikago.urdf', 'quadruped/minitaur.urdf', 'mini_cheetah/mini_cheetah.urdf')
+
+
+def robots(quick=False, peers=True):
+    """One row per robot of ROBOTS: bodies, Newton iterations per step (mean of 200 single
+    steps), ours World.step(n) and MuJoCo mj_step(m, d, n) µs/step and their ratio (MuJoCo
+    '–' where its URDF import refuses the file: package:// mesh paths, inertias it rejects).
+    Torques as `torques`; CPU time of this process."""
+    import warnings
+    try:
+        import pybullet_data
+    except ImportError:
+        print('robots: skipped (pybullet_data not installed: requirements-bench.txt)')
+        return []
+    from abd_joint_sim import Scene, World
+    steps = 300 if quick else 2000
+    print(f'\nRobots of pybullet_data (dt 1 ms, gravity, torque on every joint, fixed base, '
+          f'{steps} steps in one call on both sides, CPU time):')
+    print('| robot | bodies | Newton it/step | ours µs/step | MuJoCo µs/step | ours/MuJoCo |')
+    print('|' + '---|' * 6)
+    rows = []
+    for name in ROBOTS:
+        path = os.path.join(pybullet_data.getDataPath(), name)
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')             # the importer's repairs (docs/urdf.md)
+            world = World(Scene.from_urdf(path, dt=DT))
+        for joint, tau in zip(world.actuated_joint_names, torques(len(world.actuated_joint_names))):
+            world.set_torque(joint, tau)
+        world.step(3)
+        its = sum(world.step().newton_iterations for _ in range(200)) / 200
+        t0 = time.process_time()
+        world.step(steps)
+        ours_t = (time.process_time() - t0) / steps
+        mj_t, why = None, ''
+        if peers:
+            try:
+                import mujoco as mj
+                m = mj.MjModel.from_xml_path(path)
+                m.opt.timestep = DT
+                m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
+                d = mj.MjData(m)
+                d.qfrc_applied[:] = torques(m.nv)
+                mj.mj_step(m, d, 3)
+                t0 = time.process_time()
+                mj.mj_step(m, d, steps)
+                mj_t = (time.process_time() - t0) / steps
+            except Exception as exc:                     # noqa: BLE001 (a peer's refusal)
+                why = str(exc).splitlines()[0][:60]
+        ratio = f'{ours_t / mj_t:.1f}' if mj_t else '–'
+        mj_cell = f'{mj_t * 1e6:.1f}' if mj_t else f'– ({why})' if why else '–'
+        print(f'| {name} | {world.model.body_count} | {its:.2f} | {ours_t * 1e6:.1f} | '
+              f'{mj_cell} | {ratio} |', flush=True)
+        rows.append((name, ours_t, mj_t))
+    return rows
+
+
+if __name__ == '__main__':
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))     # this checkout's package
+    quick = '--quick' in sys.argv[1:]
+    run(quick)
+    robots(quick)
