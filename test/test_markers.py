@@ -380,7 +380,9 @@ def test_markers_node_running_on_the_grid(tmp_path):
             p, A = world.body_pose(m.ns.split('/')[1])
             np.testing.assert_allclose(_pos(m), p, atol=1e-9)
             np.testing.assert_allclose(_rot(m), polar(A)[0], atol=1e-7)
-    assert np.linalg.norm(_pos(recorded[-1][1].markers[1]) - [0.6, 0, 0]) > 0.1
+    # the hinge did turn (the largest excursion: the spinning body passes its start again
+    # every turn, so the last marker may be near it)
+    assert max(np.linalg.norm(_pos(msg.markers[1]) - [0.6, 0, 0]) for _, msg in recorded) > 0.1
 
 
 def test_marker_parameters_are_checked():
