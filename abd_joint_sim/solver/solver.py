@@ -80,6 +80,14 @@ class _Tally:
                           max_step_rotation=self.max_step_rotation, warnings=tuple(self.warnings))
 
 
+def _previous_warm_start(s: State, h: float, new_warm_start):
+    """State.warm_start_prev of the state after a step of size h from s whose own correction
+    is new_warm_start: s's warm start when s came from a step of size h too, else the new one
+    (nothing to extrapolate from: the first step, a sub-step, a dt change). The compiled
+    batch, `step.steps`, applies the same rule to its first step."""
+    return s.warm_start if s.history_dt == h else new_warm_start
+
+
 class Solver:
     """The compiled step of one Model."""
 
@@ -241,7 +249,7 @@ class Solver:
         """The State after a step from s."""
         return State(s.time + h, qvw[0], qvw[1], s.q, s.v, aw[0],
                      aw[1] if self._shape[1] else s.joint_velocity, s.step_count + 1, h, qvw[2],
-                     s.warm_start if s.history_dt == h else qvw[2])
+                     _previous_warm_start(s, h, qvw[2]))
 
     def _decode(self, s, h, qvw, aw, out, tally):
         m = self.model
@@ -361,8 +369,7 @@ class Solver:
                       q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,
                       joint_angle=aw[k, 0], joint_velocity=aw[k, 1] if J else s.joint_velocity,
                       step_count=s.step_count + count, history_dt=h, warm_start=qvw[k, 2],
-                      warm_start_prev=(qvw[k - 1, 2] if k else
-                                       s.warm_start if s.history_dt == h else qvw[0, 2]))
+                      warm_start_prev=qvw[k - 1, 2] if k else _previous_warm_start(s, h, qvw[0, 2]))
         o = out[k]
         report = StepReport(time=t, newton_iterations=int(o[kernel.OUT_NEWTON]),
                             line_search_iterations=int(o[kernel.OUT_LINE_SEARCH]),

@@ -194,8 +194,8 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, tor
                  torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
                  extrapolate_first, may_split, ws, new_qvw[0], new_angles[0], skipped, outcome[0])
         elif k == 1:
-            # (the State after step 0 would hold warm_start as its previous warm start only
-            # if the step before had size h too: State.warm_start_prev)
+            # the State after step 0 holds warm_start as its previous warm start only if the
+            # step before had size h too (solver._previous_warm_start, the same rule)
             prev = warm_start if extrapolate_first else new_qvw[0, 2]
             step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], prev, new_angles[0, 0],
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
