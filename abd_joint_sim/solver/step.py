@@ -149,8 +149,8 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torq
     for b in range(B):
         for r in range(12):
             w = warm_start[b, r]
-            q_alt[b, r] = q_tilde[b, r] + cw * w
-            if extrapolate:
+            if extrapolate:                 # (q_alt is read only then)
+                q_alt[b, r] = q_tilde[b, r] + cw * w
                 w = 2.0 * w - warm_start_prev[b, r]
             q_new[b, r] = q_tilde[b, r] + cw * w
     status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
