@@ -197,6 +197,50 @@ def test_ortho_analytic_projection_matches_eigendecomposition():
     assert negative, 'the projection must matter here'
 
 
+def _near_rotation_state(rng, strain):
+    """Every free body at a random rotation times diag(σ), σ² = 1 − strain/√3 (a uniform
+    compression with ‖AAᵀ − I‖_F = strain): where the shape term's raw Hessian is indefinite."""
+    q = MODEL.body_q0.copy()
+    sigma = np.sqrt(1.0 - strain / np.sqrt(3.0))
+    for b in np.flatnonzero(~MODEL.body_fixed):
+        q[b, 3:12] = (random_rotation(rng) @ np.diag([sigma] * 3)).ravel()
+    return q
+
+
+def test_ortho_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite():
+    """Near SO(3) Newton takes the shape term's exact Hessian (no projection): its negative
+    part, ≥ −4h²κv̄‖AAᵀ − I‖_F, is at most ORTHO_EXACT_SHARE of the inertia term's s μ_min(M̄),
+    so the body's block of Newton's matrix stays that far from singular. Beyond the bound
+    it is projected as before."""
+    ctx = _ctx()
+    h, s = ctx.h, ctx.scale
+    free = np.flatnonzero(~MODEL.body_fixed)
+    mu = np.linalg.eigvalsh(DATA.body_Mbar)[:, 0]
+    # the largest ‖C‖_F with the exact Hessian, per body; the test state uses the smallest
+    limit_c = s * DATA.ortho_exact_bound[free] / (h * h)
+    assert np.all(limit_c < 0.1), 'the bound must be reached by small strains here'
+    rng = np.random.default_rng(5)
+    for share, expect_exact in ((0.999, True), (1.5, False)):
+        q = _near_rotation_state(rng, share * limit_c.min() if expect_exact else share * limit_c.max())
+        _, _, Hraw = dense(ortho, q, ctx, project=False)
+        _, _, Hnewton = dense(ortho, q, ctx, project=True)
+        for b in free:
+            rows = slice(12 * b + 3, 12 * b + 12)
+            raw, used = Hraw[rows, rows], Hnewton[rows, rows]
+            assert np.linalg.eigvalsh(raw).min() < 0.0, 'a compressed body: the raw Hessian is indefinite'
+            if expect_exact:
+                assert np.array_equal(used, raw)
+                block = s * np.kron(DATA.body_Mbar[b], np.eye(3)) + Hnewton[12 * b:12 * b + 12, 12 * b:12 * b + 12]
+                smallest = np.linalg.eigvalsh(block).min()
+                # at least half the body's smallest inertia is left (ORTHO_EXACT_SHARE ≤ 0.5)
+                assert smallest >= 0.5 * s * mu[b] * (1.0 - 1e-9), (
+                    f'body {b}: Newton block smallest eigenvalue {smallest:.3e} vs s μ_min {s * mu[b]:.3e}')
+            else:
+                w, V = np.linalg.eigh(raw)
+                np.testing.assert_allclose(used, (V * np.maximum(w, 0.0)) @ V.T, rtol=0,
+                                           atol=1e-10 * np.abs(raw).max())
+
+
 def test_disabled_drive_contributes_nothing():
     q = _state(3)
     E, g, H = dense(driving, q, _ctx(on=False), project=True)

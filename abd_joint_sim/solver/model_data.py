@@ -25,6 +25,9 @@ from .bdf import BETA_BDF2
 # UID 18 is stiff enough to make that a valid state, so the step fails.
 SEPARATION_WARN = 0.01
 SEPARATION_FAULT = 1e3
+# The share of a body's smallest inertia, s μ_min(M̄), that the unprojected shape Hessian may
+# take away from Newton's matrix (terms/ortho.py, docs/decisions.md).
+ORTHO_EXACT_SHARE = 0.5
 
 #: (name, meaning) of every field; the values come from `build`.
 FIELDS = (
@@ -34,6 +37,8 @@ FIELDS = (
     ('body_Minv', '(B,12,12) their inverses'),
     ('body_mass', '[kg] (B,)'),
     ('ortho_weight', '(B,) κ v̄ of UID 1 [Pa m³]'),
+    ('ortho_exact_bound', '(B,) UID 1\'s Hessian is used unprojected while h² ‖AAᵀ − I‖_F ≤ s × this '
+                          '(terms/ortho.py: Newton\'s matrix then keeps half the body\'s inertia)'),
     ('body_corners', '[m] (B,8,3) rest bounding-box corners (convergence test)'),
     ('gravity', '[m/s²] (3,)'),
     ('has_gravity', 'bool'),
@@ -140,6 +145,16 @@ class ModelData(structref.StructRefProxy):
 structref.define_proxy(ModelData, ModelDataType, [name for name, _ in FIELDS])
 
 
+def ortho_exact_bound(Mbar, weight):
+    """(B,) ORTHO_EXACT_SHARE μ_min(M̄) / (4 κv̄) per body (inf without a shape term): where
+    h² ‖AAᵀ − I‖_F is below s times it, the unprojected shape Hessian, whose eigenvalues are
+    ≥ −4h²κv̄ ‖AAᵀ − I‖_F, takes at most that share of the inertia term's s μ_min(M̄) away from
+    any direction of Newton's matrix (terms/ortho.py)."""
+    mu = np.linalg.eigvalsh(Mbar)[:, 0] if len(Mbar) else np.zeros(0)
+    with np.errstate(divide='ignore'):
+        return np.where(weight > 0.0, ORTHO_EXACT_SHARE * mu / (4.0 * weight), np.inf)
+
+
 def _arr(x, dtype):
     # writable C-contiguous copies: read-only arrays would be a different numba type
     return np.ascontiguousarray(np.array(x, dtype=dtype, copy=True))
@@ -207,6 +222,8 @@ def build(model, force_dense: bool = False) -> ModelData:
     )
     values['body_Mbar'], values['body_Minv_bar'] = (_arr(x, np.float64)
                                                     for x in mass_blocks(m.body_M, m.body_Minv))
+    values['ortho_exact_bound'] = _arr(ortho_exact_bound(values['body_Mbar'], values['ortho_weight']),
+                                       np.float64)
     values['torque_bodies'], values['torque_body_ptr'], values['torque_body_entries'] = (
         _arr(x, np.int64) for x in torque_incidence(m.torque_joints, m.joint_parent, m.joint_child))
     values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)

@@ -6,6 +6,15 @@ Hessian (vec A row-major, index 3i+k): 4h²κv̄ [δ_ij (AᵀA)_lk + A_il A_jk +
 indefinite away from SO(3); its PSD projection comes from the analytic eigensystem of
 A = U Σ Vᵀ: eigenvectors vec(u_i v_iᵀ) with λ = 3σ_i² − 1, and (u_i v_jᵀ ± u_j v_iᵀ)/√2 with
 λ = σ_i² + σ_j² − 1 ± σ_i σ_j (i < j), times 4h²κv̄; negative λ are clamped to 0.
+
+Where the projection is needed: every λ is ≥ min σ² − 1 ≥ −‖C‖_F (σ_i² − 1 are the
+eigenvalues of C), so the unprojected Hessian takes at most 4h²κv̄ ‖C‖_F from any direction,
+and the inertia term gives every direction at least s μ_min(M̄). Near SO(3), where bodies
+spend their lives, the first is a small share of the second: Newton then uses the exact
+Hessian (its own step, and no 3x3 SVD), and projects only where 4h²κv̄ ‖C‖_F exceeds
+ORTHO_EXACT_SHARE s μ_min(M̄) (m.ortho_exact_bound; docs/decisions.md). Unprojected, the
+clamped λ (−‖C‖_F at most, on the body's rotations) would otherwise make Newton's matrix
+stiffer than Π in exactly the directions the inertia alone resists.
 """
 from __future__ import annotations
 
@@ -36,8 +45,12 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
+    """∇E into grad; into diag the exact Hessian, or with `project` (Newton) a Hessian that
+    keeps Newton's matrix positive definite: the exact one where the body's inertia
+    outweighs its negative part (ORTHO_EXACT_SHARE, module docstring), else the PSD
+    projection."""
     # one allocation, cut into named views (each allocation costs about a body's gradient)
-    buf = np.empty(3 * 9 + 81 + 9 + 9 + 3 + 18)
+    buf = np.empty(3 * 9 + 81 + 9 + 9 + 3 + 18 + 9)
     A = buf[0:9].reshape((3, 3))
     C = buf[9:18].reshape((3, 3))
     U = buf[18:27].reshape((3, 3))
@@ -46,9 +59,11 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     V = buf[117:126].reshape((3, 3))
     S = buf[126:129]
     svd_work = buf[129:147].reshape((2, 3, 3))
+    AtA = buf[147:156].reshape((3, 3))
     r2 = math.sqrt(0.5)
     hh = ctx.h * ctx.h
     weight = m.ortho_weight
+    exact_bound = m.ortho_exact_bound
     for b in m.free_bodies:
         for r in range(3):
             for c in range(3):
@@ -61,15 +76,21 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         for r in range(3):
             for c in range(3):
                 grad[b, 3 + 3 * r + c] += w * (C[r, 0] * A[0, c] + C[r, 1] * A[1, c] + C[r, 2] * A[2, c])
-        if not project:
+        c2 = 0.0
+        for r in range(3):
+            for c in range(3):
+                c2 += C[r, c] * C[r, c]
+        if not project or hh * math.sqrt(c2) <= ctx.scale * exact_bound[b]:
+            for l in range(3):
+                for k in range(3):
+                    AtA[l, k] = A[0, l] * A[0, k] + A[1, l] * A[1, k] + A[2, l] * A[2, k]
             for i in range(3):
                 for k in range(3):
                     for j in range(3):
                         for l in range(3):
-                            AtA = A[0, l] * A[0, k] + A[1, l] * A[1, k] + A[2, l] * A[2, k]
                             x = A[i, l] * A[j, k]
                             if i == j:
-                                x += AtA
+                                x += AtA[l, k]
                             if k == l:
                                 x += C[i, j]
                             diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
