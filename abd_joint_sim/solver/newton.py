@@ -40,8 +40,12 @@ def potential(q, m, ctx):
     E = inertia.energy(q, m, ctx)
     E += ortho.energy(q, m, ctx)            # UID 1, shape
     E += revolute.energy(q, m, ctx)         # UID 18
-    E += driving.energy(q, m, ctx)          # UID 19 (0 without drives)
-    E += limit.energy(q, m, ctx)            # UID 670 (0 inside the limits)
+    # a term the model lacks is not called (its E would be 0.0, and the call would cost its
+    # arguments' reference counts, docs/speed.md)
+    if m.drive_joints.size:
+        E += driving.energy(q, m, ctx)      # UID 19
+    if m.limit_joints.size:
+        E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)
     return E
 
 
@@ -68,8 +72,10 @@ def assemble(q, m, ctx, grad, diag, pair):
         pair[:] = m.constant_pair
     ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
     revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
-    driving.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 19
-    limit.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 670
+    if m.drive_joints.size:
+        driving.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 19
+    if m.limit_joints.size:
+        limit.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 670
     return pair
 
 
