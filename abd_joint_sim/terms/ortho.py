@@ -12,9 +12,9 @@ eigenvalues of C), so the unprojected Hessian takes at most 4h²κv̄ ‖C‖_F 
 and the inertia term gives every direction at least s μ_min(M̄). Near SO(3), where bodies
 spend their lives, the first is a small share of the second: Newton then uses the exact
 Hessian (its own step, and no 3x3 SVD), and projects only where 4h²κv̄ ‖C‖_F exceeds
-ORTHO_EXACT_SHARE s μ_min(M̄) (m.ortho_exact_bound; docs/decisions.md). Unprojected, the
-clamped λ (−‖C‖_F at most, on the body's rotations) would otherwise make Newton's matrix
-stiffer than Π in exactly the directions the inertia alone resists.
+ORTHO_EXACT_SHARE s μ_min(M̄) (m.ortho_exact_bound; docs/decisions.md). The λ the projection
+clamps (−‖C‖_F at most) lie on the body's rotations, which only the inertia resists: there
+the projection made Newton's matrix stiffer than Π.
 """
 from __future__ import annotations
 
