@@ -230,7 +230,7 @@ def test_ortho_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite(
             assert np.linalg.eigvalsh(raw).min() < 0.0, 'a compressed body: the raw Hessian is indefinite'
             if expect_exact:
                 assert np.array_equal(used, raw)
-                block = s * np.kron(DATA.body_Mbar[b], np.eye(3)) + Hnewton[12 * b:12 * b + 12, 12 * b:12 * b + 12]
+                block = s * DATA.body_M[b] + Hnewton[12 * b:12 * b + 12, 12 * b:12 * b + 12]
                 smallest = np.linalg.eigvalsh(block).min()
                 # at least half the body's smallest inertia is left (ORTHO_EXACT_SHARE ≤ 0.5)
                 assert smallest >= 0.5 * s * mu[b] * (1.0 - 1e-9), (
