@@ -26,6 +26,19 @@ from numba import njit
 from ..smallmat import svd3_in
 
 
+@njit(cache=True, error_model='numpy', inline='always')
+def _aat(q, b, r, c):
+    """(A Aᵀ)_rc of body b, A = q[b, 3:12] row-major."""
+    return (q[b, 3 + 3 * r] * q[b, 3 + 3 * c] + q[b, 4 + 3 * r] * q[b, 4 + 3 * c]
+            + q[b, 5 + 3 * r] * q[b, 5 + 3 * c])
+
+
+@njit(cache=True, error_model='numpy', inline='always')
+def _ata(q, b, l, k):
+    """(Aᵀ A)_lk of body b."""
+    return q[b, 3 + l] * q[b, 3 + k] + q[b, 6 + l] * q[b, 6 + k] + q[b, 9 + l] * q[b, 9 + k]
+
+
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
     weight = m.ortho_weight
@@ -34,8 +47,7 @@ def energy(q, m, ctx):
         acc = 0.0
         for r in range(3):
             for c in range(3):
-                x = (q[b, 3 + 3 * r] * q[b, 3 + 3 * c] + q[b, 4 + 3 * r] * q[b, 4 + 3 * c]
-                     + q[b, 5 + 3 * r] * q[b, 5 + 3 * c])
+                x = _aat(q, b, r, c)
                 if r == c:
                     x -= 1.0
                 acc += x * x
@@ -48,93 +60,98 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E into grad; into diag the exact Hessian, or with `project` (Newton) a Hessian that
     keeps Newton's matrix positive definite: the exact one where the body's inertia
     outweighs its negative part (ORTHO_EXACT_SHARE, module docstring), else the PSD
-    projection."""
-    # one allocation, cut into named views (each allocation costs about a body's gradient)
-    buf = np.empty(3 * 9 + 81 + 9 + 9 + 3 + 18 + 9)
-    A = buf[0:9].reshape((3, 3))
-    C = buf[9:18].reshape((3, 3))
-    U = buf[18:27].reshape((3, 3))
-    vecs = buf[27:108].reshape((9, 9))
-    lam = buf[108:117]
-    V = buf[117:126].reshape((3, 3))
-    S = buf[126:129]
-    svd_work = buf[129:147].reshape((2, 3, 3))
-    AtA = buf[147:156].reshape((3, 3))
-    r2 = math.sqrt(0.5)
+    projection. The exact path works on scalars and allocates nothing (docs/speed.md)."""
     hh = ctx.h * ctx.h
     weight = m.ortho_weight
     exact_bound = m.ortho_exact_bound
     for b in m.free_bodies:
-        for r in range(3):
-            for c in range(3):
-                A[r, c] = q[b, 3 + 3 * r + c]
-        for r in range(3):
-            for c in range(3):
-                C[r, c] = A[r, 0] * A[c, 0] + A[r, 1] * A[c, 1] + A[r, 2] * A[c, 2]
-            C[r, r] -= 1.0
+        # C = AAᵀ − I (symmetric: (AAᵀ)_rc and (AAᵀ)_cr are the same products)
+        C = (_aat(q, b, 0, 0) - 1.0, _aat(q, b, 0, 1), _aat(q, b, 0, 2),
+             _aat(q, b, 1, 0), _aat(q, b, 1, 1) - 1.0, _aat(q, b, 1, 2),
+             _aat(q, b, 2, 0), _aat(q, b, 2, 1), _aat(q, b, 2, 2) - 1.0)
         w = 4.0 * hh * weight[b]
         for r in range(3):
             for c in range(3):
-                grad[b, 3 + 3 * r + c] += w * (C[r, 0] * A[0, c] + C[r, 1] * A[1, c] + C[r, 2] * A[2, c])
+                grad[b, 3 + 3 * r + c] += w * (C[3 * r] * q[b, 3 + c] + C[3 * r + 1] * q[b, 6 + c]
+                                               + C[3 * r + 2] * q[b, 9 + c])
         c2 = 0.0
+        for r in range(9):
+            c2 += C[r] * C[r]
+        if project and not hh * math.sqrt(c2) <= ctx.scale * exact_bound[b]:
+            _add_projected_hessian(q, b, w, diag)
+            continue
+        AtA = (_ata(q, b, 0, 0), _ata(q, b, 0, 1), _ata(q, b, 0, 2),
+               _ata(q, b, 1, 0), _ata(q, b, 1, 1), _ata(q, b, 1, 2),
+               _ata(q, b, 2, 0), _ata(q, b, 2, 1), _ata(q, b, 2, 2))
+        for i in range(3):
+            for k in range(3):
+                for j in range(3):
+                    for l in range(3):
+                        x = q[b, 3 + 3 * i + l] * q[b, 3 + 3 * j + k]
+                        if i == j:
+                            x += AtA[3 * l + k]
+                        if k == l:
+                            x += C[3 * i + j]
+                        diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
+
+
+@njit(cache=True, error_model='numpy')
+def _add_projected_hessian(q, b, w, diag):
+    """The PSD projection of body b's Hessian (w = 4h²κv̄; module docstring) added to diag[b],
+    from the SVD of A."""
+    # one allocation, cut into named views
+    buf = np.empty(9 + 9 + 81 + 9 + 9 + 3 + 18)
+    A = buf[0:9].reshape((3, 3))
+    U = buf[9:18].reshape((3, 3))
+    vecs = buf[18:99].reshape((9, 9))
+    lam = buf[99:108]
+    V = buf[108:117].reshape((3, 3))
+    S = buf[117:120]
+    svd_work = buf[120:138].reshape((2, 3, 3))
+    r2 = math.sqrt(0.5)
+    for r in range(3):
+        for c in range(3):
+            A[r, c] = q[b, 3 + 3 * r + c]
+    svd3_in(A, U, S, V, svd_work)
+    # P_ij = vec(u_i v_jᵀ): P_ij[3r + c] = U[r, i] V[c, j]
+    n = 0
+    for i in range(3):
         for r in range(3):
             for c in range(3):
-                c2 += C[r, c] * C[r, c]
-        if not project or hh * math.sqrt(c2) <= ctx.scale * exact_bound[b]:
-            for l in range(3):
-                for k in range(3):
-                    AtA[l, k] = A[0, l] * A[0, k] + A[1, l] * A[1, k] + A[2, l] * A[2, k]
-            for i in range(3):
-                for k in range(3):
-                    for j in range(3):
-                        for l in range(3):
-                            x = A[i, l] * A[j, k]
-                            if i == j:
-                                x += AtA[l, k]
-                            if k == l:
-                                x += C[i, j]
-                            diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
+                vecs[n, 3 * r + c] = U[r, i] * V[c, i]
+        lam[n] = 3 * S[i] ** 2 - 1
+        n += 1
+    for pi in range(3):
+        i = 0 if pi < 2 else 1
+        j = 1 if pi == 0 else 2
+        sq = S[i] ** 2 + S[j] ** 2 - 1
+        for r in range(3):
+            for c in range(3):
+                pij = U[r, i] * V[c, j]
+                pji = U[r, j] * V[c, i]
+                vecs[n, 3 * r + c] = r2 * (pij + pji)
+                vecs[n + 1, 3 * r + c] = r2 * (pij - pji)
+        lam[n] = sq + S[i] * S[j]
+        lam[n + 1] = sq - S[i] * S[j]
+        n += 2
+    # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a
+    # third); v_k held in locals and each row of the A-block written out, so the SLP
+    # vectoriser (solver/vectorize.py) makes it vector operations: the same bits
+    for k in range(9):
+        if not lam[k] > 0.0:
             continue
-        svd3_in(A, U, S, V, svd_work)
-        # P_ij = vec(u_i v_jᵀ): P_ij[3r + c] = U[r, i] V[c, j]
-        n = 0
-        for i in range(3):
-            for r in range(3):
-                for c in range(3):
-                    vecs[n, 3 * r + c] = U[r, i] * V[c, i]
-            lam[n] = 3 * S[i] ** 2 - 1
-            n += 1
-        for pi in range(3):
-            i = 0 if pi < 2 else 1
-            j = 1 if pi == 0 else 2
-            sq = S[i] ** 2 + S[j] ** 2 - 1
-            for r in range(3):
-                for c in range(3):
-                    pij = U[r, i] * V[c, j]
-                    pji = U[r, j] * V[c, i]
-                    vecs[n, 3 * r + c] = r2 * (pij + pji)
-                    vecs[n + 1, 3 * r + c] = r2 * (pij - pji)
-            lam[n] = sq + S[i] * S[j]
-            lam[n + 1] = sq - S[i] * S[j]
-            n += 2
-        # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a
-        # third); v_k held in locals and each row of the A-block written out, so the SLP
-        # vectoriser (solver/vectorize.py) makes it vector operations: the same bits
-        for k in range(9):
-            if not lam[k] > 0.0:
-                continue
-            wl = w * lam[k]
-            v0, v1, v2, v3, v4 = vecs[k, 0], vecs[k, 1], vecs[k, 2], vecs[k, 3], vecs[k, 4]
-            v5, v6, v7, v8 = vecs[k, 5], vecs[k, 6], vecs[k, 7], vecs[k, 8]
-            for a in range(9):
-                x = wl * vecs[k, a]
-                r = 3 + a
-                diag[b, r, 3] += x * v0
-                diag[b, r, 4] += x * v1
-                diag[b, r, 5] += x * v2
-                diag[b, r, 6] += x * v3
-                diag[b, r, 7] += x * v4
-                diag[b, r, 8] += x * v5
-                diag[b, r, 9] += x * v6
-                diag[b, r, 10] += x * v7
-                diag[b, r, 11] += x * v8
+        wl = w * lam[k]
+        v0, v1, v2, v3, v4 = vecs[k, 0], vecs[k, 1], vecs[k, 2], vecs[k, 3], vecs[k, 4]
+        v5, v6, v7, v8 = vecs[k, 5], vecs[k, 6], vecs[k, 7], vecs[k, 8]
+        for a in range(9):
+            x = wl * vecs[k, a]
+            r = 3 + a
+            diag[b, r, 3] += x * v0
+            diag[b, r, 4] += x * v1
+            diag[b, r, 5] += x * v2
+            diag[b, r, 6] += x * v3
+            diag[b, r, 7] += x * v4
+            diag[b, r, 8] += x * v5
+            diag[b, r, 9] += x * v6
+            diag[b, r, 10] += x * v7
+            diag[b, r, 11] += x * v8
