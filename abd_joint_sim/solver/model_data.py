@@ -38,7 +38,8 @@ FIELDS = (
     ('body_mass', '[kg] (B,)'),
     ('ortho_weight', '(B,) κ v̄ of UID 1 [Pa m³]'),
     ('ortho_exact_bound', '(B,) UID 1\'s Hessian is used unprojected while h² ‖AAᵀ − I‖_F ≤ s × this '
-                          '(terms/ortho.py: Newton\'s matrix then keeps half the body\'s inertia)'),
+                          '(terms/ortho.py: Newton\'s matrix then keeps 1 − ORTHO_EXACT_SHARE of the '
+                          'body\'s smallest inertia)'),
     ('body_corners', '[m] (B,8,3) rest bounding-box corners (convergence test)'),
     ('gravity', '[m/s²] (3,)'),
     ('has_gravity', 'bool'),

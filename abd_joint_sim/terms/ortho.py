@@ -134,9 +134,9 @@ def _add_projected_hessian(q, b, w, diag):
         lam[n] = sq + S[i] * S[j]
         lam[n + 1] = sq - S[i] * S[j]
         n += 2
-    # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues (near SO(3) about a
-    # third); v_k held in locals and each row of the A-block written out, so the SLP
-    # vectoriser (solver/vectorize.py) makes it vector operations: the same bits
+    # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues; v_k held in locals and
+    # each row of the A-block written out, so the SLP vectoriser (solver/vectorize.py)
+    # makes it vector operations: the same bits
     for k in range(9):
         if not lam[k] > 0.0:
             continue
