@@ -22,18 +22,33 @@ class State:
     step_count: int = 0
     history_dt: float = 0.0     #: [s] step size q_prev/v_prev belong to; 0 = no history (BDF2 restarts)
     #: (B,12) Newton's last correction (q − q̃)/(c h²), c = 1 (BDF1) or 4/9 (BDF2): the next
-    #: step starts Newton from q̃ + c h² (2 warm_start − warm_start_prev), the correction
-    #: extrapolated linearly in time (MuJoCo's qacc_warmstart, to first order). None = zeros.
+    #: step starts Newton from q̃ + c h² (3 warm_start − 3 warm_start_prev + warm_start_prev2),
+    #: the correction extrapolated quadratically in time over the last three steps (MuJoCo's
+    #: qacc_warmstart, to second order), linearly (2 warm_start − warm_start_prev) when only
+    #: two are known. None = zeros.
     warm_start: np.ndarray | None = None
     #: (B,12) the warm start one step (of history_dt) before; the same array as warm_start
     #: when unknown or that step was of another size (then no extrapolation). None = that.
     warm_start_prev: np.ndarray | None = None
+    #: (B,12) the warm start two steps (of history_dt each) before; the same array as
+    #: warm_start_prev when unknown (then at most the linear extrapolation). None = that.
+    warm_start_prev2: np.ndarray | None = None
 
     def __post_init__(self):
         if self.warm_start is None:
             self.warm_start = np.zeros_like(self.q)
         if self.warm_start_prev is None:
             self.warm_start_prev = self.warm_start
+        if self.warm_start_prev2 is None:
+            self.warm_start_prev2 = self.warm_start_prev
+
+    def extrapolation_order(self, h: float) -> int:
+        """How many past warm starts a step of size h from this state extrapolates over:
+        0 (none known at that spacing: Newton starts from warm_start), 1 (linear) or 2
+        (quadratic). Unknown ones are marked by identity (the same array as the newer one)."""
+        if self.history_dt != h or self.warm_start_prev is self.warm_start:
+            return 0
+        return 1 if self.warm_start_prev2 is self.warm_start_prev else 2
 
     @classmethod
     def initial(cls, model) -> 'State':
@@ -45,7 +60,16 @@ class State:
     def copy(self) -> 'State':
         return State(self.time, self.q.copy(), self.v.copy(), self.q_prev.copy(), self.v_prev.copy(),
                      self.joint_angle.copy(), self.joint_velocity.copy(), self.step_count,
-                     self.history_dt, self.warm_start.copy(), self.warm_start_prev.copy())
+                     self.history_dt, *_copy_history(self))
+
+
+def _copy_history(s: State):
+    """Copies of (warm_start, warm_start_prev, warm_start_prev2) that keep which of them
+    are the same array (the unknown ones)."""
+    w = s.warm_start.copy()
+    p1 = w if s.warm_start_prev is s.warm_start else s.warm_start_prev.copy()
+    p2 = p1 if s.warm_start_prev2 is s.warm_start_prev else s.warm_start_prev2.copy()
+    return w, p1, p2
 
 
 @dataclass

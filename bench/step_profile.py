@@ -120,13 +120,15 @@ def outside(w, n):
     sv, st, c = w.solver, w.state, w.control
     m, ws = sv.data, sv.work
     qvw, aw = np.empty((3,) + st.q.shape), np.empty((2, w.model.joint_count))
-    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev, st.joint_angle,
-            c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt,
-            False, st.history_dt == w.dt, True, ws, qvw, aw, sv._skipped, sv._outcome)
+    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev,
+            st.warm_start_prev2, st.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
+            c.drive_enabled, c.drive_passive, w.dt, False, st.extrapolation_order(w.dt), True, ws,
+            qvw, aw, sv._skipped, sv._outcome)
     kernel.step(*args)                               # leaves q̃ and the solved q in ws
     q_tilde = ws.q_tilde.copy()
-    # Newton's start in the step (BDF1: c = 1; the warm start extrapolated over two steps)
-    start = q_tilde + w.dt * w.dt * (2.0 * st.warm_start - st.warm_start_prev)
+    # Newton's start in the step (BDF1: c = 1; the warm start extrapolated over three steps)
+    assert st.extrapolation_order(w.dt) == 2
+    start = q_tilde + w.dt * w.dt * (3.0 * st.warm_start - 3.0 * st.warm_start_prev + st.warm_start_prev2)
     ctx = sv.context(st, c, w.dt, q_tilde=q_tilde)
     out = {}
     for i, name in enumerate(OUTSIDE[:9]):
@@ -140,13 +142,14 @@ def outside(w, n):
 
 
 @njit
-def _step_loop(n, m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
-               torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, extrapolate,
+def _step_loop(n, m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
+               torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
                may_split, ws, new_qvw, new_angles, skipped, outcome):
     for _ in range(n):
-        kernel.step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, joint_angle, torque_value,
-                    torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, extrapolate,
-                    may_split, ws, new_qvw, new_angles, skipped, outcome)
+        kernel.step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
+                    joint_angle, torque_value, torque_enabled, drive_aim, drive_enabled,
+                    drive_passive, h, bdf2, order, may_split, ws, new_qvw, new_angles, skipped,
+                    outcome)
 
 
 def world(links):
@@ -175,9 +178,10 @@ def profile(links):
         out[name] = timed(lambda k, i=i: _run(i, m, ctx, q, ws, c.torque_value, c.torque_enabled,
                                               sv._skipped, k), n)
     qvw, aw = np.empty((3,) + q.shape), np.empty((2, w.model.joint_count))
-    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev, st.joint_angle,
-            c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, w.dt,
-            False, st.history_dt == w.dt, True, ws, qvw, aw, sv._skipped, sv._outcome)
+    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev,
+            st.warm_start_prev2, st.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
+            c.drive_enabled, c.drive_passive, w.dt, False, st.extrapolation_order(w.dt), True, ws,
+            qvw, aw, sv._skipped, sv._outcome)
     out['step'] = timed(lambda k: [kernel.step(*args) for _ in range(k)], n)
     return out
 

@@ -195,7 +195,7 @@ def test_a_step_never_writes_into_the_previous_state():
             old = w.state
             saved = {k: getattr(old, k).copy() for k in
                      ('q', 'v', 'q_prev', 'v_prev', 'joint_angle', 'joint_velocity', 'warm_start',
-                      'warm_start_prev')}
+                      'warm_start_prev', 'warm_start_prev2')}
             w.step(n)
             assert w.state is not old
             for k, x in saved.items():
@@ -254,8 +254,9 @@ BATCH_CASES = {
 
 def _state_fields(w):
     s = w.state
-    return [s.time, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.warm_start_prev, s.joint_angle,
-            s.joint_velocity, s.step_count, s.history_dt]
+    return [s.time, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.warm_start_prev,
+            s.warm_start_prev2, s.extrapolation_order(w.dt), s.joint_angle, s.joint_velocity,
+            s.step_count, s.history_dt]
 
 
 @pytest.mark.parametrize('case', sorted(BATCH_CASES))
@@ -332,7 +333,7 @@ def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
             odd.state = State(s.time, np.asfortranarray(s.q), strided(s.v), strided(s.q_prev),
                               np.asfortranarray(s.v_prev), strided(s.joint_angle),
                               s.joint_velocity, s.step_count, s.history_dt, strided(s.warm_start),
-                              strided(s.warm_start_prev))
+                              strided(s.warm_start_prev), strided(s.warm_start_prev2))
             assert not odd.state.q.flags.c_contiguous and not odd.state.v.flags.c_contiguous
         if k == 5:                  # Control arrays replaced by strided views
             c = odd.control

@@ -80,12 +80,17 @@ class _Tally:
                           max_step_rotation=self.max_step_rotation, warnings=tuple(self.warnings))
 
 
-def _previous_warm_start(s: State, h: float, new_warm_start):
-    """State.warm_start_prev of the state after a step of size h from s whose own correction
-    is new_warm_start: s's warm start when s came from a step of size h too, else the new one
+def _history(s: State, h: float, new_warm_start):
+    """(warm_start_prev, warm_start_prev2) of the state after a step of size h from s whose
+    own correction is new_warm_start: s's warm start, and s's previous one if known, when s
+    came from a step of size h too; an unknown one is the same array as the newer one
     (nothing to extrapolate from: the first step, a sub-step, a dt change). The compiled
-    batch, `step.steps`, applies the same rule to its first step."""
-    return s.warm_start if s.history_dt == h else new_warm_start
+    batch, `step.steps`, applies the same rule to its first states."""
+    if s.history_dt != h:
+        return new_warm_start, new_warm_start
+    if s.warm_start_prev is s.warm_start:
+        return s.warm_start, s.warm_start
+    return s.warm_start, s.warm_start_prev
 
 
 class Solver:
@@ -196,21 +201,24 @@ class Solver:
         out = self._outcome
         uniform = s.history_dt == h
         args = (self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.warm_start_prev,
-                s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
-                c.drive_passive, h, self._bdf2 and uniform, uniform, may_split, self.work, qvw, aw,
-                self._skipped, out)
+                s.warm_start_prev2, s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
+                c.drive_enabled, c.drive_passive, h, self._bdf2 and uniform,
+                s.extrapolation_order(h), may_split, self.work, qvw, aw, self._skipped, out)
         k = self._made
+        w, p1, p2 = s.warm_start, s.warm_start_prev, s.warm_start_prev2
         if (s.q is k[0] and s.v is k[1] and s.q_prev is k[2] and s.v_prev is k[3]
-                and s.warm_start is k[4] and (s.warm_start_prev is k[4] or s.warm_start_prev is k[6])
+                and w is k[4] and (p1 is k[4] or p1 is k[6])
+                and (p2 is k[4] or p2 is k[6] or p2 is k[7])
                 and s.joint_angle is k[5] and self._control_checked(c)):
             self._entry(*args)
         else:
             kernel.step(*args)
-        # arrays of the new state this step made (or, as history, made the step before);
+        # arrays of the new state this step made (or, as history, made the steps before);
         # indexed once: each qvw[0] is a new view object, and the check is by identity
         qvw, aw = (qvw[0], qvw[1], qvw[2]), (aw[0], aw[1])
         self._made = (qvw[0], qvw[1], s.q if s.q is k[0] else None, s.v if s.v is k[1] else None,
-                      qvw[2], aw[0], s.warm_start if s.warm_start is k[4] else None)
+                      qvw[2], aw[0], w if w is k[4] else None,
+                      p1 if (p1 is k[4] or p1 is k[6]) else None)
         return qvw, aw, out
 
     def _control_checked(self, c) -> bool:
@@ -238,7 +246,7 @@ class Solver:
                 z = np.zeros(self._qvw_shape[1:])
                 j = np.zeros(self._aw_shape[1:])
                 sig = tuple(kernel.step.typeof_pyval(a) for a in (
-                    m, z, z, z, z, z, z, j, *arrays, 1.0, True, True, True, s,
+                    m, z, z, z, z, z, z, z, j, *arrays, 1.0, True, 2, True, s,
                     np.empty(self._qvw_shape), np.empty(self._aw_shape), self._skipped, self._outcome))
                 self._entry = kernel.step.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
@@ -249,7 +257,7 @@ class Solver:
         """The State after a step from s."""
         return State(s.time + h, qvw[0], qvw[1], s.q, s.v, aw[0],
                      aw[1] if self._shape[1] else s.joint_velocity, s.step_count + 1, h, qvw[2],
-                     _previous_warm_start(s, h, qvw[2]))
+                     *_history(s, h, qvw[2]))
 
     def _decode(self, s, h, qvw, aw, out, tally):
         m = self.model
@@ -348,10 +356,11 @@ class Solver:
         bdf2 = m.integrator == 'bdf2'
         uniform = s.history_dt == m.dt
         count = kernel.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start,
-                             s.warm_start_prev, s.joint_angle, c.torque_value, c.torque_enabled,
-                             c.drive_aim, c.drive_enabled, c.drive_passive, m.dt, bdf2 and uniform,
-                             bdf2, uniform, self._may_split, int(n), self._clean_rotation,
-                             self.work, qvw, aw, self._skipped, out)
+                             s.warm_start_prev, s.warm_start_prev2, s.joint_angle, c.torque_value,
+                             c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, m.dt,
+                             bdf2 and uniform, bdf2, uniform, s.extrapolation_order(m.dt),
+                             self._may_split, int(n), self._clean_rotation, self.work, qvw, aw,
+                             self._skipped, out)
         return int(count), qvw, aw, out
 
     def _clean_result(self, s, count, qvw, aw, out) -> CleanSteps:
@@ -365,11 +374,20 @@ class Solver:
             times.append(t)
         k = count - 1
         J = self.model.joint_count
+        w = qvw[k, 2]
+        if k == 0:
+            prev, prev2 = _history(s, h, w)
+        else:                       # the state before it is this batch's; _history on it
+            prev = qvw[k - 1, 2]
+            if k >= 2:
+                prev2 = qvw[k - 2, 2]
+            else:                   # that state's warm_start_prev, as _history made it
+                prev2 = s.warm_start if s.history_dt == h else prev
         state = State(time=t, q=qvw[k, 0], v=qvw[k, 1],
                       q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,
                       joint_angle=aw[k, 0], joint_velocity=aw[k, 1] if J else s.joint_velocity,
-                      step_count=s.step_count + count, history_dt=h, warm_start=qvw[k, 2],
-                      warm_start_prev=qvw[k - 1, 2] if k else _previous_warm_start(s, h, qvw[0, 2]))
+                      step_count=s.step_count + count, history_dt=h, warm_start=w,
+                      warm_start_prev=prev, warm_start_prev2=prev2)
         o = out[k]
         report = StepReport(time=t, newton_iterations=int(o[kernel.OUT_NEWTON]),
                             line_search_iterations=int(o[kernel.OUT_LINE_SEARCH]),
