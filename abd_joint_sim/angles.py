@@ -216,7 +216,7 @@ def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, projec
     work = np.empty(ANGLE_WORK_SHAPE)
     for k in range(n):
         accumulate_angle_joint(q, parent, child, nbar, bbar, joints[k], d1s[k], d2s[k],
-                               grad, diag, pair, project, work)
+                               grad, diag, pair, project, work, 0.0)
 
 
 # -- the angle terms' Hessian, joint by joint (issue 15) ---------------------------------------
@@ -226,9 +226,12 @@ _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair ca
 
 @njit(cache=True, error_model='numpy')
 def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair, project,
-                           work):
+                           work, exact_bound):
     """accumulate_angle_hessian for one joint j with E' = d1, E'' = d2 (`work`: an array of
-    ANGLE_WORK_SHAPE, reused across joints)."""
+    ANGLE_WORK_SHAPE, reused across joints). With `project`, the Hessian is taken exact
+    (unprojected) where its most negative eigenvalue is at least −exact_bound (the terms pass
+    s times model_data's joint_angle_budget: the bodies' inertia keeps Newton's matrix
+    positive definite then; 0.0 projects always)."""
     G = work[8]
     tw = work[0:8]
     i_body, j_body = parent[j], child[j]
@@ -258,12 +261,12 @@ def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, 
     fr = tw[0:4, 0:3]                       # n_i, n_j, b_i, b_j, left there by theta_derivatives_at
     c, s = cos_sin(fr)
     angle_hessian_projected(fr, c, s, nbar[j, 0], bbar[j, 0], nbar[j, 1], bbar[j, 1],
-                            curvature, d2, i_body, j_body, j, diag, pair, work)
+                            curvature, d2, i_body, j_body, j, diag, pair, work, exact_bound)
 
 
 @njit(cache=True, error_model='numpy')
 def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j, diag, pair,
-                            work):
+                            work, exact_bound):
     """Adds the PSD projection of H = e2 ∇θ∇θᵀ + e1 ∇²θ (e1 = E', e2 = E'') to the blocks,
     from its structure instead of a 12x12 eigenproblem (docs/speed.md).
 
@@ -288,7 +291,15 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
     on the space of eigenvalue +β (I3 ⊗ (I/2 + sign(e1) r M_θ)), E_pos its part in the
     basis V, H_W⁺ from a 4x4 eigenproblem (smallmat.eigh_ql_in). The rows of H_W⁺ − β E_pos on v± are
     O(δ), so v±, whose direction is ill-determined when δ is tiny, enter only with weight
-    O(δ): the result is accurate to rounding even for rigid pairs."""
+    O(δ): the result is accurate to rounding even for rigid pairs.
+
+    Exact instead: the eigenvalues of H are ±β (outside the span of V), 0 and those of H_W,
+    so λ_min(H) ≥ −β + λ_min(H_W − βD) (Weyl; H_W − βD is the rank-2 part, gθ ⟂ gr, its
+    eigenvalues from a 2x2; measured 1.00–1.26× the true λ_min). Where that is ≥ −exact_bound, H itself
+    is added, from the structure above in x directly (no eigenproblem, no basis V):
+    H = e2 ∇θ∇θᵀ − (e1/r)(∇θ∇rᵀ + ∇r∇θᵀ) + e1 I3 ⊗ M_θ, whose last part is the cross blocks
+    I3 ⊗ e1/(2r) F_i O F_jᵀ (docs/decisions.md). `work` must hold what theta_derivatives_at
+    left there (∇c, ∇s in rows 4, 5; ∇θ in row 8)."""
     r = math.sqrt(c * c + s * s)
     o00, o01, o10, o11 = -s / r, -c / r, c / r, -s / r
     h = math.sqrt(0.5)
@@ -309,6 +320,35 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
     dl = math.sqrt(dd)
     inv_u = h / S
     inv_v = h / dl if dl > _TINY_SPLIT * S else 0.0
+    beta = abs(e1) / (2.0 * r)
+    # λ_min(H) ≥ −β + λ_min(rank-2 part) (Weyl); gθ ⟂ gr, so that part's eigenvalues are
+    # those of the 2x2 [[e2 |gθ|², −(e1/r)|gθ||gr|], [·, 0]] (written without cancellation)
+    a = e2 * (2.0 * (ss + dd)) / (16.0 * r * r)         # e2 |gθ|²
+    b = 4.0 * (e1 / r) ** 2 * (2.0 * (ss + dd)) ** 2 / (256.0 * r * r)   # 4 (e1/r)² |gθ|² |gr|²
+    if a >= 0.0:
+        low = -b / (2.0 * (a + math.sqrt(a * a + b))) if b > 0.0 else 0.0
+    else:
+        low = 0.5 * (a - math.sqrt(a * a + b))
+    if beta - low <= exact_bound:           # H itself: the inertia keeps Newton's matrix PD
+        _add_exact_angle_hessian(work, c, s, r, o00, o01, o10, o11, nbi, bbi, nbj, bbj, e1, e2,
+                                 i_body, j_body, j, diag, pair)
+        return
+    HW = work[21, 0:16].reshape((4, 4))
+    V4 = work[22, 0:16].reshape((4, 4))
+    Fm = work[23, 0:16].reshape((4, 4))
+    w4 = work[24, 0:4]
+    gt = work[24, 4:8]
+    gr = work[24, 8:12]
+    gt[0], gt[1], gt[2], gt[3] = S / (4.0 * r), -S / (4.0 * r), dl / (4.0 * r), -dl / (4.0 * r)
+    gr[0], gr[1], gr[2], gr[3] = 0.25 * S, 0.25 * S, -0.25 * dl, -0.25 * dl
+    half = e1 / (2.0 * r)
+    k1 = e1 / r
+    for p in range(4):
+        for t in range(p, 4):
+            x = e2 * (gt[p] * gt[t]) - k1 * (gr[p] * gt[t] + gt[p] * gr[t])
+            HW[p, t] = x
+            HW[t, p] = x
+        HW[p, p] += half if p % 2 == 0 else -half
     Vx = work[9:13]                 # u+, u−, v+, v− as x = [vec A_i, vec A_j]
     for k in range(3):
         u0, u1, v0, v1 = P[2 * k], P[2 * k + 1], P[6 + 2 * k], P[7 + 2 * k]
@@ -326,22 +366,6 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
             for cc in range(3):               # A = X Fᵀ, F = [n̄ b̄]
                 Vx[t, 3 * k + cc] = y0 * nbi[cc] + y1 * bbi[cc]
                 Vx[t, 9 + 3 * k + cc] = z0 * nbj[cc] + z1 * bbj[cc]
-    HW = work[21, 0:16].reshape((4, 4))
-    V4 = work[22, 0:16].reshape((4, 4))
-    Fm = work[23, 0:16].reshape((4, 4))
-    w4 = work[24, 0:4]
-    gt = work[24, 4:8]
-    gr = work[24, 8:12]
-    gt[0], gt[1], gt[2], gt[3] = S / (4.0 * r), -S / (4.0 * r), dl / (4.0 * r), -dl / (4.0 * r)
-    gr[0], gr[1], gr[2], gr[3] = 0.25 * S, 0.25 * S, -0.25 * dl, -0.25 * dl
-    half = e1 / (2.0 * r)
-    k1 = e1 / r
-    for p in range(4):
-        for t in range(p, 4):
-            x = e2 * (gt[p] * gt[t]) - k1 * (gr[p] * gt[t] + gt[p] * gr[t])
-            HW[p, t] = x
-            HW[t, p] = x
-        HW[p, p] += half if p % 2 == 0 else -half
     eigh_ql_in(HW, w4, V4, work[24, 12:16])
     for p in range(4):
         for t in range(p, 4):
@@ -351,7 +375,6 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
                     x += V4[p, l] * w4[l] * V4[t, l]
             Fm[p, t] = x
             Fm[t, p] = x
-    beta = abs(e1) / (2.0 * r)
     first = 0 if e1 > 0.0 else 1           # u+, v+ span the positive space when E' > 0
     Fm[first, first] -= beta
     Fm[first + 2, first + 2] -= beta
@@ -383,5 +406,37 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
                  + Vx[2, a] * Wp[2, 9 + b] + Vx[3, a] * Wp[3, 9 + b])
             if a // 3 == b // 3:
                 x += ko * (nbi[ca] * (o00 * nbj[cb] + o01 * bbj[cb])
+                           + bbi[ca] * (o10 * nbj[cb] + o11 * bbj[cb]))
+            pair[j, 3 + a, 3 + b] += x
+
+
+@njit(cache=True, error_model='numpy')
+def _add_exact_angle_hessian(work, c, s, r, o00, o01, o10, o11, nbi, bbi, nbj, bbj, e1, e2,
+                             i_body, j_body, j, diag, pair):
+    """angle_hessian_projected's exact branch: adds H = e2 ∇θ∇θᵀ − (e1/r)(∇θ∇rᵀ + ∇r∇θᵀ) +
+    I3 ⊗ e1/(2r) F_i O F_jᵀ (across the pair) to the blocks on q[3:12]; ∇r = (c∇c + s∇s)/r."""
+    dc, ds, G = work[4], work[5], work[8]
+    Dr = work[7]
+    for a in range(18):
+        Dr[a] = (c * dc[a] + s * ds[a]) / r
+    k1 = e1 / r
+    kx = e1 / (2.0 * r)
+    for a in range(9):
+        ga, ra = G[a], Dr[a]
+        gj, rj = G[9 + a], Dr[9 + a]
+        for b in range(a, 9):                 # each body's block: upper triangle and mirror
+            xi = e2 * (ga * G[b]) - k1 * (ga * Dr[b] + ra * G[b])
+            xj = e2 * (gj * G[9 + b]) - k1 * (gj * Dr[9 + b] + rj * G[9 + b])
+            diag[i_body, 3 + a, 3 + b] += xi
+            diag[j_body, 3 + a, 3 + b] += xj
+            if b != a:
+                diag[i_body, 3 + b, 3 + a] += xi
+                diag[j_body, 3 + b, 3 + a] += xj
+        ca = a % 3
+        for b in range(9):                    # across: row a of body i, column b of body j
+            x = e2 * (ga * G[9 + b]) - k1 * (ga * Dr[9 + b] + ra * G[9 + b])
+            if a // 3 == b // 3:
+                cb = b % 3
+                x += kx * (nbi[ca] * (o00 * nbj[cb] + o01 * bbj[cb])
                            + bbi[ca] * (o10 * nbj[cb] + o11 * bbj[cb]))
             pair[j, 3 + a, 3 + b] += x

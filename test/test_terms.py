@@ -455,12 +455,72 @@ def test_angle_hessian_has_the_structure_the_projection_uses():
                 assert w.min() < 0
 
 
+def test_angle_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite():
+    """angles.accumulate_angle_joint takes E''∇θ∇θᵀ + E'∇²θ unprojected where its most
+    negative eigenvalue is provably ≥ −exact_bound (Weyl's bound from its structure; the terms pass
+    s × model_data's joint_angle_budget), else the PSD projection. On rigid, near-rigid and
+    sheared pairs, E' of both signs: with an unlimited bound it must be the raw Hessian (the
+    closed form against theta_derivatives' ∇²θ); with a bound just below what the raw
+    Hessian's most negative eigenvalue needs, the projection (the rule may not take it
+    then); with a bound twice that, exact in most cases (the bound is not vacuous)."""
+    from abd_joint_sim import angles
+    checked = taken = 0
+    work = np.empty(angles.ANGLE_WORK_SHAPE)
+    for seed in range(4):
+        for q in (_rigid_state(seed), _state(seed, 1e-7), _state(seed, 0.15)):
+            for d1, d2 in ANGLE_CASES:
+                if abs(d1) > angles.GAUSS_NEWTON_RANGE * d2 or (d1 == 0.0 and d2 >= 0.0):
+                    continue                 # Gauss-Newton or PSD as it is: no projection
+                for j in range(MODEL.joint_count):
+                    raw = _raw_angle_hessian(q, [j], [d1], [d2])
+                    proj = _reference_angle_projection(q, [j], [d1], [d2])
+                    lam = np.linalg.eigvalsh(raw).min()
+                    scale = np.abs(raw).max()
+                    got = {}
+                    for name, bound in (('inf', np.inf), ('zero', 0.0), ('below', 0.999 * -lam),
+                                        ('twice', 2.0 * -lam)):
+                        B, J = MODEL.body_count, MODEL.joint_count
+                        g, d, p = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
+                        angles.accumulate_angle_joint(q, MODEL.joint_parent, MODEL.joint_child,
+                                                      DATA.joint_nbar, DATA.joint_bbar, j, d1, d2,
+                                                      g, d, p, True, work, bound)
+                        H = np.zeros((12 * B, 12 * B))
+                        for b in range(B):
+                            H[12 * b:12 * b + 12, 12 * b:12 * b + 12] += d[b]
+                        i_b, j_b = MODEL.joint_parent[j], MODEL.joint_child[j]
+                        H[12 * i_b:12 * i_b + 12, 12 * j_b:12 * j_b + 12] += p[j]
+                        H[12 * j_b:12 * j_b + 12, 12 * i_b:12 * i_b + 12] += p[j].T
+                        got[name] = H
+                    assert lam < 0.0                    # E'∇²θ with E' ≠ 0 is never PSD
+                    assert np.abs(got['inf'] - raw).max() <= 1e-11 * scale
+                    assert np.abs(got['zero'] - proj).max() <= 1e-12 * scale
+                    assert np.abs(got['below'] - proj).max() <= 1e-12 * scale
+                    checked += 1
+                    taken += np.abs(got['twice'] - raw).max() <= 1e-11 * scale
+    assert checked >= 40 and taken >= 0.5 * checked, (checked, taken)
+
+
+def test_the_angle_budget_shares_a_quarter_of_each_body_inertia():
+    """model_data.joint_angle_budget: per joint, the smaller over its free bodies of
+    ANGLE_EXACT_SHARE μ_min(M̄_b) / (angle terms on b's joints); the drives and limits on a
+    body's joints then take at most that share of its inertia together."""
+    mu = np.linalg.eigvalsh(DATA.body_Mbar)[:, 0]
+    # j0 (a-b: a drive and a limit), j1 (fixed c - b: a limit): a has 2 terms, b has 3
+    share = model_data.ANGLE_EXACT_SHARE
+    expect = [min(share * mu[0] / 2, share * mu[1] / 3), share * mu[1] / 3]
+    assert np.allclose(DATA.joint_angle_budget, expect, rtol=1e-14, atol=0)
+    for b in range(2):                                  # the quarter, summed over b's terms
+        terms = [DATA.joint_angle_budget[0]] * 2 + ([DATA.joint_angle_budget[1]] if b == 1 else [])
+        assert sum(terms) <= share * mu[b] * (1 + 1e-12)
+
+
 @pytest.mark.parametrize('name', ['driving', 'limit'])
 def test_terms_project_like_the_12x12_eigen_projection(name):
     """Through the terms' own `accumulate` (the fused loops): drives near their target on
     either side (E'∇²θ kept) and limits active above and below, against the reference."""
     from abd_joint_sim import angles
     term, signs = TERMS[name], set()
+    exact = projected = 0
     j = int(MODEL.drive_joints[0])
     for seed in range(4):
         q = _state(seed, 0.1)
@@ -476,8 +536,17 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
             ref = _reference_angle_projection(q, joints[:n], d1s[:n], d2s[:n])
             _, _, H = dense(term, q, ctx, project=True)
             _, _, raw = dense(term, q, ctx, project=False)
-            assert np.abs(H - ref).max() <= 1e-12 * np.abs(raw).max()
+            tol = 1e-12 * np.abs(raw).max()
+            if np.abs(H - ref).max() > tol:
+                # the exact Hessian, taken only where the inertia keeps Newton's matrix PD
+                assert np.abs(H - raw).max() <= tol
+                budget = ctx.scale * DATA.joint_angle_budget[joints[:n]].sum()
+                assert np.linalg.eigvalsh(raw).min() >= -budget * (1 + 1e-9)
+                exact += 1
+            else:
+                projected += 1
     assert signs >= {-1.0, 1.0}, signs
+    assert projected, (exact, projected)
 
 # -- M = M̄ ⊗ I3: the structured inertia and M⁻¹F against the dense 12x12 sums ------------------
 # The dense loops below are the plain definitions (Σ_c M[r, c] d[c] over all 12 columns, in

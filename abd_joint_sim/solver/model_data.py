@@ -28,6 +28,10 @@ SEPARATION_FAULT = 1e3
 # The share of a body's smallest inertia, s μ_min(M̄), that the unprojected shape Hessian may
 # take away from Newton's matrix (terms/ortho.py, docs/decisions.md).
 ORTHO_EXACT_SHARE = 0.5
+# The share of it that the unprojected Hessians of the angle terms (UID 19, 670) may take
+# together, split evenly among the drives and limits on a body's joints (angles.py,
+# docs/decisions.md): with the shape term's, Newton's matrix keeps a quarter of the inertia.
+ANGLE_EXACT_SHARE = 0.25
 
 #: (name, meaning) of every field; the values come from `build`.
 FIELDS = (
@@ -40,6 +44,10 @@ FIELDS = (
     ('ortho_exact_bound', '(B,) UID 1\'s Hessian is used unprojected while h² ‖AAᵀ − I‖_F ≤ s × this '
                           '(terms/ortho.py: Newton\'s matrix then keeps 1 − ORTHO_EXACT_SHARE of the '
                           'body\'s smallest inertia)'),
+    ('joint_angle_budget', '(J,) a drive\'s or limit\'s Hessian on joint j is used unprojected '
+                           'while its most negative eigenvalue is ≥ −s × this (angles.py: '
+                           'ANGLE_EXACT_SHARE of the smaller body inertia, shared among the angle '
+                           'terms on the body\'s joints)'),
     ('body_corners', '[m] (B,8,3) rest bounding-box corners (convergence test)'),
     ('gravity', '[m/s²] (3,)'),
     ('has_gravity', 'bool'),
@@ -156,6 +164,27 @@ def ortho_exact_bound(Mbar, weight):
         return np.where(weight > 0.0, ORTHO_EXACT_SHARE * mu / (4.0 * weight), np.inf)
 
 
+def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints):
+    """(J,) per joint, min over its free bodies of ANGLE_EXACT_SHARE μ_min(M̄_b) / n_b, n_b the
+    number of angle terms (drives and limits) on the joints of body b: the angle terms'
+    unprojected Hessians, each ≥ −s × its joint's budget, then take at most that share of
+    s μ_min(M̄_b) from any direction of body b in Newton's matrix (angles.py). inf for a joint
+    between fixed bodies; 0 (always projected) beside a body without inertia."""
+    B, J = len(fixed), len(parent)
+    mu = np.linalg.eigvalsh(Mbar)[:, 0] if B else np.zeros(0)
+    count = np.zeros(B)
+    for j in list(drive_joints) + list(limit_joints):
+        count[parent[j]] += 1
+        count[child[j]] += 1
+    budget = np.full(J, np.inf)
+    for j in range(J):
+        for b in (parent[j], child[j]):
+            if not fixed[b]:
+                share = ANGLE_EXACT_SHARE * max(mu[b], 0.0) / max(count[b], 1.0)
+                budget[j] = min(budget[j], share)
+    return budget
+
+
 def _arr(x, dtype):
     # writable C-contiguous copies: read-only arrays would be a different numba type
     return np.ascontiguousarray(np.array(x, dtype=dtype, copy=True))
@@ -225,6 +254,9 @@ def build(model, force_dense: bool = False) -> ModelData:
                                                     for x in mass_blocks(m.body_M, m.body_Minv))
     values['ortho_exact_bound'] = _arr(ortho_exact_bound(values['body_Mbar'], values['ortho_weight']),
                                        np.float64)
+    values['joint_angle_budget'] = _arr(joint_angle_budget(values['body_Mbar'], m.body_fixed,
+                                                           m.joint_parent, m.joint_child,
+                                                           m.drive_joints, m.limit_joints), np.float64)
     values['torque_bodies'], values['torque_body_ptr'], values['torque_body_entries'] = (
         _arr(x, np.int64) for x in torque_incidence(m.torque_joints, m.joint_parent, m.joint_child))
     values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)

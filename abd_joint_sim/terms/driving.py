@@ -6,7 +6,8 @@ angle toward a target,
 for each enabled drive; θ is the unwrapped angle relative to init_angle (angles.py) and
 θ_target the aim (relative to init_angle), or the angle at the start of the step when the
 drive is passive. Like UID 18 it carries no h² (physical potential E/h²). Gradient and
-PSD-projected Hessian via angles.accumulate_angle_joint.
+Hessian via angles.accumulate_angle_joint (PSD-projected, or exact where the bodies' inertia
+keeps Newton's matrix positive definite).
 """
 from __future__ import annotations
 
@@ -72,10 +73,11 @@ def _accumulate_from(q, m, ctx, grad, diag, pair, project, first):
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    budget = m.joint_angle_budget
     work = np.empty(angles.ANGLE_WORK_SHAPE)
     for k in range(first, drive_joints.size):
         if on[k]:
             j = drive_joints[k]
             x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
             angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * (x - target[k]), K[k],
-                                          grad, diag, pair, project, work)
+                                          grad, diag, pair, project, work, ctx.scale * budget[j])

@@ -4,7 +4,8 @@
     x > u:  E = s ((x − u)/w)³          x < l:  E = s ((l − x)/w)³          inside: E = 0
     w = 0:  E = s |x − l|³ (a locked joint)
 
-E' and E'' follow; gradient and PSD-projected Hessian via angles.accumulate_angle_joint.
+E' and E'' follow; gradient and Hessian via angles.accumulate_angle_joint (PSD-projected, or
+exact where the bodies' inertia keeps Newton's matrix positive definite).
 """
 from __future__ import annotations
 
@@ -93,10 +94,12 @@ def _accumulate_from(q, m, ctx, grad, diag, pair, project, first):
     """accumulate's work from limit `first` (active) on, in one work array."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    budget = m.joint_angle_budget
     work = np.empty(angles.ANGLE_WORK_SHAPE)
     for k in range(first, limit_joints.size):
         x = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
-            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, limit_joints[k], d1, d2, grad,
-                                          diag, pair, project, work)
+            j = limit_joints[k]
+            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
+                                          project, work, ctx.scale * budget[j])
