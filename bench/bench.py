@@ -150,6 +150,9 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
         node = SimNode(parameter_overrides=params)
         node.paused = False           # the loop steps only unpaused; nothing spins
         recorder = node.recorder      # taken away for the rounds without recording
+        if recorder is None:          # (e.g. without scripts/env.sh: no AMENT_PREFIX_PATH)
+            print(f'node overhead ({scene}): recording is off ({node.recording_error}); '
+                  'its rounds are not timed', file=sys.stderr)
 
         node.recorder = None
         while node.steps < start_steps:       # past the start (the arms in their limits)
@@ -169,7 +172,7 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
             t = (time.process_time() - t0) / k
             gc.enable()
             return t
-        keys = ('world', 'node', 'node_recording')
+        keys = ('world', 'node') + (('node_recording',) if recorder is not None else ())
         for key in keys:
             run(key)                                  # warm-up
         best = {key: math.inf for key in keys}
@@ -182,7 +185,9 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
     finally:
         rclpy.try_shutdown()
         shutil.rmtree(tmp, ignore_errors=True)
-    return {k: v * 1e6 for k, v in best.items()}
+    out = {k: v * 1e6 for k, v in best.items()}
+    out.setdefault('node_recording', None)
+    return out
 
 
 def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tree=None):
@@ -219,6 +224,7 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
     old_domain = os.environ.get('ROS_DOMAIN_ID')
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
     rtfs, counts, marks = [], {'clock': 0, 'states': 0}, []
+    recording = set()               # what /diagnostics says: whether the node records, why not
     rclpy.init()
     try:
         node = rclpy.create_node('bench_probe')
@@ -228,6 +234,7 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
                 kv = {k.key: k.value for k in st.values}
                 if 'real_time_factor_achieved' in kv and kv.get('paused') == 'False':
                     rtfs.append(float(kv['real_time_factor_achieved']))
+                    recording.add((kv.get('recording'), kv.get('recording_error', '')))
                     marks.append((float(kv['sim_time']), _cpu_seconds(proc.pid)))
 
         node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
@@ -259,6 +266,10 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
     if len(marks) >= 2 and marks[0][1] is not None and marks[-1][1] is not None \
             and marks[-1][1] > marks[0][1]:
         cpu_rtf = (marks[-1][0] - marks[0][0]) / (marks[-1][1] - marks[0][1])
+    if record_dir and recording != {('True', '')}:
+        # a node that could not record (e.g. no AMENT_PREFIX_PATH without scripts/env.sh)
+        # runs on without: its figures are not those of recording
+        return None, sorted(recording), None
     return rtfs[1:], counts, cpu_rtf
 
 
@@ -426,7 +437,8 @@ def node_section(quick, kuka_path=None, old_tree=None):
                 continue
             w, n, r = res['world'], res['node'], res['node_recording']
             cells += [f'{w:.1f}' + (f' ({1e3 / w:.0f})' if tree is None else ''), f'{n:.1f}',
-                      f'{n - w:.1f}', f'{r:.1f}', f'{r - w:.1f}']
+                      f'{n - w:.1f}'] + (['not recorded'] * 2 if r is None else
+                                         [f'{r:.1f}', f'{r - w:.1f}'])
         print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
     seconds = 4 if quick else 8
     print(f'\nsim_node end to end (own process, DDS on loopback, as fast as possible, dt 1 ms, '
@@ -451,6 +463,8 @@ def node_section(quick, kuka_path=None, old_tree=None):
                         cells.append(f'{statistics.median(rtfs):.1f} ({min(rtfs):.1f}–'
                                      f'{max(rtfs):.1f})' + (f'; per CPU s {cpu_rtf:.1f}'
                                                             if cpu_rtf else ''))
+                    elif res and rec:
+                        cells.append(f'not recorded ({res[1]})')
                     else:
                         cells.append('no report')
                 name = label if tree is None else f'{label}, old tree'
