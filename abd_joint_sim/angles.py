@@ -294,9 +294,10 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
     O(δ): the result is accurate to rounding even for rigid pairs.
 
     Exact instead: the eigenvalues of H are ±β (outside the span of V), 0 and those of H_W,
-    so λ_min(H) ≥ −β + λ_min(H_W − βD) (Weyl; H_W − βD is the rank-2 part, gθ ⟂ gr, its
-    eigenvalues from a 2x2; measured 1.00–1.26× the true λ_min). Where that is ≥ −exact_bound, H itself
-    is added, from the structure above in x directly (no eigenproblem, no basis V):
+    so λ_min(H) ≥ −β + λ_min(H_W − βD) (Weyl; D = diag(1, −1, 1, −1) sign(e1); H_W − βD is
+    the rank-2 part, gθ ⟂ gr, its eigenvalues from a 2x2; measured 1.00–1.26× the true
+    λ_min). Where that is ≥ −exact_bound, H itself is added, from the structure above in x
+    directly (no eigenproblem, no basis V):
     H = e2 ∇θ∇θᵀ − (e1/r)(∇θ∇rᵀ + ∇r∇θᵀ) + e1 I3 ⊗ M_θ, whose last part is the cross blocks
     I3 ⊗ e1/(2r) F_i O F_jᵀ (docs/decisions.md). `work` must hold what theta_derivatives_at
     left there (∇c, ∇s in rows 4, 5; ∇θ in row 8)."""
