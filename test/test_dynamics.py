@@ -315,8 +315,8 @@ def test_extrapolated_warm_start_saves_iterations_on_robots(robot, integrator, v
     pybullet_data under gravity and torques: the quadratic start (the default), the linear
     one (warm_start_prev2 marked unknown before every step) and the plain warm start
     (warm_start_prev too). Measured over steps 100-700, Newton iterations per step
-    (quadratic / linear / plain): xArm 6 bdf1 1.12 / 1.13 / 2.00, bdf2 1.41 / 1.42 / 2.10;
-    Mini Cheetah bdf1 1.16 / 1.96 / 2.08, bdf2 1.87 / 2.20 / 2.31 (its links are light and
+    (quadratic / linear / plain): xArm 6 bdf1 1.10 / 1.13 / 2.00, bdf2 1.37 / 1.42 / 2.10;
+    Mini Cheetah bdf1 1.16 / 1.96 / 2.08, bdf2 1.88 / 2.20 / 2.31 (its links are light and
     stiff: the linear start's first correction still exceeds the tolerances). Every start
     must keep the solution: every 20th step, each world's step against a tolerance-1e-7
     solve from the same state (measured at most 1.7e-6 m, mean at most 1.0e-7 m, against

@@ -146,21 +146,24 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     # w_(n−2) (the quadratic through the last three). Measured on robots from pybullet_data:
     # the linear 2 w_n − w_(n−1) made the first Newton correction ~20x smaller than w_n
     # alone, and the quadratic another 2-10x (the Mini Cheetah: 1.96 -> 1.16 Newton
-    # iterations per step). A body whose second difference exceeds its first is not moving
-    # smoothly (a torque switched in the last two steps, round-off at rest): it is
-    # extrapolated linearly. Across a jump both overshoot: Newton then starts from w_n, or
-    # q̃, where Π is lower (docs/decisions.md).
+    # iterations per step). Where the corrections' second difference exceeds their first,
+    # summed over all bodies, the motion is not smooth (a torque switched in the last two
+    # steps, round-off at rest) and they are extrapolated linearly: all bodies alike, since a
+    # body extrapolated unlike its neighbours starts Newton with its joints pulled apart.
+    # Across a jump both overshoot: Newton then starts from w_n, or q̃, where Π is lower
+    # (docs/decisions.md).
     extrapolate = order > 0
-    for b in range(B):
-        quadratic = order == 2
-        if quadratic:
-            first = second = 0.0
+    quadratic = order == 2
+    if quadratic:
+        first = second = 0.0
+        for b in range(B):
             for r in range(12):
                 d1 = warm_start[b, r] - warm_start_prev[b, r]
                 d2 = d1 - (warm_start_prev[b, r] - warm_start_prev2[b, r])
                 first += d1 * d1
                 second += d2 * d2
-            quadratic = second <= first
+        quadratic = second <= first
+    for b in range(B):
         for r in range(12):
             w = warm_start[b, r]
             if extrapolate:                 # (q_alt is read only then)
