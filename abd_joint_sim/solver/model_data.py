@@ -154,12 +154,18 @@ class ModelData(structref.StructRefProxy):
 structref.define_proxy(ModelData, ModelDataType, [name for name, _ in FIELDS])
 
 
+def inertia_min(Mbar):
+    """(B,) μ_min(M̄) per body: the least the inertia term s M gives any direction of a body
+    in Newton's matrix (per unit s), which the unprojected Hessians may draw on."""
+    return np.linalg.eigvalsh(Mbar)[:, 0] if len(Mbar) else np.zeros(0)
+
+
 def ortho_exact_bound(Mbar, weight):
     """(B,) ORTHO_EXACT_SHARE μ_min(M̄) / (4 κv̄) per body (inf without a shape term): where
     h² ‖AAᵀ − I‖_F is below s times it, the unprojected shape Hessian, whose eigenvalues are
     ≥ −4h²κv̄ ‖AAᵀ − I‖_F, takes at most that share of the inertia term's s μ_min(M̄) away from
     any direction of Newton's matrix (terms/ortho.py)."""
-    mu = np.linalg.eigvalsh(Mbar)[:, 0] if len(Mbar) else np.zeros(0)
+    mu = inertia_min(Mbar)
     with np.errstate(divide='ignore'):
         return np.where(weight > 0.0, ORTHO_EXACT_SHARE * mu / (4.0 * weight), np.inf)
 
@@ -171,7 +177,7 @@ def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints):
     s μ_min(M̄_b) from any direction of body b in Newton's matrix (angles.py). inf for a joint
     between fixed bodies; 0 (always projected) beside a body without inertia."""
     B, J = len(fixed), len(parent)
-    mu = np.linalg.eigvalsh(Mbar)[:, 0] if B else np.zeros(0)
+    mu = inertia_min(Mbar)
     count = np.zeros(B)
     for j in list(drive_joints) + list(limit_joints):
         count[parent[j]] += 1

@@ -377,12 +377,11 @@ class Solver:
         w = qvw[k, 2]
         if k == 0:
             prev, prev2 = _history(s, h, w)
-        else:                       # the state before it is this batch's; _history on it
+        else:                       # the state before it is this batch's
             prev = qvw[k - 1, 2]
-            if k >= 2:
-                prev2 = qvw[k - 2, 2]
-            else:                   # that state's warm_start_prev, as _history made it
-                prev2 = s.warm_start if s.history_dt == h else prev
+            # two back: that state's own warm_start_prev (for the batch's first state, as
+            # _history made it from s: s's warm start, or prev itself when unknown)
+            prev2 = qvw[k - 2, 2] if k >= 2 else _history(s, h, prev)[0]
         state = State(time=t, q=qvw[k, 0], v=qvw[k, 1],
                       q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,
                       joint_angle=aw[k, 0], joint_velocity=aw[k, 1] if J else s.joint_velocity,
