@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from pathlib import Path
 import re
+import time
 
 import pytest
 
 from abd_joint_sim import Scene, World
+from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.loop import DIAGNOSTIC_KEYS, LoopOutput
 from abd_joint_sim.ros.params import config_from_values, resolve_scene
 from abd_joint_sim.ros.topics import BEST_EFFORT, RELIABLE, TOPICS, TOPICS_BY_NAME
@@ -321,3 +323,52 @@ def test_batched_publishing_is_what_single_steps_publish(scene_name):
     assert kinds.count('clock') == 6 * 64 + 1 and kinds.count('markers') >= 12
     assert kinds.count('joint_state') >= 38
     assert runs[0] == runs[1]
+
+
+def test_node_publishes_every_clock_of_a_batch_once_someone_subscribes(domain_id):
+    """As fast as possible the node publishes a batch's clock-only steps only when a /clock
+    subscriber is matched as the batch begins (real DDS: the count comes from the middleware).
+    Counted at the node's publish call: with a subscriber, one /clock per step; without, only
+    the steps that publish a joint state or markers too."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from abd_joint_sim.ros.node import SimNode
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = SimNode(context=context, parameter_overrides=[
+        Parameter('scene', value='default'), Parameter('start_paused', value=True)])
+    listener = None
+    try:
+        sent = []
+        raw = node.clock_publish_raw
+        node.clock_publish_raw = lambda data: sent.append(data) or raw(data)
+        node.paused = False
+        published = []
+        for subscribed in (False, True):
+            if subscribed:
+                listener = rclpy.create_node('clock_listener', context=context)
+                listener.create_subscription(
+                    Clock, '/clock', lambda m: None,
+                    QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+                deadline = time.monotonic() + 10.0
+                while node.clock_pub.get_subscription_count() == 0:
+                    assert time.monotonic() < deadline, 'the subscriber never matched'
+                    time.sleep(0.01)
+            sent.clear()
+            first = convert.seconds_to_ns(node.world.time + node.world.dt)
+            assert node._advance(200) == 200
+            published.append((len(sent), sent[0], sent[-1], first,
+                              convert.seconds_to_ns(node.world.time)))
+        (without, *_), (with_, first_sent, last_sent, first, last) = published
+        assert 200 // 10 <= without < 60          # the 100 Hz joint states (+ markers)
+        assert with_ == 200
+        assert (first_sent, last_sent) == (node.clock_encoder.encode(first),
+                                           node.clock_encoder.encode(last))
+    finally:
+        if listener is not None:
+            listener.destroy_node()
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

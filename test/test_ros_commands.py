@@ -175,8 +175,14 @@ def test_clock_encoder_gives_rclpys_bytes():
         raw = enc.encode(ns)
         assert raw == serialize_message(convert.clock_msg(ns)), ns
         assert convert.time_msg_to_ns(deserialize_message(raw, Clock).clock) == ns
+    # a batch's run of steps at once (sim_node's and the headless recorder's `clocks`)
+    assert enc.encode_many(stamps) == [serialize_message(convert.clock_msg(ns)) for ns in stamps]
+    with pytest.raises(Exception, match='format requires'):     # beyond int32 seconds
+        enc.encode_many([0, 2 ** 31 * 10 ** 9])
     enc.checked = False                     # the fallback path: rclpy itself
     assert enc.encode(123) == serialize_message(convert.clock_msg(123))
+    assert enc.encode_many([123, 4]) == [serialize_message(convert.clock_msg(ns))
+                                         for ns in (123, 4)]
 
 
 def test_joint_state_refill_matches_a_new_message():

@@ -93,13 +93,23 @@ class ClockEncoder:
             for ns in (0, 1, NS_PER_S - 1, 1_234_567_891_011, (2 ** 31 - 1) * NS_PER_S + NS_PER_S - 1))
 
     def _pack(self, ns: int) -> bytes:
-        sec, nanosec = divmod(ns, NS_PER_S)
-        return self._header + struct.pack('<iI', sec, nanosec)
+        return _CLOCK_ROW.pack(self._header, *divmod(ns, NS_PER_S))
 
     def encode(self, stamp_ns: int) -> bytes:
         if self.checked:
             return self._pack(stamp_ns)
         return serialize_message(clock_msg(stamp_ns))
+
+    def encode_many(self, stamps_ns: Sequence[int]) -> list[bytes]:
+        """``[encode(t) for t in stamps_ns]`` (a run of a batch's steps), with one
+        ``struct`` pack each and no call per stamp."""
+        if not self.checked:
+            return [self.encode(t) for t in stamps_ns]
+        pack, header = _CLOCK_ROW.pack, self._header
+        return [pack(header, *divmod(t, NS_PER_S)) for t in stamps_ns]
+
+
+_CLOCK_ROW = struct.Struct('<4siI')      # the CDR header, sec, nanosec: 12 bytes
 
 
 class JointStateEncoder:

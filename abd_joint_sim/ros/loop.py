@@ -29,6 +29,7 @@ imports this module.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from typing import Any, Mapping, Optional
 
@@ -71,6 +72,12 @@ class LoopOutput:
 
     def clock(self, t_ns: int) -> None:
         """After every step (and at start, reset and a forced publish)."""
+
+    def clocks(self, stamps_ns: list) -> None:
+        """`clock` for each of a batch's steps that publish nothing else, in order (one
+        call for a run of them; override to handle them at once)."""
+        for t_ns in stamps_ns:
+            self.clock(t_ns)
 
     def joint_state(self, t_ns: int, position: list, velocity: list, effort: list) -> None:
         """The joint state at `t_ns` when due (finite, plain floats)."""
@@ -248,17 +255,53 @@ class SimLoop:
             times = times.tolist()
         out = self.output
         states = self.world.last_clean_q
+        stamps = self._batch_stamps(times)
         out.batch_begin()
         try:
-            for i, t in enumerate(times):
+            i = 0
+            while i < count:
+                # Steps that publish only /clock go out in one `clocks` call; `publish_state`
+                # takes the next step that has more to publish (the same messages in the
+                # same order as one publish_state per step).
+                k = self._next_busy_step(stamps, i) if stamps is not None else i
+                if k > i:
+                    out.clocks(stamps[i:k])
+                    i = k
+                    if i == count:
+                        break
                 # Only the batch's last step is the world's current one; the markers of the
                 # others come from the batch's states.
-                self.publish_state(t=t, position=angles[i], velocity=velocities[i],
+                self.publish_state(t=times[i], position=angles[i], velocity=velocities[i],
                                    current=i == last, states=states[i])
                 if self.fault:              # the publish guard stopped it: say so once
                     break
+                i += 1
         finally:
             out.batch_end()
+
+    def _batch_stamps(self, times: list) -> Optional[list]:
+        """The batch's stamps [ns] as `publish_state` rounds them, or None when every step
+        goes through `publish_state` anyway (a joint state after every step, an output that
+        reads the world after every step, a non-finite time for its guard to report)."""
+        out = self.output
+        if (out.every_state or self.config.publish_rate <= 0.0
+                or type(out).stepped is not LoopOutput.stepped):
+            return None
+        stamps = np.rint(np.asarray(times, dtype=float) * convert.NS_PER_S)
+        if not np.isfinite(stamps).all():
+            return None
+        return stamps.astype(np.int64).tolist()     # = round(t * NS_PER_S) of each
+
+    def _next_busy_step(self, stamps: list, i: int) -> int:
+        """The first step from `i` on at which `publish_state` publishes more than /clock
+        (a joint state, markers or diagnostics due): each schedule's next stamp, found by
+        bisection in the batch's increasing stamps; len(stamps) if none."""
+        k = bisect.bisect_left(stamps, self.publish_schedule.next_ns, i)
+        if self.markers is not None:
+            k = min(k, bisect.bisect_left(stamps, self.marker_schedule.next_ns, i))
+        if self.diagnostics_period_ns:
+            k = min(k, bisect.bisect_left(stamps, self.next_diagnostics_ns, i))
+        return k
 
     def _on_applied(self, applied: Applied) -> None:
         for joint in applied.timed_out:

@@ -550,6 +550,7 @@ class _NodeOutput(LoopOutput):
 
     def __init__(self, node: SimNode):
         self.node = node
+        self._clock_subscribed = True
 
     @property
     def markers_wanted(self) -> bool:
@@ -570,8 +571,31 @@ class _NodeOutput(LoopOutput):
         elif node.recorder is not None:
             node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
 
+    def clocks(self, stamps_ns: list) -> None:
+        # A run of a batch's steps with nothing but /clock to publish: encoded at once,
+        # published one by one (only when someone subscribes: see batch_begin) and held
+        # for the bag as `clock` holds them.
+        node = self.node
+        datas = node.clock_encoder.encode_many(stamps_ns)
+        if self._clock_subscribed:
+            publish = node.clock_publish_raw
+            for data in datas:
+                publish(data)
+        if node._held_clock.active:
+            node._held_clock.hold_many(stamps_ns, datas)
+        elif node.recorder is not None:
+            for t_ns, data in zip(stamps_ns, datas):
+                node._record(TOPIC_CLOCK, t_ns, data, serialized=True)
+
     def batch_begin(self) -> None:
-        self.node._held_clock.active = self.node.recorder is not None
+        node = self.node
+        node._held_clock.active = node.recorder is not None
+        # /clock is best effort with depth 1 (what Gazebo does): a message nobody receives
+        # is lost whenever it is sent, so a batch's clock-only steps are published only when
+        # a subscriber is matched as the batch begins (the count is asked once per batch,
+        # not per step). A subscriber matched during a batch gets /clock from the next
+        # one: the same as if its discovery had taken a few milliseconds longer.
+        self._clock_subscribed = node.clock_pub.get_subscription_count() > 0
 
     def batch_end(self) -> None:
         self.node._write_held_clock()

@@ -185,6 +185,11 @@ class HeldMessages:
         self._stamps.append(stamp_ns)
         self._datas.append(data)
 
+    def hold_many(self, stamps_ns: list, datas: list) -> None:
+        """`hold` each pair in order."""
+        self._stamps += stamps_ns
+        self._datas += datas
+
     def flush(self, writer: Any) -> int:
         """Write what is held into `writer` (None: drop it); returns how many were held."""
         stamps, datas = self._stamps, self._datas

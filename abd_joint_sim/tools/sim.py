@@ -212,6 +212,14 @@ class BagRecorder(LoopOutput):
         else:
             self._write_serialized(TOPIC_CLOCK, t_ns, self._clock.encode(t_ns))
 
+    def clocks(self, stamps_ns: list) -> None:
+        datas = self._clock.encode_many(stamps_ns)
+        if self._held.active:
+            self._held.hold_many(stamps_ns, datas)
+        else:
+            for t_ns, data in zip(stamps_ns, datas):
+                self._write_serialized(TOPIC_CLOCK, t_ns, data)
+
     def batch_begin(self) -> None:
         self._held.active = True
 
