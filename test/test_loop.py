@@ -372,3 +372,18 @@ def test_node_publishes_every_clock_of_a_batch_once_someone_subscribes(domain_id
         node.close()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_as_fast_as_possible_batches_follow_the_measured_step_time():
+    """As fast as possible the node takes about a quarter of its AFAP_BATCH_WALL round per
+    compiled call: a small scene up to AFAP_BATCH_STEPS steps, a large one few enough to hand
+    the executor back in time, one step before any was measured."""
+    from types import SimpleNamespace
+    from abd_joint_sim.ros import node as node_module
+    steps = node_module.SimNode._afap_steps
+    round_ = node_module.AFAP_BATCH_WALL
+    assert steps(SimpleNamespace(_wall_per_step=0.0)) == 1
+    assert steps(SimpleNamespace(_wall_per_step=1e-6)) == node_module.AFAP_BATCH_STEPS
+    assert steps(SimpleNamespace(_wall_per_step=round_ / 40)) == 10
+    assert steps(SimpleNamespace(_wall_per_step=2e-3)) * 2e-3 <= 0.25 * round_
+    assert steps(SimpleNamespace(_wall_per_step=1.0)) == 1

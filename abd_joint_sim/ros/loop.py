@@ -256,6 +256,8 @@ class SimLoop:
         out = self.output
         states = self.world.last_clean_q
         stamps = self._batch_stamps(times)
+        # the efforts of every joint state in the batch: no command changes inside it
+        effort = np.asarray(self.world.applied_torques(), dtype=float).tolist()
         out.batch_begin()
         try:
             i = 0
@@ -272,7 +274,7 @@ class SimLoop:
                 # Only the batch's last step is the world's current one; the markers of the
                 # others come from the batch's states.
                 self.publish_state(t=times[i], position=angles[i], velocity=velocities[i],
-                                   current=i == last, states=states[i])
+                                   current=i == last, states=states[i], effort=effort)
                 if self.fault:              # the publish guard stopped it: say so once
                     break
                 i += 1
@@ -336,11 +338,12 @@ class SimLoop:
     # ------------------------------------------------------------------ publishing ----
     def publish_state(self, force: bool = False, t: Optional[float] = None,
                       position=None, velocity=None, current: Optional[bool] = None,
-                      states=None) -> None:
+                      states=None, effort: Optional[list] = None) -> None:
         """/clock after every step, markers and the joint state when due; never a non-finite
-        value. A batch passes each step's time, joint angles and velocities (the efforts are
-        the world's: no command changes inside a batch), whether it is the world's current
-        step (by default the world's current) and the body states (B, 12) of that step."""
+        value. A batch passes each step's time, joint angles and velocities, whether it is
+        the world's current step (by default the world's current), the body states (B, 12)
+        of that step and the efforts as a list (the world's applied torques, computed once
+        per batch: no command changes inside one)."""
         out = self.output
         if t is None:
             t = self.world.time
@@ -358,7 +361,7 @@ class SimLoop:
         # (PublishSchedule.due's own test first: most steps publish no joint state)
         if (force or t_ns >= schedule.next_ns or out.every_state
                 or self.config.publish_rate <= 0.0):
-            self._joint_state(t, t_ns, force, position, velocity)
+            self._joint_state(t, t_ns, force, position, velocity, effort)
         if self.diagnostics_period_ns:
             if force:               # start or reset: the diagnostics grid restarts too
                 self.next_diagnostics_ns = t_ns + self.diagnostics_period_ns
@@ -368,7 +371,8 @@ class SimLoop:
         if type(out).stepped is not LoopOutput.stepped:     # (most outputs have none)
             out.stepped(t_ns, force)
 
-    def _joint_state(self, t: float, t_ns: int, force: bool, position, velocity) -> None:
+    def _joint_state(self, t: float, t_ns: int, force: bool, position, velocity,
+                     effort: Optional[list] = None) -> None:
         out = self.output
         due = self.publish_schedule.due(t_ns, self.config.publish_rate, force)
         if not (due or out.every_state):
@@ -378,7 +382,8 @@ class SimLoop:
             position, velocity = w.joint_angles(), w.joint_velocities()
         position = np.asarray(position, dtype=float).tolist()
         velocity = np.asarray(velocity, dtype=float).tolist()
-        effort = np.asarray(w.applied_torques(), dtype=float).tolist()
+        if effort is None:
+            effort = np.asarray(w.applied_torques(), dtype=float).tolist()
         if not all(map(math.isfinite, position + velocity + effort)):
             bad = [f'{name} {arr}' for name, arr in
                    (('position', position), ('velocity', velocity), ('effort', effort))

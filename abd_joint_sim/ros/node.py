@@ -58,8 +58,9 @@ AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fa
 BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
 # As fast as possible, commands wait for the end of the AFAP_BATCH_WALL round anyway, so the
 # wall clock is checked less often: fewer, longer compiled calls (the loop still ends a batch
-# at every boundary that needs one).
-AFAP_BATCH_STEPS = 64
+# at every boundary that needs one), each of about a quarter of the round at the wall time
+# per step measured so far (SimNode._afap_steps), at most AFAP_BATCH_STEPS.
+AFAP_BATCH_STEPS = 256
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 
@@ -94,6 +95,7 @@ class SimNode(Node):
         self._stats_wall = time.monotonic()
         self._stats_steps = 0
         self._throttle: dict = {}
+        self._wall_per_step = 0.0           # measured as fast as possible (_afap_steps)
         self._closed = False
 
         # Publishers (topic table: ros/topics.py).
@@ -107,6 +109,7 @@ class SimNode(Node):
         # /joint_states as checked CDR bytes too (fixed names and frame_id: read-only).
         self.joint_state_encoder = convert.JointStateEncoder(self.joint_names,
                                                              self.config.frame_id)
+        self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
         self._joint_states_topic = self._abs(TOPIC_JOINT_STATES)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
@@ -287,11 +290,15 @@ class SimNode(Node):
             return
         rtf = self.config.real_time_factor
         if rtf == 0.0:
-            deadline = time.monotonic() + AFAP_BATCH_WALL
-            while (not self.paused and time.monotonic() < deadline
+            now = time.monotonic()
+            deadline = now + AFAP_BATCH_WALL
+            while (not self.paused and now < deadline
                    and not _STOP_SIGNAL['received'] and self.context.ok()):
-                if not self._advance(AFAP_BATCH_STEPS):
+                taken = self._advance(self._afap_steps())
+                if not taken:
                     break
+                now, before = time.monotonic(), now
+                self._wall_per_step = (now - before) / taken
             return
         now = time.monotonic()
         dt = self.world.dt
@@ -315,6 +322,15 @@ class SimNode(Node):
                 break
 
     # -------------------------------------------------------------------- steps ----
+    def _afap_steps(self) -> int:
+        """Steps per `_advance` as fast as possible: a quarter of AFAP_BATCH_WALL at the wall
+        time per step measured so far, 1 to AFAP_BATCH_STEPS (a small scene takes its steps
+        in few compiled calls, a large one still hands the executor back in time)."""
+        per = self._wall_per_step
+        if not per > 0.0:
+            return 1
+        return max(1, min(AFAP_BATCH_STEPS, int(0.25 * AFAP_BATCH_WALL / per)))
+
     def _advance(self, n: int) -> int:
         """Up to n steps of the loop (batched; commands at their step boundaries)."""
         taken = self.loop.advance(n)
@@ -576,6 +592,8 @@ class _NodeOutput(LoopOutput):
         # published one by one (only when someone subscribes: see batch_begin) and held
         # for the bag as `clock` holds them.
         node = self.node
+        if not self._clock_subscribed and node.recorder is None:
+            return                          # nobody receives them, nothing records them
         datas = node.clock_encoder.encode_many(stamps_ns)
         if self._clock_subscribed:
             publish = node.clock_publish_raw
@@ -605,7 +623,7 @@ class _NodeOutput(LoopOutput):
         # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
         node = self.node
         data = node.joint_state_encoder.encode(t_ns, position, velocity, effort)
-        node.joint_state_pub.publish(data)
+        node.joint_state_publish_raw(data)
         if node.recorder is not None:
             node._record(node._joint_states_topic, t_ns, data, serialized=True)
 
