@@ -581,7 +581,8 @@ class _NodeOutput(LoopOutput):
         # message: SimNode._record), the same bytes in the same order.
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
-        node.clock_publish_raw(clock)
+        if self._clock_subscribed:          # (always outside a batch: see batch_begin)
+            node.clock_publish_raw(clock)
         if node._held_clock.active:
             node._held_clock.hold(t_ns, clock)
         elif node.recorder is not None:
@@ -609,13 +610,15 @@ class _NodeOutput(LoopOutput):
         node = self.node
         node._held_clock.active = node.recorder is not None
         # /clock is best effort with depth 1 (what Gazebo does): a message nobody receives
-        # is lost whenever it is sent, so a batch's clock-only steps are published only when
-        # a subscriber is matched as the batch begins (the count is asked once per batch,
-        # not per step). A subscriber matched during a batch gets /clock from the next
-        # one: the same as if its discovery had taken a few milliseconds longer.
+        # is lost whenever it is sent, so a batch's /clock is published only when a
+        # subscriber is matched as the batch begins (the count is asked once per batch, not
+        # per step; outside batches every /clock is sent). A subscriber matched during a
+        # batch gets /clock from the next one: the same as if its discovery had taken a few
+        # milliseconds longer.
         self._clock_subscribed = node.clock_pub.get_subscription_count() > 0
 
     def batch_end(self) -> None:
+        self._clock_subscribed = True
         self.node._write_held_clock()
         self.node._held_clock.active = False
 
