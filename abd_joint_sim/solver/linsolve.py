@@ -255,31 +255,35 @@ def forward_block12(blocks, b, inv_ds, Xs, slot):
 @njit(cache=True, error_model='numpy')
 def schur_update12(Xs, ys, slot, blocks, bp, p):
     """W −= XᵀX and b −= Xᵀy for the 12x12 X = Xs[slot], y = ys[slot], W = blocks[bp],
-    b = ys[p] (the elimination of a child block into its parent): row k of X held in 12
-    locals, each row of W updated whole (vectorised, as
-    forward_block12). The lower half, the only half the factorisation reads, gets the
-    operations of a loop over it in the same order: the same bits; the upper half, never
-    read, is updated alike from its own values."""
+    b = ys[p] (the elimination of a child block into its parent): each row r of W held in 12
+    locals while the rows k of X are subtracted (X[k, r] times row k), then stored once, so
+    the SLP vectoriser (vectorize.py) makes each run of 4 columns one vector operation and W
+    is written 12 times instead of 144. Every entry gets its subtractions in the order of k,
+    as a loop over it: the same bits. The lower half is the only half the factorisation
+    reads; the upper half, never read, is updated alike from its own values."""
     X, y, W, b = Xs[slot], ys[slot], blocks[bp], ys[p]
-    for k in range(12):
-        x0, x1, x2, x3, x4, x5 = X[k, 0], X[k, 1], X[k, 2], X[k, 3], X[k, 4], X[k, 5]
-        x6, x7, x8, x9, x10, x11 = X[k, 6], X[k, 7], X[k, 8], X[k, 9], X[k, 10], X[k, 11]
-        yk = y[k]
-        for r in range(12):
+    for r in range(12):
+        w0, w1, w2, w3, w4, w5 = W[r, 0], W[r, 1], W[r, 2], W[r, 3], W[r, 4], W[r, 5]
+        w6, w7, w8, w9, w10, w11 = W[r, 6], W[r, 7], W[r, 8], W[r, 9], W[r, 10], W[r, 11]
+        br = b[r]
+        for k in range(12):
             xkr = X[k, r]
-            W[r, 0] -= xkr * x0
-            W[r, 1] -= xkr * x1
-            W[r, 2] -= xkr * x2
-            W[r, 3] -= xkr * x3
-            W[r, 4] -= xkr * x4
-            W[r, 5] -= xkr * x5
-            W[r, 6] -= xkr * x6
-            W[r, 7] -= xkr * x7
-            W[r, 8] -= xkr * x8
-            W[r, 9] -= xkr * x9
-            W[r, 10] -= xkr * x10
-            W[r, 11] -= xkr * x11
-            b[r] -= xkr * yk
+            w0 -= xkr * X[k, 0]
+            w1 -= xkr * X[k, 1]
+            w2 -= xkr * X[k, 2]
+            w3 -= xkr * X[k, 3]
+            w4 -= xkr * X[k, 4]
+            w5 -= xkr * X[k, 5]
+            w6 -= xkr * X[k, 6]
+            w7 -= xkr * X[k, 7]
+            w8 -= xkr * X[k, 8]
+            w9 -= xkr * X[k, 9]
+            w10 -= xkr * X[k, 10]
+            w11 -= xkr * X[k, 11]
+            br -= xkr * y[k]
+        W[r, 0], W[r, 1], W[r, 2], W[r, 3], W[r, 4], W[r, 5] = w0, w1, w2, w3, w4, w5
+        W[r, 6], W[r, 7], W[r, 8], W[r, 9], W[r, 10], W[r, 11] = w6, w7, w8, w9, w10, w11
+        b[r] = br
 
 
 @njit(cache=True, error_model='numpy')
