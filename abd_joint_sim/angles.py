@@ -38,8 +38,13 @@ WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 @njit(cache=True, error_model='numpy')
 def unwrap(theta, reference):
     """The branch of θ nearest to `reference`: reference + ((θ − reference + π) mod 2π) − π
-    (Python's float % has the sign of 2π, like numpy's remainder)."""
-    return reference + (theta - reference + np.pi) % TWO_PI - np.pi
+    (Python's float % has the sign of 2π, like numpy's remainder). Within a turn of the
+    reference (nearly always: a step turns a joint by much less) the remainder is x itself,
+    exactly, and the call into the C fmod is skipped: the same bits."""
+    x = theta - reference + np.pi
+    if not (0.0 <= x < TWO_PI):
+        x = x % TWO_PI
+    return reference + x - np.pi
 
 
 @njit(cache=True, error_model='numpy')
