@@ -197,8 +197,6 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
     then shares the 2 cores with the node). Returns the real-time factors the node reports
     on /diagnostics (steps x dt / wall, once a second) after the first report (start-up),
     and the messages the probe received. `tree`: run another checkout's node."""
-    import signal
-    import subprocess
     try:
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         import rclpy
@@ -209,18 +207,9 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
     except Exception as exc:  # noqa: BLE001 - optional section
         print(f'node end to end: skipped ({exc})')
         return None
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=str(80 + os.getpid() % 9),
-               PYTHONPATH=os.pathsep.join(filter(None, [
-                   str(Path(tree).resolve()) if tree else str(Path(__file__).resolve().parents[1]),
-                   os.environ.get('PYTHONPATH')])))
-    args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p', 'real_time_factor:=0.0']
-    if record_dir:                  # (rcl cannot parse an empty `record:=`; the default is off)
-        args += ['-p', f'record:={record_dir}']
-    args += list(extra_args)
-    # (in the tree's directory: `python -m` puts the working directory first on sys.path)
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            cwd=str(Path(tree).resolve()) if tree else None)
+    args = ['-p', f'record:={record_dir}'] if record_dir else []
+    # (rcl cannot parse an empty `record:=`; the default is off)
+    proc, env = _start_node(0.0, args + list(extra_args), tree)
     old_domain = os.environ.get('ROS_DOMAIN_ID')
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
     rtfs, counts, marks = [], {'clock': 0, 'states': 0}, []
@@ -254,12 +243,7 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
             os.environ.pop('ROS_DOMAIN_ID', None)
         else:
             os.environ['ROS_DOMAIN_ID'] = old_domain
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _stop_node(proc)
     # Simulated seconds per CPU second of the node's process between the first report and the
     # last: the real-time factor the node would reach on a core of its own (None without /proc).
     cpu_rtf = None
@@ -271,6 +255,52 @@ def node_end_to_end(seconds, record_dir=None, subscribe=True, extra_args=(), tre
         # runs on without: its figures are not those of recording
         return None, sorted(recording), None
     return rtfs[1:], counts, cpu_rtf
+
+
+def _start_node(real_time_factor, extra_args=(), tree=None):
+    """sim_node in a process of its own (loopback DDS, a domain of its own; `tree`: another
+    checkout's node) at `real_time_factor`; returns (the process, its environment)."""
+    import subprocess
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               ROS_DOMAIN_ID=str(80 + os.getpid() % 9),
+               PYTHONPATH=os.pathsep.join(filter(None, [
+                   str(Path(tree).resolve()) if tree else str(Path(__file__).resolve().parents[1]),
+                   os.environ.get('PYTHONPATH')])))
+    args = [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', '-p',
+            f'real_time_factor:={float(real_time_factor)}'] + list(extra_args)
+    # (in the tree's directory: `python -m` puts the working directory first on sys.path)
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            cwd=str(Path(tree).resolve()) if tree else None)
+    return proc, env
+
+
+def _stop_node(proc):
+    """SIGINT (the node finalises its bag), then wait; kill after 20 s."""
+    import signal
+    import subprocess
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def node_cpu_real_time(scene, seconds, tree=None, warmup=5.0):
+    """CPU share of a core that sim_node's process uses stepping `scene` at
+    real_time_factor 1 (no subscriber): /proc CPU time over `seconds` after `warmup`
+    seconds of start-up. None without /proc."""
+    proc, _ = _start_node(1.0, ['-p', f'scene:={scene}'], tree)
+    try:
+        time.sleep(warmup)
+        a, t0 = _cpu_seconds(proc.pid), time.monotonic()
+        time.sleep(seconds)
+        b, t1 = _cpu_seconds(proc.pid), time.monotonic()
+    finally:
+        _stop_node(proc)
+    if a is None or b is None or proc.returncode not in (0, None):
+        return None
+    return (b - a) / (t1 - t0)
 
 
 def _cpu_seconds(pid):
@@ -469,6 +499,18 @@ def node_section(quick, kuka_path=None, old_tree=None):
                         cells.append('no report')
                 name = label if tree is None else f'{label}, old tree'
                 print(f'| {name} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
+    print('\nsim_node in real time (real_time_factor 1, no subscriber): its process\'s CPU, '
+          f'share of one core over {seconds} s (each tick of `time_step` is a round of '
+          "rclpy's executor):")
+    print('| scene | CPU, % of a core' + (' | old tree' if old_tree else '') + ' | load |')
+    print('|---|---|' + ('---|' if old_tree else '') + '---|')
+    for label, scene in scenes:
+        load = os.getloadavg()[0]
+        cells = []
+        for tree in [None] + ([old_tree] if old_tree else []):
+            share = node_cpu_real_time(scene, seconds, tree)
+            cells.append('–' if share is None else f'{100 * share:.0f}')
+        print(f'| {label} | ' + ' | '.join(cells) + f' | {load:.2f} |', flush=True)
 
 
 if __name__ == '__main__':
