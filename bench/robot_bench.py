@@ -125,9 +125,41 @@ def run(quick=False, peers=True):
     return path, t
 
 
-#: robots of pybullet_data with only revolute/continuous joints that Scene.from_urdf loads
+#: robots of pybullet_data that Scene.from_urdf loads (revolute and continuous joints; the
+#: others held rigid by ROBOT_OPTIONS)
 ROBOTS = ('kuka_iiwa/model.urdf', 'xarm/xarm6_robot.urdf', 'pendulum5.urdf', 'a1/a1.urdf',
-          'laikago/laikago.urdf', 'quadruped/minitaur.urdf', 'mini_cheetah/mini_cheetah.urdf')
+          'laikago/laikago.urdf', 'quadruped/minitaur.urdf', 'mini_cheetah/mini_cheetah.urdf',
+          'franka_panda/panda.urdf')
+#: Scene.from_urdf options per robot: the Panda's two prismatic finger joints held rigid
+#: (MuJoCo, which would keep them, refuses its package:// meshes anyway)
+ROBOT_OPTIONS = {'franka_panda/panda.urdf': {'lock': ['panda_finger_joint1',
+                                                      'panda_finger_joint2']}}
+
+
+def mujoco_model(path, lock=()):
+    """MuJoCo's model of the URDF at `path`, its joints in `lock` fixed as ours holds them.
+    Where MuJoCo cannot open the meshes (`package://` paths it does not resolve), the same
+    file without its <visual> and <collision> elements: with contacts off the geometry plays
+    no part in the dynamics, which the <inertial> elements give. Returns (model, whether the
+    geometry was removed)."""
+    import xml.etree.ElementTree as ET
+    import mujoco as mj
+    text = open(path).read()
+    root = ET.fromstring(text)
+    for joint in root.iter('joint'):
+        if joint.get('name') in lock:
+            joint.set('type', 'fixed')
+    if lock:
+        text = ET.tostring(root, encoding='unicode')
+    try:
+        return mj.MjModel.from_xml_string(text) if lock else mj.MjModel.from_xml_path(path), False
+    except ValueError as exc:
+        if 'package:' not in str(exc):
+            raise
+    for link in root.iter('link'):
+        for geometry in link.findall('visual') + link.findall('collision'):
+            link.remove(geometry)
+    return mj.MjModel.from_xml_string(ET.tostring(root, encoding='unicode')), True
 
 
 def robots(quick=False, peers=True):
@@ -152,7 +184,7 @@ def robots(quick=False, peers=True):
         path = os.path.join(pybullet_data.getDataPath(), name)
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')             # the importer's repairs (docs/urdf.md)
-            world = World(Scene.from_urdf(path, dt=DT))
+            world = World(Scene.from_urdf(path, dt=DT, **ROBOT_OPTIONS.get(name, {})))
         for joint, tau in zip(world.actuated_joint_names, torques(len(world.actuated_joint_names))):
             world.set_torque(joint, tau)
         world.step(3)
@@ -160,11 +192,11 @@ def robots(quick=False, peers=True):
         t0 = time.process_time()
         world.step(steps)
         ours_t = (time.process_time() - t0) / steps
-        mj_t, why = None, ''
+        mj_t, why, stripped = None, '', False
         if peers:
             try:
                 import mujoco as mj
-                m = mj.MjModel.from_xml_path(path)
+                m, stripped = mujoco_model(path, ROBOT_OPTIONS.get(name, {}).get('lock', ()))
                 m.opt.timestep = DT
                 m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
                 d = mj.MjData(m)
@@ -177,6 +209,8 @@ def robots(quick=False, peers=True):
                 why = str(exc).splitlines()[0][:60]
         ratio = f'{ours_t / mj_t:.1f}' if mj_t else '–'
         mj_cell = f'{mj_t * 1e6:.1f}' if mj_t else f'– ({why})' if why else '–'
+        if mj_t and stripped:
+            mj_cell += ' (without its meshes)'
         print(f'| {name} | {world.model.body_count} | {its:.2f} | {ours_t * 1e6:.1f} | '
               f'{mj_cell} | {ratio} |', flush=True)
         rows.append((name, ours_t, mj_t))

@@ -15,6 +15,8 @@ import pytest
 
 from abd_joint_sim import Scene, World
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'bench'))
+
 pybullet = pytest.importorskip('pybullet', reason='pybullet not installed (requirements-test.txt)')
 pybullet_data = pytest.importorskip('pybullet_data', reason='pybullet_data not installed')
 
@@ -97,11 +99,14 @@ def test_a_flipped_torque_sign_is_caught():
     assert np.linalg.norm(world.joint_velocities() - v_ref) / np.linalg.norm(v_ref) > 0.1
 
 
-def run_mujoco(path, names, torques, q0, dt=1e-4):
+def run_mujoco(path, names, torques, q0, dt=1e-4, lock=()):
     """MuJoCo's own URDF import, RK4 at 1e-4; its <dynamics> damping, friction loss,
-    armature and contacts switched off (we simulate none of them)."""
+    armature and contacts switched off (we simulate none of them); the joints in `lock`
+    made fixed, and a file whose `package://` meshes MuJoCo cannot open loaded without its
+    geometry (bench/robot_bench.py `mujoco_model`: with contacts off it plays no part)."""
     mujoco = pytest.importorskip('mujoco', reason='mujoco not installed (requirements-test.txt)')
-    m = mujoco.MjModel.from_xml_path(path)
+    from robot_bench import mujoco_model
+    m = mujoco_model(path, lock)[0]
     m.opt.timestep = dt
     m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
@@ -119,22 +124,26 @@ def run_mujoco(path, names, torques, q0, dt=1e-4):
             np.array([d.qvel[adr[n][1]] for n in names]))
 
 
-@pytest.mark.parametrize('rel_path, q0', [
-    ('kuka_iiwa/model.urdf', {'lbr_iiwa_joint_2': 0.5, 'lbr_iiwa_joint_4': -1.0}),
-    ('pendulum5.urdf', {}),
+@pytest.mark.parametrize('rel_path, q0, lock', [
+    ('kuka_iiwa/model.urdf', {'lbr_iiwa_joint_2': 0.5, 'lbr_iiwa_joint_4': -1.0}, []),
+    ('pendulum5.urdf', {}, []),
+    # fingers held rigid on both sides; a pose inside joints 4 and 6's limits (0 is outside
+    # joint 4's [-3.07, -0.07], where the two engines' limits push differently)
+    ('franka_panda/panda.urdf', {'panda_joint4': -1.5, 'panda_joint6': 1.5},
+     ['panda_finger_joint1', 'panda_finger_joint2']),
 ])
-def test_joint_motion_agrees_with_mujoco(rel_path, q0):
+def test_joint_motion_agrees_with_mujoco(rel_path, q0, lock):
     """The same runs against MuJoCo loading the same file (a second engine; MuJoCo RK4 and
     PyBullet agree with each other to ~1e-6 on the KUKA)."""
     path = os.path.join(pybullet_data.getDataPath(), rel_path)
-    scene = Scene.from_urdf(path, dt=5e-4, integrator='bdf2', initial_positions=q0)
+    scene = Scene.from_urdf(path, dt=5e-4, integrator='bdf2', initial_positions=q0, lock=lock)
     names = list(scene.joint_names)
     torques = torques_for(len(names))
     world = World(scene)
     for n, tau in zip(names, torques):
         world.set_torque(n, tau)
     world.step(int(round(T_END / 5e-4)))
-    q_ref, v_ref = run_mujoco(path, names, torques, q0)
+    q_ref, v_ref = run_mujoco(path, names, torques, q0, lock=lock)
     start = np.array([q0.get(n, 0.0) for n in names])
     dv = np.linalg.norm(world.joint_velocities() - v_ref) / np.linalg.norm(v_ref)
     dq = np.linalg.norm(world.joint_angles() - q_ref) / np.linalg.norm(q_ref - start)
