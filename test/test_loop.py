@@ -395,3 +395,49 @@ def test_as_fast_as_possible_batches_follow_the_measured_step_time():
     assert steps(SimpleNamespace(_wall_per_step=round_ / 40)) == 10
     assert steps(SimpleNamespace(_wall_per_step=2e-3)) * 2e-3 <= 0.25 * round_
     assert steps(SimpleNamespace(_wall_per_step=1.0)) == 1
+
+
+def test_stepping_thread_paces_real_time_and_stops_with_pause_and_close(domain_id):
+    """sim_node's stepping thread (what `main` starts): in real time it steps about as many
+    steps as wall time allows, none while paused, and `close` ends it; a command published
+    while it runs takes effect (the callbacks share its lock)."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+    from abd_joint_sim.ros.node import SimNode
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = SimNode(context=context, parameter_overrides=[
+        Parameter('scene', value='default'), Parameter('real_time_factor', value=1.0)])
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+
+    def spin_for(seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.01)
+    try:
+        node.start_stepping_thread()
+        stepper = node._stepper
+        assert stepper is not None and stepper.is_alive()
+        steps0, t0 = node.steps, time.monotonic()
+        spin_for(0.5)
+        taken, wall = node.steps - steps0, time.monotonic() - t0
+        assert 0.5 * wall / node.world.dt < taken <= wall / node.world.dt + 2, (taken, wall)
+        with node._lock:
+            node.commands.command_array([3.0, -1.0])
+        spin_for(0.05)
+        assert list(node.world.applied_torques()) == [3.0, -1.0]
+        node._srv_pause(Trigger.Request(), Trigger.Response())
+        paused_at = node.steps
+        spin_for(0.2)
+        assert node.steps == paused_at
+        node._srv_unpause(Trigger.Request(), Trigger.Response())
+        spin_for(0.2)
+        assert node.steps > paused_at
+    finally:
+        node.close()
+        assert node._stepper is None or not node._stepper.is_alive()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

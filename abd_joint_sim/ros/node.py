@@ -5,9 +5,17 @@ hand commands to the loop's :class:`~.commands.CommandBuffer` (validated, clampe
 services call the loop (pause, step, reset); the step timer calls ``loop.advance(n)``, which
 applies pending commands at the step boundary, steps (in batches) and hands clock, joint
 states, markers, applied commands and parameter changes to :class:`_NodeOutput`, which
-publishes and records them. Topics, types and QoS come from :mod:`.topics`. ``rclpy.spin``
-runs a single-threaded executor, so callbacks never overlap with a step and the buffer
-needs no lock.
+publishes and records them. Topics, types and QoS come from :mod:`.topics`.
+
+Stepping in real time (``real_time_factor`` > 0): `main` starts a thread of its own for it
+(:meth:`SimNode.start_stepping_thread`), paced by sleeping to each step's wall time, so the
+executor wakes only for commands, services, parameters and two slow timers; each executor
+round costs ~0.7 ms of Python, and a round per 1 ms step held a real-time node at two thirds
+of a core (docs/speed.md). As fast as possible the step timer steps in 20 ms rounds, as it
+always did. The thread and every callback hold ``SimNode._lock`` while they touch the loop,
+so a callback never overlaps a step and the command buffer sees one caller at a time. A node
+made in another program (tests, embedding) steps from its step timer unless that program
+starts the thread.
 """
 from __future__ import annotations
 
@@ -16,6 +24,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from typing import Any, Optional
 
@@ -63,6 +72,17 @@ BATCH_STEPS = 16              # most steps per timer round between wall-clock ch
 AFAP_BATCH_STEPS = 256
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
+THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (paused, or as fast as
+#                               possible, where the step timer steps; a change wakes it)
+
+
+def _locked(method):
+    """Run `method` holding the node's lock (executor callbacks: see the module docstring)."""
+    def locked(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    locked.__name__, locked.__doc__ = method.__name__, method.__doc__
+    return locked
 
 
 class SimNode(Node):
@@ -70,6 +90,11 @@ class SimNode(Node):
 
     def __init__(self, **kwargs: Any):
         super().__init__(NODE_NAME, **kwargs)
+        self._lock = threading.RLock()      # the loop: stepping thread and callbacks
+        self._stepper: Optional[threading.Thread] = None
+        self._stepper_quit = threading.Event()
+        self._stepper_wake = threading.Event()
+        self.stepper_error: Optional[BaseException] = None
         # Parameters -> config (read once; live ones re-applied by the post-set callback).
         values = self._declare_parameters()
         self._check_parameter_sources(kwargs)       # before a bad value ends the start
@@ -256,6 +281,7 @@ class SimNode(Node):
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
+    @_locked
     def _apply_parameters(self, params) -> None:
         values = self.loop.set_parameters({p.name: p.value for p in params
                                            if p.name in PARAMS_BY_NAME})
@@ -266,12 +292,94 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------- timing ----
     def _make_step_timer(self) -> None:
+        """The step timer at the period `real_time_factor` asks for; with the stepping thread
+        running and a real-time factor > 0, a slow one that only notices a SIGINT/SIGTERM
+        (the thread steps). As fast as possible the timer steps in both cases: its 20 ms
+        rounds leave the executor's rounds at ~3 % of the time, and a thread was measured no
+        faster there (docs/speed.md)."""
         if self.step_timer is not None:
             self.destroy_timer(self.step_timer)
         rtf = self.config.real_time_factor
         period = 0.0 if rtf == 0.0 else min(max(self.world.dt / rtf, 0.001), 0.05)
         self._reanchor()
+        if self._stepper is not None and rtf > 0.0:
+            self.step_timer = self.create_timer(THREAD_IDLE, self._stop_requested,
+                                                clock=self._wall_clock)
+            self._stepper_wake.set()
+            return
         self.step_timer = self.create_timer(period, self._on_step_timer, clock=self._wall_clock)
+
+    def start_stepping_thread(self) -> None:
+        """Step in a thread of its own from now on (`main` does; see the module docstring).
+        Idempotent. `close` stops it."""
+        with self._lock:
+            if self._stepper is not None or self._closed:
+                return
+            self._stepper = threading.Thread(target=self._stepper_main, name='sim_stepper',
+                                             daemon=True)
+            self._make_step_timer()
+        self._stepper.start()
+
+    def _stepper_main(self) -> None:
+        try:
+            while not self._stepper_quit.is_set():
+                with self._lock:
+                    delay = self._pace()
+                if delay > 0.0:
+                    self._stepper_wake.wait(delay)
+                    self._stepper_wake.clear()
+                else:
+                    time.sleep(0)           # the GIL, and so the lock, to a waiting callback
+        except BaseException as exc:  # noqa: BLE001 - said, then the node shuts down
+            self.stepper_error = exc
+            self._log_late('FATAL', f'the stepping thread failed: {type(exc).__name__}: {exc}')
+            rclpy.try_shutdown(context=self.context)
+
+    def _pace(self) -> float:
+        """One round of the stepping thread (the lock held): the steps due now in real time
+        x real_time_factor, at most BATCH_STEPS; returns the wall seconds until the next step
+        is due (0: look again at once). Idle while paused and as fast as possible (the step
+        timer steps then)."""
+        rtf = self.config.real_time_factor
+        if (self._closed or self.paused or rtf == 0.0 or _STOP_SIGNAL['received']
+                or not self.context.ok()):
+            return THREAD_IDLE
+        now = time.monotonic()
+        dt = self.world.dt
+        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
+                MAX_LAG_WALL * rtf + dt:
+            self._warn_lagging(rtf, dt)
+        target = self._anchor_sim + rtf * (now - self._anchor_wall)
+        due = int((target - self.world.time) / dt + 1e-6)        # whole steps behind
+        if due >= 1:
+            self._advance(min(due, BATCH_STEPS))
+            return 0.0
+        # the next step ends at world.time + dt: due when real time x rtf reaches it
+        due_wall = self._anchor_wall + (self.world.time + dt * (1.0 - 1e-6)
+                                        - self._anchor_sim) / rtf
+        return max(due_wall - now, 0.0)
+
+    def _warn_lagging(self, rtf: float, dt: float) -> None:
+        """Real time x rtf ran ahead of the simulation by more than MAX_LAG_WALL: say so
+        (every 10 s at most) and re-anchor, allowing one step now."""
+        self.get_logger().warn(
+            f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
+            f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
+            throttle_duration_sec=10.0)
+        self._reanchor()
+        self._anchor_wall -= dt / rtf   # allow one step now
+
+    def _stop_stepping_thread(self) -> None:
+        stepper = self._stepper
+        if stepper is None or stepper is threading.current_thread():
+            return
+        self._stepper_quit.set()
+        self._stepper_wake.set()
+        stepper.join(timeout=10.0)
+
+    def _wake_stepper(self) -> None:
+        if self._stepper is not None:
+            self._stepper_wake.set()
 
     def _reanchor(self) -> None:
         self._anchor_wall = time.monotonic()
@@ -285,6 +393,7 @@ class SimNode(Node):
             return True
         return False
 
+    @_locked
     def _on_step_timer(self) -> None:
         if self._stop_requested() or self.paused:
             return
@@ -304,12 +413,7 @@ class SimNode(Node):
         dt = self.world.dt
         if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
                 MAX_LAG_WALL * rtf + dt:
-            self.get_logger().warn(
-                f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
-                f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
-                throttle_duration_sec=10.0)
-            self._reanchor()
-            self._anchor_wall -= dt / rtf   # allow one step now
+            self._warn_lagging(rtf, dt)
         target = self._anchor_sim + rtf * (now - self._anchor_wall)
         # Step while the end of the next step is not ahead of real time x rtf, and give the
         # executor back after AFAP_BATCH_WALL so commands and services are never starved.
@@ -362,6 +466,7 @@ class SimNode(Node):
         self.diagnostics_pub.publish(msg)
         self._record(TOPIC_DIAGNOSTICS, t_ns, msg)
 
+    @_locked
     def _on_diagnostics_timer(self) -> None:
         if self._stop_requested():
             return
@@ -393,23 +498,29 @@ class SimNode(Node):
         for c in clamps:
             self._warn_throttled(('clamp', form, c.joint, c.applied > 0), str(c))
 
+    @_locked
     def _on_torque_array(self, msg: Float64MultiArray) -> None:
         self._report('array', *self.commands.command_array(convert.array_values(msg)))
 
+    @_locked
     def _on_torque_joint(self, joint: str, msg: Float64) -> None:
         self._report('joint', *self.commands.command_torque(joint, msg.data))
 
+    @_locked
     def _on_joint_commands(self, msg: JointState) -> None:
         self._report('joint_commands', *self.commands.command_joint_state(
             msg.name, msg.position, msg.velocity, msg.effort))
 
+    @_locked
     def _on_enable_joint(self, joint: str, msg: Bool) -> None:
         self._report('enable', self.commands.command_enable(joint, msg.data), [])
 
+    @_locked
     def _on_enable_all(self, msg: Bool) -> None:
         self.commands.command_enable_all(msg.data)
 
     # ----------------------------------------------------------------- services ----
+    @_locked
     def _srv_pause(self, request, response):
         was = self.paused
         self.paused = True
@@ -418,15 +529,18 @@ class SimNode(Node):
         response.message = f'paused at t={self.world.time:.6f} s' + (' (already)' if was else '')
         return response
 
+    @_locked
     def _srv_unpause(self, request, response):
         was = self.paused
         self.paused = False
         self._reanchor()
+        self._wake_stepper()
         response.success = True
         response.message = (f'running from t={self.world.time:.6f} s'
                             + ('' if was else ' (was not paused)'))
         return response
 
+    @_locked
     def _srv_step(self, request, response):
         if not self.paused:
             response.success = False
@@ -437,9 +551,11 @@ class SimNode(Node):
         response.message = f't={self.world.time:.6f} s'
         return response
 
+    @_locked
     def _srv_reset(self, request, response):
         self.loop.reset()
         self._reanchor()
+        self._wake_stepper()
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
         response.success = True
         response.message = f'reset to t={self.world.time:.6f} s'
@@ -553,12 +669,15 @@ class SimNode(Node):
 
     # ---------------------------------------------------------------- shutdown ----
     def close(self) -> None:
-        """Stop stepping and finalise the bag (idempotent)."""
+        """Stop stepping (the stepping thread ends its round first) and finalise the bag
+        (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        self.paused = True
-        self._close_recorder()
+        self._stop_stepping_thread()
+        with self._lock:
+            self.paused = True
+            self._close_recorder()
 
 
 class _NodeOutput(LoopOutput):
@@ -729,7 +848,10 @@ def main(args: Optional[list[str]] = None) -> int:
     status = 0
     try:
         node = SimNode()
+        node.start_stepping_thread()
         rclpy.spin(node)
+        if node.stepper_error is not None:      # said already; the node shut itself down
+            status = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - a bad scene/parameter: one clear line, exit 1
