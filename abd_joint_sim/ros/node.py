@@ -303,7 +303,7 @@ class SimNode(Node):
         period = 0.0 if rtf == 0.0 else min(max(self.world.dt / rtf, 0.001), 0.05)
         self._reanchor()
         if self._stepper is not None and rtf > 0.0:
-            self.step_timer = self.create_timer(THREAD_IDLE, self._stop_requested,
+            self.step_timer = self.create_timer(THREAD_IDLE, self._on_housekeeping,
                                                 clock=self._wall_clock)
             self._stepper_wake.set()
             return
@@ -320,6 +320,12 @@ class SimNode(Node):
             self._make_step_timer()
         self._stepper.start()
 
+    @_locked
+    def _on_housekeeping(self) -> None:
+        """The step timer while the thread steps: notice a SIGINT/SIGTERM (the lock held, so
+        the context never shuts down in the middle of the thread's round)."""
+        self._stop_requested()
+
     def _stepper_main(self) -> None:
         try:
             while not self._stepper_quit.is_set():
@@ -331,6 +337,8 @@ class SimNode(Node):
                 else:
                     time.sleep(0)           # the GIL, and so the lock, to a waiting callback
         except BaseException as exc:  # noqa: BLE001 - said, then the node shuts down
+            if _STOP_SIGNAL['received'] or not self.context.ok():
+                return                      # shutting down anyway: not a failure
             self.stepper_error = exc
             self._log_late('FATAL', f'the stepping thread failed: {type(exc).__name__}: {exc}')
             rclpy.try_shutdown(context=self.context)
