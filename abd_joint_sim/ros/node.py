@@ -354,11 +354,7 @@ class SimNode(Node):
             return THREAD_IDLE
         now = time.monotonic()
         dt = self.world.dt
-        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
-                MAX_LAG_WALL * rtf + dt:
-            self._warn_lagging(rtf, dt)
-        target = self._anchor_sim + rtf * (now - self._anchor_wall)
-        due = int((target - self.world.time) / dt + 1e-6)        # whole steps behind
+        due = self._steps_behind(self._real_time_target(rtf, now))
         if due >= 1:
             self._advance(min(due, BATCH_STEPS))
             return 0.0
@@ -366,6 +362,19 @@ class SimNode(Node):
         due_wall = self._anchor_wall + (self.world.time + dt * (1.0 - 1e-6)
                                         - self._anchor_sim) / rtf
         return max(due_wall - now, 0.0)
+
+    def _real_time_target(self, rtf: float, now: float) -> float:
+        """The simulated time real time x rtf has reached at wall time `now`; if that is
+        more than MAX_LAG_WALL ahead of the simulation, warn and re-anchor first."""
+        dt = self.world.dt
+        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
+                MAX_LAG_WALL * rtf + dt:
+            self._warn_lagging(rtf, dt)
+        return self._anchor_sim + rtf * (now - self._anchor_wall)
+
+    def _steps_behind(self, target: float) -> int:
+        """Whole steps from the simulation's time to `target` (1e-6 of a step to spare)."""
+        return int((target - self.world.time) / self.world.dt + 1e-6)
 
     def _warn_lagging(self, rtf: float, dt: float) -> None:
         """Real time x rtf ran ahead of the simulation by more than MAX_LAG_WALL: say so
@@ -419,18 +428,14 @@ class SimNode(Node):
             return
         now = time.monotonic()
         dt = self.world.dt
-        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
-                MAX_LAG_WALL * rtf + dt:
-            self._warn_lagging(rtf, dt)
-        target = self._anchor_sim + rtf * (now - self._anchor_wall)
+        target = self._real_time_target(rtf, now)
         # Step while the end of the next step is not ahead of real time x rtf, and give the
         # executor back after AFAP_BATCH_WALL so commands and services are never starved.
         deadline = now + AFAP_BATCH_WALL
         while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
                and time.monotonic() < deadline and not _STOP_SIGNAL['received']
                and self.context.ok()):
-            due = int((target - self.world.time) / dt + 1e-6)       # whole steps behind
-            if not self._advance(max(1, min(due, BATCH_STEPS))):
+            if not self._advance(max(1, min(self._steps_behind(target), BATCH_STEPS))):
                 break
 
     # -------------------------------------------------------------------- steps ----
