@@ -152,10 +152,17 @@ class _Reader:
         # Trailing NUL bytes after the document (pybullet_data's humanoid.urdf ends with one)
         # are ignored by the tinyxml-based parsers of ROS and PyBullet: ignore them too.
         text = text.rstrip('\x00')
+        # So is white space before the XML declaration (pybullet_data's biped2d_pybullet.urdf
+        # starts with blank lines), which expat refuses: dropped, the error lines kept true.
+        body = text.lstrip()
+        skipped_lines = text[:len(text) - len(body)].count('\n') if body.startswith('<?xml') else 0
+        if skipped_lines or body.startswith('<?xml'):
+            text = body
         try:
             root = ET.fromstring(text)
         except ET.ParseError as exc:
             line, col = getattr(exc, 'position', (0, 0))
+            line += skipped_lines
             what = str(exc).split(':')[0]
             self.fail(f'line {line}, column {col + 1}: not well-formed XML ({what})')
         if root.tag != 'robot':

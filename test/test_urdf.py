@@ -265,6 +265,18 @@ def test_malformed_file_names_file_and_line(tmp_path):
         Scene.from_urdf(str(path))
 
 
+def test_white_space_before_the_xml_declaration_is_read_as_ros_reads_it(tmp_path):
+    """Blank lines before `<?xml ...?>` (pybullet_data's biped2d_pybullet.urdf and
+    diff_ring.urdf) are refused by expat but read by tinyxml (ROS, PyBullet): read them too,
+    and keep the line numbers of a later error true."""
+    good = '\n\n  ' + ARM          # ARM starts with its declaration
+    assert Scene.from_urdf(good).joint_names == Scene.from_urdf(ARM).joint_names
+    path = tmp_path / 'late.urdf'
+    path.write_text('\n\n<?xml version="1.0"?>\n<robot name="x">\n<link name="a">\n</robot>\n')
+    with pytest.raises(SceneError, match=r'late.urdf: line 6, column \d+: not well-formed'):
+        Scene.from_urdf(str(path))
+
+
 def test_robot_block_in_scene_yaml(tmp_path):
     (tmp_path / 'arm.urdf').write_text(ARM)
     (tmp_path / 'scene.yaml').write_text(
