@@ -44,6 +44,7 @@ def make_mujoco(n_links, *, tau=1.0, dt=1e-3, link=0.2):
     def many(n):    # n steps in one call (MuJoCo's nstep), as World.step(n)
         mujoco.mj_step(model, data, n)
     step.many = many
+    step.data = data        # (bench/regimes.py reads its warning counters)
 
     def angles():
         return np.array(data.qpos)
