@@ -155,8 +155,9 @@ class _Reader:
         # So is white space before the XML declaration (pybullet_data's biped2d_pybullet.urdf
         # starts with blank lines), which expat refuses: dropped, the error lines kept true.
         body = text.lstrip()
-        skipped_lines = text[:len(text) - len(body)].count('\n') if body.startswith('<?xml') else 0
-        if skipped_lines or body.startswith('<?xml'):
+        skipped_lines = 0
+        if body.startswith('<?xml'):
+            skipped_lines = text[:len(text) - len(body)].count('\n')
             text = body
         try:
             root = ET.fromstring(text)
