@@ -52,6 +52,7 @@ def _loop_scene():
 def _run_kernels():
     """Call every kernel entry point the simulator calls from Python, on both linear solves."""
     from .model import compile_scene
+    from .solver.resident import Resident
     from .solver.solver import Solver
     from .state import Control, State
     from .terms import driving, limit, ortho, revolute
@@ -60,6 +61,9 @@ def _run_kernels():
         solver = Solver(model)
         state, control = State.initial(model), Control.initial(model)
         state, _ = solver.step(state, control)                # BDF1 start
+        resident = Resident(model.body_count, model.joint_count)
+        resident.set(state)
+        solver.step_resident(resident, control)              # World.step()
         state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
         solver.clean_steps(state, control, 2)
         revolute.max_separation(state.q, solver.data)

@@ -4,7 +4,9 @@ One step of size h (docs/physics.md "Time integration"), run by the compiled Sol
 forces (gravity, UID 668 torque) give the prediction q̃, Newton minimises the incremental
 potential Π over the free bodies, then velocities and the multi-turn joint angles are
 updated. Recovery (sub-stepping, SimulationError) is the Solver's (solver/solver.py); the
-World replaces its State with the one the Solver returns and keeps the report.
+World replaces its State with the one the Solver returns and keeps the report. Between
+one-step calls the state stays in the solver's ring buffers (solver/resident.py) and
+`World.state` builds the State when it is read.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ import numpy as np
 from .model import Model, compile_scene
 from .scene import Scene
 from .solver.report import Status, StepReport
+from .solver.resident import Resident
 from .solver.solver import Solver
 from .state import Control, State
 from .terms import driving, limit, ortho, revolute
@@ -32,6 +35,8 @@ class World:
         from .warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.warmup`)
         ensure_compiled()                     # says so before a first-time compile
         self.solver = Solver(m)
+        # the current state between one-step calls (solver/resident.py); `state` reads it
+        self._resident = Resident(m.body_count, m.joint_count)
         self._joint_index = {n: k for k, n in enumerate(m.joint_names)}
         self._torque_slot = {m.joint_names[j]: k for k, j in enumerate(m.torque_joints)}
         self._drive_slot = {m.joint_names[j]: k for k, j in enumerate(m.drive_joints)}
@@ -44,8 +49,18 @@ class World:
         return self.solver.terms
 
     @property
+    def state(self) -> State:
+        """The current State (immutable: a step replaces it). After one-step calls it is
+        built when first read (the solver keeps the state in its own buffers meanwhile)."""
+        return self._resident.state()
+
+    @state.setter
+    def state(self, state: State) -> None:
+        self._resident.set(state)
+
+    @property
     def time(self) -> float:
-        return self.state.time
+        return self._resident.now()
 
     @property
     def dt(self) -> float:
@@ -66,11 +81,11 @@ class World:
 
     def joint_angles(self) -> np.ndarray:
         """Multi-turn angles including init_angle. [rad] (J,)"""
-        return self.state.joint_angle.copy()
+        return self._resident.joint_values(0)
 
     def joint_velocities(self) -> np.ndarray:
         """Time derivative of the joint angles. [rad/s] (J,)"""
-        return self.state.joint_velocity.copy()
+        return self._resident.joint_values(1)
 
     def applied_torques(self) -> np.ndarray:
         """Torque applied at the next step per joint; 0 where disabled or not actuated. [N m] (J,)"""
@@ -179,7 +194,7 @@ class World:
         is then that of the last good step (time stays a multiple of dt)."""
         n = int(n)
         if n == 1:
-            self.state, self.last_step = self.solver.step(self.state, self.control)
+            self.last_step = self.solver.step_resident(self._resident, self.control)
             return self.last_step
         while n > 0:
             # the solver never writes a State: on SimulationError self.state is the last good one

@@ -1,9 +1,11 @@
 """Where the µs of one `World.step()` call go (docs/speed.md, "The eighth round"): the same
-steps from the same state in `World.step(n)` (one compiled call) and one `World.step()` call
-each; their difference split into leaving and re-entering compiled code (the compiled step
-called once from Python against the same step in a compiled loop, on one state), unboxing
-the step's 23 arguments (a compiled no-op with its signature) and the rest, the Python
-around (output arrays, views, the new State, the StepReport). Chains of 1 and 10 links and
+steps from the same state in `World.step(n)` (one compiled call), one `World.step()` call
+each (the state kept in the solver's ring, solver/resident.py) and one `Solver.step` call
+each on immutable States (what World.step() did before); World.step()'s excess over
+step(n) split into leaving and re-entering compiled code (the compiled ring step called once
+from Python against the same step in a compiled loop, on one state), unboxing its 16
+arguments (a compiled no-op with its signature) and the rest, the Python around (the slots,
+the outcome row, the StepReport). Chains of 1 and 10 links and
 the KUKA iiwa URDF, dt 1 ms, torque on every joint; fastest of 9 rounds, wall time.
 
     python bench/call_cost.py
@@ -29,16 +31,14 @@ from abd_joint_sim.solver import step as kernel                 # noqa: E402
 
 
 @njit
-def _loop(n, m, q, v, qp, vp, w, w1, w2, ja, tv, te, da, de, dp, h, bdf2, order, may, ws, qvw, aw,
-          sk, out):
+def _loop(n, m, ring, angles, cur, tv, te, da, de, dp, h, bdf2, order, may, ws, sk, out):
     for _ in range(n):
-        kernel.step(m, q, v, qp, vp, w, w1, w2, ja, tv, te, da, de, dp, h, bdf2, order, may, ws,
-                    qvw, aw, sk, out)
+        kernel.step_in_ring(m, ring, angles, cur, tv, te, da, de, dp, h, bdf2, order, may, ws, sk,
+                            out)
 
 
 @njit
-def _noop(n, m, q, v, qp, vp, w, w1, w2, ja, tv, te, da, de, dp, h, bdf2, order, may, ws, qvw, aw,
-          sk, out):
+def _noop(n, m, ring, angles, cur, tv, te, da, de, dp, h, bdf2, order, may, ws, sk, out):
     return n
 
 
@@ -52,17 +52,22 @@ def _best(f, calls, rounds=9):
     return best * 1e6
 
 
-def _run(w, start, steps, one_per_call, rounds=9):
-    """µs per step over the same `steps` steps from `start`, fastest of `rounds`."""
+def _run(w, start, steps, how, rounds=9):
+    """µs per step over the same `steps` steps from `start`, fastest of `rounds`: `how` is
+    'n' (World.step(n)), '1' (World.step()) or 'state' (Solver.step on States)."""
     best = float('inf')
     for _ in range(rounds):
         w.state = start.copy()
         t0 = time.perf_counter()
-        if one_per_call:
+        if how == 'n':
+            w.step(steps)
+        elif how == '1':
             for _ in range(steps):
                 w.step()
         else:
-            w.step(steps)
+            s, solver, c = w.state, w.solver, w.control
+            for _ in range(steps):
+                s, _ = solver.step(s, c)
         best = min(best, (time.perf_counter() - t0) / steps)
     return best * 1e6
 
@@ -77,22 +82,25 @@ def world(name):
 
 
 def budget(name):
-    """(µs per step in World.step(n), per World.step() call, and the difference's parts:
-    return to Python, unboxing, the Python around)."""
+    """µs: World.step(n) per step, World.step() per call, Solver.step on States per call,
+    and World.step()'s excess over step(n) in parts: leaving and re-entering compiled code,
+    unboxing, the Python around."""
     w = world(name)
     w.step(200)
     start = w.state.copy()
     steps = 4000 if name == 'chain 1' else 1000
-    batched = _run(w, start, steps, False)
-    single = _run(w, start, steps, True)
-    # the parts, on one state (the compiled step called again and again from the same start)
-    s, st, c = w.solver, w.state, w.control
+    best = {'n': float('inf'), '1': float('inf'), 'state': float('inf')}
+    for _ in range(7):                  # the three alternating, so that a burst of load hits all
+        for how in best:
+            best[how] = min(best[how], _run(w, start, steps, how, rounds=1))
+    batched, single, on_states = best['n'], best['1'], best['state']
+    # the parts, on one state (the compiled step called again and again on the same slots)
+    w.state = start.copy()
+    w.step()
+    s, r, c = w.solver, w._resident, w.control
     h = w.model.dt
-    args = (s.data, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev,
-            st.warm_start_prev2, st.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
-            c.drive_enabled, c.drive_passive, h, w.model.integrator == 'bdf2',
-            st.extrapolation_order(h), True, s.work, np.empty(s._qvw_shape), np.empty(s._aw_shape),
-            s._skipped, s._outcome)
+    args = (s.data, r.ring, r.angles, r.cur, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, h,
+            w.model.integrator == 'bdf2', r.known, True, s.work, s._skipped, s._outcome)
     _loop(1, *args)
     _noop(1, *args)
     loop = _loop.overloads[_loop.signatures[0]].entry_point
@@ -101,15 +109,17 @@ def budget(name):
     unbox = _best(lambda: noop(1, *args), calls)
     in_loop = _best(lambda: loop(20, *args), calls // 20) / 20
     leave = _best(lambda: loop(1, *args), calls) - unbox - in_loop
-    return batched, single, single - batched, leave, unbox, single - batched - leave - unbox
+    return (batched, single, on_states, single - batched, leave, unbox,
+            single - batched - leave - unbox)
 
 
 def main():
     warnings.simplefilter('ignore')
     print(f'load {os.getloadavg()[0]:.2f}; µs per World.step() call')
-    print('| scene | `World.step(n)` µs/step | `World.step()` µs/call | difference | of it: leaving and '
-          're-entering compiled code | unboxing 23 arguments | the Python around (arrays, State, report) |')
-    print('|---|---|---|---|---|---|---|')
+    print('| scene | `World.step(n)` µs/step | `World.step()` µs/call | `Solver.step` on States µs/call '
+          '| World.step() − step(n) | of it: leaving and re-entering compiled code | unboxing the '
+          '16 arguments | the Python around (slots, report) |')
+    print('|---|---|---|---|---|---|---|---|')
     for name in ('chain 1', 'chain 10', 'KUKA iiwa'):
         if name == 'KUKA iiwa' and robot_bench.robot_path() is None:
             continue

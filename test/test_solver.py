@@ -312,6 +312,80 @@ def test_step_n_is_bit_identical_to_n_single_steps(case):
         assert np.array_equal(x, y)
 
 
+@pytest.mark.parametrize('case', sorted(BATCH_CASES) + ['drive_limit'])
+def test_one_step_calls_keep_the_state_in_the_solver_with_the_same_bits(case):
+    """World.step() keeps the state in the solver's ring buffers (solver/resident.py) and
+    builds a State only when it is read. Against Solver.step on States (the functional path)
+    the reports and states are the same bits, whether the state is read between steps or
+    not, replaced (`world.state = ...`), changed in place after being read (as tests and
+    studies perturb one), given without its warm-start history, mixed with step(n), or taken
+    through the recovery path (warnings, sub-steps); a State once read never changes
+    afterwards."""
+    from abd_joint_sim.state import State
+    if case == 'drive_limit':
+        d, n, setup = _drive_limit_hinge(), 120, None
+    else:
+        d, n, setup = BATCH_CASES[case]
+    w, ref = _world(d), _world(d)
+    for x in (w, ref):
+        if setup:
+            setup(x)
+    s, solver = ref.state, ref.solver
+    held = None
+    for k in range(n):
+        if k == n // 3:                     # replaced by another State (a copy of the reference's)
+            w.state = s.copy()
+        if k == 2 * n // 3:                 # a State without its warm-start history (a user's)
+            s = State(s.time, s.q.copy(), s.v.copy(), s.q_prev.copy(), s.v_prev.copy(),
+                      s.joint_angle.copy(), s.joint_velocity.copy(), s.step_count, s.history_dt,
+                      s.warm_start.copy())
+            w.state = s
+        if k == n // 2:                     # read, then perturbed in place
+            w.state.q[-1, 0] += 1e-9
+            s = s.copy()
+            s.q[-1, 0] += 1e-9
+        if k % 7 == 3:                      # step(n) between one-step calls
+            for _ in range(3):
+                s, report = solver.step(s, ref.control)
+            assert w.step(3) == report
+            continue
+        if k % 5 == 0:                      # a State read and kept
+            held = (w.state, w.state.q.copy(), w.state.warm_start_prev.copy())
+        s, report = solver.step(s, ref.control)
+        assert w.step() == report, k
+        assert w.time == s.time and np.array_equal(w.joint_angles(), s.joint_angle)
+    ref.state = s
+    for x, y in zip(_state_fields(w), _state_fields(ref)):
+        assert np.array_equal(x, y)
+    assert np.array_equal(held[0].q, held[1]) and np.array_equal(held[0].warm_start_prev, held[2])
+    if case in ('hinge_substeps', 'hinge_fast_warns'):
+        assert report.warnings                  # the recovery path was taken
+
+
+def test_a_failed_one_step_call_keeps_the_last_good_state():
+    """SimulationError from World.step() leaves the state of the last good step: one held
+    only in the solver's buffers (never read as a State), and one read and changed in place
+    (a joint flown apart)."""
+    d = chain_dict(3, torque=0.5)
+    w, twin = _world(d), _world(d)
+    for x in (w, twin):
+        x.step(5)
+        x.step()
+    w.control.torque_value[:] = 1e300       # (set_torque refuses it: written past the check)
+    with pytest.raises(SimulationError, match='non-finite'):
+        w.step()
+    for x, y in zip(_state_fields(w), _state_fields(twin)):
+        assert np.array_equal(x, y)
+    w.control.torque_value[:] = twin.control.torque_value
+    assert w.step() == twin.step()          # and steps on from it as if nothing happened
+    w.state.q[2, :3] += 1e16                # the forearm flies off
+    before = _state_fields(w)
+    with pytest.raises(SimulationError, match='came apart'):
+        w.step()
+    for x, y in zip(_state_fields(w), before):
+        assert np.array_equal(x, y)
+
+
 def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
     """Solver calls the compiled step's entry point directly (no per-call typing) only with
     arrays the step made or Control arrays it checked; a State or Control whose arrays have

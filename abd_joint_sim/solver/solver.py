@@ -25,6 +25,7 @@ from ..terms.torque import SINGULAR_RATIO
 from . import model_data, step as kernel, workspace
 from .model_data import SEPARATION_FAULT, SEPARATION_WARN
 from .report import STATUS_BY_CODE, Status, StepReport
+from .resident import Resident
 
 # Rotation per step above which the integrator's numerical damping of it is reported
 # (measured on the free-spinning reference hinge, loss of angular speed per step).
@@ -109,6 +110,7 @@ class Solver:
         #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
         self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + kernel.OUT_COLUMNS)))
         self._entry = None              # the compiled step's entry point (_control_checked)
+        self._ring_entry = None         # and step_in_ring's (step_resident)
         self._made = (None,) * 7        # state arrays the last step made (_compute)
         self._control = (None,) * 5     # Control arrays checked for the entry point
         self._qvw_shape, self._aw_shape = (3, B, 12), (2, J)
@@ -147,6 +149,39 @@ class Solver:
         tally = _Tally()
         state = self._advance(state, control, h, 0, tally, computed)
         return state, self._finish(state, tally)
+
+    def step_resident(self, r: Resident, control: Control) -> StepReport:
+        """`step` on the state a Resident holds (World.step()): the compiled step reads and
+        writes r's ring, and a clean step only turns r's slots, building no State. A step
+        that is not clean (a warning, sub-steps, a failure) goes through `step`'s recovery
+        from the result already computed, and its State is set on r. Raises SimulationError
+        as `step` does; r then still holds the last good state. The same bits as `step`."""
+        r.load()
+        h = self.model.dt
+        uniform = r.history_dt == h
+        c = control
+        args = (self.data, r.ring, r.angles, r.cur, c.torque_value, c.torque_enabled,
+                c.drive_aim, c.drive_enabled, c.drive_passive, h,
+                self._bdf2 and uniform, r.known if uniform else 0, self._may_split, self.work,
+                self._skipped, self._outcome)
+        if self._control_checked(c) and self._ring_entry is not None:
+            self._ring_entry(*args)
+        else:
+            kernel.step_in_ring(*args)
+        out = self._outcome
+        status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = out.tolist()
+        if (failure == kernel.FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
+                and rotation <= self._clean_rotation):
+            r.advance(h)
+            return StepReport(r.time, Status.CONVERGED, True, int(newton_its), int(halvings), 1,
+                              separation, max(0.0, rotation))
+        state, k = r.state(), (r.cur + 1) % 4
+        computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
+                    (r.angles[k, 0].copy(), r.angles[k, 1].copy()), out)
+        tally = _Tally()
+        new = self._advance(state, control, h, 0, tally, computed)
+        r.set(new)
+        return self._finish(new, tally)
 
     def _advance(self, state, control, h, depth, tally, computed=None):
         max_depth = self.model.newton.max_substep_depth
@@ -209,7 +244,7 @@ class Solver:
         if (s.q is k[0] and s.v is k[1] and s.q_prev is k[2] and s.v_prev is k[3]
                 and w is k[4] and (p1 is k[4] or p1 is k[6])
                 and (p2 is k[4] or p2 is k[6] or p2 is k[7])
-                and s.joint_angle is k[5] and self._control_checked(c)):
+                and s.joint_angle is k[5] and self._control_checked(c) and self._entry is not None):
             self._entry(*args)
         else:
             kernel.step(*args)
@@ -222,8 +257,8 @@ class Solver:
         return qvw, aw, out
 
     def _control_checked(self, c) -> bool:
-        """Whether the compiled step's entry point may be called with Control c's arrays, and
-        the entry point bound (once). Why bypass numba's dispatcher: it types every argument
+        """Whether the compiled step's entry points (`_entry`, `_ring_entry`; None until
+        bound, once) may be called with Control c's arrays. Why bypass numba's dispatcher: it types every argument
         on every call, ~0.65 µs for each of the two structrefs (a Python-level typeof), a
         fifth of a one-body step's Python. The entry point skips that and unboxes by the
         compiled signature, so it would misread an array of another layout or dtype: it is
@@ -234,7 +269,7 @@ class Solver:
         known = self._control
         if (arrays[0] is known[0] and arrays[1] is known[1] and arrays[2] is known[2]
                 and arrays[3] is known[3] and arrays[4] is known[4]):
-            return self._entry is not None
+            return True
         if not all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
                    and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES)):
             self._control = (None,) * 5
@@ -251,7 +286,16 @@ class Solver:
                 self._entry = kernel.step.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
                 self._entry = None
-        return self._entry is not None
+        if self._ring_entry is None:
+            try:
+                ring, angles = np.zeros((4,) + self._qvw_shape), np.zeros((4,) + self._aw_shape)
+                sig = tuple(kernel.step_in_ring.typeof_pyval(a) for a in (
+                    self.data, ring, angles, 0, *arrays, 1.0, True, 2, True, self.work,
+                    self._skipped, self._outcome))
+                self._ring_entry = kernel.step_in_ring.overloads[sig].entry_point
+            except (AttributeError, KeyError, TypeError):
+                self._ring_entry = None
+        return True
 
     def _state(self, s, h, qvw, aw):
         """The State after a step from s."""

@@ -198,6 +198,22 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
 
 
 @njit(cache=True, error_model='numpy')
+def step_in_ring(m, ring, angles, cur, torque_value, torque_enabled, drive_aim, drive_enabled,
+                 drive_passive, h, bdf2, order, may_split, ws, skipped, outcome):
+    """`step` on a state held in ring buffers (solver/resident.py): ring (4,3,B,12) holds
+    (q, v, warm_start) per slot, angles (4,2,J) (joint angle, joint velocity). The state is
+    slot `cur`, its history the slots before it (cur − 1: q_prev, v_prev, warm_start_prev;
+    cur − 2: warm_start_prev2, modulo 4), and the step writes slot cur + 1. The same call as
+    `step` on a State's arrays: the same bits. (Unboxing 2 arrays and a slot number instead
+    of a State's 8 arrays and the 2 new ones is most of what a one-step call saves,
+    docs/speed.md.)"""
+    prev, prev2, nxt = (cur + 3) % 4, (cur + 2) % 4, (cur + 1) % 4
+    step(m, ring[cur, 0], ring[cur, 1], ring[prev, 0], ring[prev, 1], ring[cur, 2], ring[prev, 2],
+         ring[prev2, 2], angles[cur, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
+         drive_passive, h, bdf2, order, may_split, ws, ring[nxt], angles[nxt], skipped, outcome)
+
+
+@njit(cache=True, error_model='numpy')
 def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
           torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
           bdf2_next, uniform_first, order_first, may_split, n, clean_rotation, ws, new_qvw,
