@@ -58,7 +58,9 @@ def time_steps(step, steps, repeats):
     return out
 
 
-def bench_ours(d, steps, repeats):
+def bench_ours(d):
+    """A world of scene d under its torques (1 N m where none is set), three steps in; and
+    the one-step call that records Newton's iterations (`its`)."""
     w = _world(d)
     for name in w.actuated_joint_names:
         w.set_torque(name, w.model.torque_value0[w.actuated_joint_names.index(name)] or 1.0)
@@ -67,22 +69,17 @@ def bench_ours(d, steps, repeats):
 
     def step():
         its.append(w.step().newton_iterations)
-    times = time_steps(step, steps, repeats)
-    batched = []                             # World.step(n): the clean steps in one compiled call
-    for _ in range(repeats):
-        gc.disable()
-        t0 = time.perf_counter()
-        w.step(steps)
-        batched.append((time.perf_counter() - t0) / steps)
-        gc.enable()
+    step.its = its
+    return w, step
+
+
+def peak_memory(d):
     tracemalloc.start()
     w2 = _world(d)
     w2.step(3)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    kind = 'tree' if w.solver.data.solve_kind == 1 else 'dense'
-    return dict(times=times, batched=batched, its=float(np.mean(its)), dt=w.dt, mem=peak,
-                kind=kind, converged=w.last_step.converged)
+    return peak
 
 
 def check_agreement():
@@ -357,25 +354,37 @@ def main(argv=None):
         big = n is not None and n >= 1000
         steps = 3 if big else (20 if (n or 0) >= 100 else (50 if args.quick else 200))
         repeats = 3 if big else 5
-        r = bench_ours(d, steps, repeats)
-        med, best = statistics.median(r['times']), min(r['times'])
-        per_step[label] = med
-        row = dict(label=label, med=med, best=best, sps=1.0 / med, rtf=r['dt'] / med, its=r['its'],
-                   mem=r['mem'], kind=r['kind'], mujoco=None, pybullet=None,
-                   batched=statistics.median(r['batched']), mujoco_n=None)
+        w, step = bench_ours(d)
+        if n is not None:                    # the chains: as many steps per round as the peers
+            steps = max(steps, 2000 if n <= 10 else (200 if n <= 100 else 5))
+        # name: (call, calls per round, steps per call)
+        timed = {'ours': (step, steps, 1), 'ours_n': (lambda: w.step(steps), 1, steps)}
         if n is not None and not args.no_peers:
             for name, make in (('mujoco', make_mujoco), ('pybullet', make_pybullet)):
                 engine = make(n, tau=0.1)
                 if engine is None:
                     continue
-                step, _ = engine
+                pstep, _ = engine
                 for _ in range(3):
-                    step()
-                psteps = max(steps, 2000 if n <= 10 else (200 if n <= 100 else 5))
-                row[name] = statistics.median(time_steps(step, psteps, repeats))
-                if hasattr(step, 'many'):
-                    row[name + '_n'] = statistics.median(
-                        time_steps(lambda: step.many(psteps), 1, repeats)) / psteps
+                    pstep()
+                timed[name] = (pstep, steps, 1)
+                if hasattr(pstep, 'many'):
+                    timed[name + '_n'] = (lambda pstep=pstep: pstep.many(steps), 1, steps)
+        # The engines take turns, round after round, so that a burst of load on this shared
+        # machine falls on all of them rather than on one engine's rounds.
+        times = {key: [] for key in timed}
+        for _ in range(repeats):
+            for key, (call, calls, per_call) in timed.items():
+                times[key].append(time_steps(call, calls, 1)[0] / per_call)
+        med, best = statistics.median(times['ours']), min(times['ours'])
+        per_step[label] = med
+        row = dict(label=label, med=med, best=best, sps=1.0 / med, rtf=w.dt / med,
+                   its=float(np.mean(step.its)), mem=peak_memory(d),
+                   kind='tree' if w.solver.data.solve_kind == 1 else 'dense', mujoco=None,
+                   pybullet=None, batched=statistics.median(times['ours_n']), mujoco_n=None)
+        for key in ('mujoco', 'pybullet', 'mujoco_n'):
+            if key in times:
+                row[key] = statistics.median(times[key])
         rows.append(row)
         print(f'  {label}: {med * 1e6:.0f} µs/step', flush=True)
 

@@ -43,7 +43,8 @@ def _time(step, steps, repeats):
     return statistics.median(out)
 
 
-def ours(path, steps, repeats):
+def ours(path):
+    """(one-step call, n-step call, Newton iterations of the one-step calls so far)."""
     from abd_joint_sim import Scene, World
     scene = Scene.from_urdf(path, dt=DT)
     world = World(scene)
@@ -54,12 +55,11 @@ def ours(path, steps, repeats):
 
     def step():
         its.append(world.step().newton_iterations)
-    single = _time(step, steps, repeats)
-    batched = _time(lambda: world.step(steps), 1, repeats) / steps
-    return single, float(np.mean(its)), batched
+    return step, world.step, its
 
 
-def mujoco(path, steps, repeats):
+def mujoco(path):
+    """(one-step call, n-step call), or None without MuJoCo."""
     try:
         import mujoco as mj
     except ImportError:
@@ -69,46 +69,64 @@ def mujoco(path, steps, repeats):
     m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
     d = mj.MjData(m)
     d.qfrc_applied[:] = torques(m.nv)
-    return (_time(lambda: mj.mj_step(m, d), steps, repeats),
-            _time(lambda: mj.mj_step(m, d, steps), 1, repeats) / steps)     # nstep: one call
+    return (lambda: mj.mj_step(m, d)), (lambda n: mj.mj_step(m, d, n))     # nstep: one call
 
 
-def pybullet(path, steps, repeats):
+def pybullet(path):
+    """(one-step call, disconnect), or None without PyBullet."""
     try:
         import pybullet as p
     except ImportError:
         return None
     cid = p.connect(p.DIRECT)
-    try:
-        p.setGravity(0, 0, -9.81, physicsClientId=cid)
-        p.setTimeStep(DT, physicsClientId=cid)
-        rid = p.loadURDF(path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
-                         physicsClientId=cid)
-        ids = list(range(p.getNumJoints(rid, physicsClientId=cid)))
-        p.setJointMotorControlArray(rid, ids, p.VELOCITY_CONTROL, forces=[0.0] * len(ids),
-                                    physicsClientId=cid)
-        tau = torques(len(ids))
+    p.setGravity(0, 0, -9.81, physicsClientId=cid)
+    p.setTimeStep(DT, physicsClientId=cid)
+    rid = p.loadURDF(path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+                     physicsClientId=cid)
+    ids = list(range(p.getNumJoints(rid, physicsClientId=cid)))
+    p.setJointMotorControlArray(rid, ids, p.VELOCITY_CONTROL, forces=[0.0] * len(ids),
+                                physicsClientId=cid)
+    tau = torques(len(ids))
 
-        def step():     # a torque command holds for one step in PyBullet: set it every step
-            p.setJointMotorControlArray(rid, ids, p.TORQUE_CONTROL, forces=tau,
-                                        physicsClientId=cid)
-            p.stepSimulation(physicsClientId=cid)
-        return _time(step, steps, repeats)
-    finally:
-        p.disconnect(cid)
+    def step():     # a torque command holds for one step in PyBullet: set it every step
+        p.setJointMotorControlArray(rid, ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
+        p.stepSimulation(physicsClientId=cid)
+    return step, (lambda: p.disconnect(cid))
 
 
 def run(quick=False, peers=True):
-    """Print the robot's row; returns (path, ours s/step) or None without the file."""
+    """Print the robot's row; returns (path, ours s/step) or None without the file. The
+    engines take turns round after round (a burst of load on this shared machine then falls
+    on all of them); each engine's own rounds follow its own simulated time as before: ours
+    5 × 500 one-step calls, then 5 calls of 500 steps."""
     path = robot_path()
     if path is None:
         print('URDF robot: skipped (pybullet_data not installed: requirements-bench.txt)')
         return None
     steps, repeats = (100, 3) if quick else (500, 5)
-    t, its, t_n = ours(path, steps, repeats)
-    mj_both = mujoco(path, 5 * steps, repeats) if peers else None
-    mj, mj_n = mj_both if mj_both else (None, None)
-    pb = pybullet(path, 5 * steps, repeats) if peers else None
+    step, step_n, its = ours(path)
+    mj = mujoco(path) if peers else None
+    pb = pybullet(path) if peers else None
+    single = {'ours': [], 'mujoco': [], 'pybullet': []}
+    many = {'ours': [], 'mujoco': []}
+    try:
+        for _ in range(repeats):
+            single['ours'].append(_time(step, steps, 1))
+            if mj:
+                single['mujoco'].append(_time(mj[0], 5 * steps, 1))
+            if pb:
+                single['pybullet'].append(_time(pb[0], 5 * steps, 1))
+        for _ in range(repeats):
+            many['ours'].append(_time(lambda: step_n(steps), 1, 1) / steps)
+            if mj:
+                many['mujoco'].append(_time(lambda: mj[1](5 * steps), 1, 1) / (5 * steps))
+    finally:
+        if pb:
+            pb[1]()
+    t, t_n = statistics.median(single['ours']), statistics.median(many['ours'])
+    mj_t = statistics.median(single['mujoco']) if mj else None
+    mj_n = statistics.median(many['mujoco']) if mj else None
+    pb_t = statistics.median(single['pybullet']) if pb else None
 
     def peer(x):
         return ('–', '–') if x is None else (f'{x * 1e6:.1f}', f'{t / x:.1f}')
@@ -117,8 +135,8 @@ def run(quick=False, peers=True):
     print('| robot | µs/step median | RTF at dt | Newton it/step | MuJoCo µs/step | '
           'ours/MuJoCo | PyBullet µs/step | ours/PyBullet |')
     print('|' + '---|' * 8)
-    print(f'| KUKA iiwa | {t * 1e6:.0f} | {DT / t:.1f} | {its:.2f} | {peer(mj)[0]} | '
-          f'{peer(mj)[1]} | {peer(pb)[0]} | {peer(pb)[1]} |')
+    print(f'| KUKA iiwa | {t * 1e6:.0f} | {DT / t:.1f} | {float(np.mean(its)):.2f} | {peer(mj_t)[0]} | '
+          f'{peer(mj_t)[1]} | {peer(pb_t)[0]} | {peer(pb_t)[1]} |')
     if mj_n:
         print(f'n steps per call on both sides: ours World.step(n) {t_n * 1e6:.1f} µs/step, MuJoCo '
               f'mj_step(m, d, n) {mj_n * 1e6:.1f} µs/step: ours/MuJoCo {t_n / mj_n:.1f}')
