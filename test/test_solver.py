@@ -357,6 +357,7 @@ def test_one_step_calls_keep_the_state_in_the_solver_with_the_same_bits(case):
     ref.state = s
     for x, y in zip(_state_fields(w), _state_fields(ref)):
         assert np.array_equal(x, y)
+    assert w.solver._ring_entry is not None             # the call skipped numba's dispatcher
     assert np.array_equal(held[0].q, held[1]) and np.array_equal(held[0].warm_start_prev, held[2])
     if case in ('hinge_substeps', 'hinge_fast_warns'):
         assert report.warnings                  # the recovery path was taken

@@ -258,13 +258,13 @@ class Solver:
 
     def _control_checked(self, c) -> bool:
         """Whether the compiled step's entry points (`_entry`, `_ring_entry`; None until
-        bound, once) may be called with Control c's arrays. Why bypass numba's dispatcher: it types every argument
-        on every call, ~0.65 µs for each of the two structrefs (a Python-level typeof), a
-        fifth of a one-body step's Python. The entry point skips that and unboxes by the
-        compiled signature, so it would misread an array of another layout or dtype: it is
-        only given arrays the step made itself (_made) and Control arrays checked here
-        (checked again whenever one is replaced); anything else goes through the dispatcher,
-        which types (and if needed compiles) it."""
+        bound, once) may be called with Control c's arrays. Why bypass numba's dispatcher:
+        it types every argument on every call, ~0.65 µs for each of the two structrefs (a
+        Python-level typeof), a fifth of a one-body step's Python. The entry point skips
+        that and unboxes by the compiled signature, so it would misread an array of another
+        layout or dtype: it is only given arrays the step made itself (_made), a Resident's
+        ring, and Control arrays checked here (checked again whenever one is replaced);
+        anything else goes through the dispatcher, which types (and if needed compiles) it."""
         arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
         known = self._control
         if (arrays[0] is known[0] and arrays[1] is known[1] and arrays[2] is known[2]
