@@ -42,13 +42,18 @@ class State:
         if self.warm_start_prev2 is None:
             self.warm_start_prev2 = self.warm_start_prev
 
+    def known_history(self) -> int:
+        """How many past warm starts are known (0, 1 or 2), at spacing history_dt. Unknown
+        ones are marked by identity (the same array as the newer one)."""
+        if self.warm_start_prev is self.warm_start:
+            return 0
+        return 1 if self.warm_start_prev2 is self.warm_start_prev else 2
+
     def extrapolation_order(self, h: float) -> int:
         """How many past warm starts a step of size h from this state extrapolates over:
         0 (none known at that spacing: Newton starts from warm_start), 1 (linear) or 2
-        (quadratic). Unknown ones are marked by identity (the same array as the newer one)."""
-        if self.history_dt != h or self.warm_start_prev is self.warm_start:
-            return 0
-        return 1 if self.warm_start_prev2 is self.warm_start_prev else 2
+        (quadratic)."""
+        return self.known_history() if self.history_dt == h else 0
 
     @classmethod
     def initial(cls, model) -> 'State':

@@ -13,7 +13,7 @@ caller that changed its arrays in place, as tests and studies do to perturb a st
 obeyed as before).
 
 Which past warm starts are known is kept as a count (`known`: 0, 1 or 2), where a State marks
-the unknown ones by identity (`State.extrapolation_order`).
+the unknown ones by identity (`State.known_history`).
 """
 from __future__ import annotations
 
@@ -78,10 +78,7 @@ class Resident:
         ring[0, 2] = s.warm_start_prev2
         angles[2, 0], angles[2, 1] = s.joint_angle, s.joint_velocity
         self.time, self.step_count, self.history_dt = s.time, s.step_count, s.history_dt
-        if s.warm_start_prev is s.warm_start:
-            self.known = 0
-        else:
-            self.known = 1 if s.warm_start_prev2 is s.warm_start_prev else 2
+        self.known = s.known_history()
 
     def advance(self, h: float) -> None:
         """After a step of size h into slot cur + 1: that slot is the current state (the rule

@@ -138,14 +138,11 @@ class Solver:
         """One step of dt; raises SimulationError when even sub-steps cannot finish it."""
         h = self.model.dt
         computed = self._compute(state, control, h, self._may_split)
-        status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = computed[2].tolist()
         # the common case, a step with nothing to report but its numbers, built directly
         # (the general path below gives the same report, at a few µs more Python)
-        if (failure == kernel.FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
-                and rotation <= self._clean_rotation):
-            new = self._state(state, h, computed[0], computed[1])
-            return new, StepReport(new.time, Status.CONVERGED, True, int(newton_its), int(halvings), 1,
-                                   separation, max(0.0, rotation))
+        clean = self._clean_report(computed[2], state.time + h)      # (the new State's time)
+        if clean is not None:
+            return self._state(state, h, computed[0], computed[1]), clean
         tally = _Tally()
         state = self._advance(state, control, h, 0, tally, computed)
         return state, self._finish(state, tally)
@@ -169,12 +166,10 @@ class Solver:
         else:
             kernel.step_in_ring(*args)
         out = self._outcome
-        status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = out.tolist()
-        if (failure == kernel.FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
-                and rotation <= self._clean_rotation):
+        clean = self._clean_report(out, r.time + h)
+        if clean is not None:
             r.advance(h)
-            return StepReport(r.time, Status.CONVERGED, True, int(newton_its), int(halvings), 1,
-                              separation, max(0.0, rotation))
+            return clean
         state, k = r.state(), (r.cur + 1) % 4
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
                     (r.angles[k, 0].copy(), r.angles[k, 1].copy()), out)
@@ -182,6 +177,17 @@ class Solver:
         new = self._advance(state, control, h, 0, tally, computed)
         r.set(new)
         return self._finish(new, tally)
+
+    def _clean_report(self, out, time):
+        """The StepReport of a step whose outcome row `out` is clean (converged, no failure,
+        no skipped torque, no overloaded joint, no accuracy warning), else None: such a step
+        needs none of the recovery and warnings of `_advance` and `_finish`."""
+        status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = out.tolist()
+        if (failure == kernel.FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
+                and rotation <= self._clean_rotation):
+            return StepReport(time, Status.CONVERGED, True, int(newton_its), int(halvings), 1,
+                              separation, max(0.0, rotation))
+        return None
 
     def _advance(self, state, control, h, depth, tally, computed=None):
         max_depth = self.model.newton.max_substep_depth
