@@ -55,7 +55,7 @@ def _run_kernels():
     from .solver.resident import Resident
     from .solver.solver import Solver
     from .state import Control, State
-    from .terms import driving, limit, ortho, revolute
+    from .terms import driving, limit, ortho, revolute, torque
     for scene in (_tiny_scene(), _loop_scene()):
         model = compile_scene(scene)
         solver = Solver(model)
@@ -66,6 +66,7 @@ def _run_kernels():
         solver.step_resident(resident, control)              # World.step()
         state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
         solver.clean_steps(state, control, 2)
+        torque.clamp_commands(control.torque_value.copy(), model.torque_effort_limit, control.torque_value)
         revolute.max_separation(state.q, solver.data)
         ctx = solver.context(state, control, model.dt)
         for term in (ortho, revolute, driving, limit):

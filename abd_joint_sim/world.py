@@ -20,7 +20,7 @@ from .solver.report import Status, StepReport
 from .solver.resident import Resident
 from .solver.solver import Solver
 from .state import Control, State
-from .terms import driving, limit, ortho, revolute
+from .terms import driving, limit, ortho, revolute, torque
 
 __all__ = ['World', 'StepReport', 'Status']
 
@@ -39,6 +39,10 @@ class World:
         self._resident = Resident(m.body_count, m.joint_count)
         self._joint_index = {n: k for k, n in enumerate(m.joint_names)}
         self._torque_slot = {m.joint_names[j]: k for k, j in enumerate(m.torque_joints)}
+        self._actuated = tuple(m.joint_names[j] for j in m.torque_joints)
+        # the effort limits as Python floats too: set_torque's per-call work stays in Python
+        self._effort_limit_array = np.array(m.torque_effort_limit, dtype=np.float64)
+        self._effort_limit = self._effort_limit_array.tolist()
         self._drive_slot = {m.joint_names[j]: k for k, j in enumerate(m.drive_joints)}
         self.reset()
 
@@ -72,8 +76,8 @@ class World:
 
     @property
     def actuated_joint_names(self) -> tuple:
-        """Joints carrying the external torque (UID 668), in scene order."""
-        return tuple(self.model.joint_names[j] for j in self.model.torque_joints)
+        """Joints carrying the external torque (UID 668), in scene order (`set_torques`'s)."""
+        return self._actuated
 
     @property
     def body_names(self) -> tuple:
@@ -114,13 +118,40 @@ class World:
     def set_torque(self, joint: str, value: float) -> float:
         """Set the UID 668 torque of a joint, applied from the next step. Values beyond the
         joint's effort_limit are clamped; the applied value is returned."""
-        k = self._slot(self._torque_slot, joint, 'external_torque (not actuated)')
+        k = self._torque_slot.get(joint)
+        if k is None:
+            self._slot(self._torque_slot, joint, 'external_torque (not actuated)')   # raises
         value = float(value)
         if not math.isfinite(value):
             raise ValueError(f'joint {joint!r}: torque {value} is not finite; rejected')
-        limit_ = self.model.torque_effort_limit[k]
-        self.control.torque_value[k] = min(max(value, -limit_), limit_)
-        return float(self.control.torque_value[k])
+        limit_ = self._effort_limit[k]
+        value = min(max(value, -limit_), limit_)
+        self.control.torque_value[k] = value
+        return value
+
+    def set_torques(self, values) -> np.ndarray:
+        """Set the UID 668 torque of every actuated joint at once, in `actuated_joint_names`
+        order, applied from the next step: a controller's per-step call, one array instead of
+        a `set_torque` per joint. Values beyond each joint's effort_limit are clamped; returns
+        the applied values (a copy). A wrong length, a value that is not a number or not
+        finite raises ValueError naming it, and then no torque is changed."""
+        names = self._actuated
+        try:
+            v = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f'set_torques: values must be {len(names)} numbers (one per actuated '
+                             f'joint: {", ".join(names)}), got {values!r}') from None
+        if v.shape != (len(names),):
+            raise ValueError(f'set_torques: {len(names)} values expected (one per actuated joint: '
+                             f'{", ".join(names) or "none"}), got shape {v.shape}')
+        if not (v.flags.c_contiguous and v.flags.writeable):
+            v = v.copy()                # (another layout would be another compiled signature)
+        out = self.control.torque_value
+        bad = torque.clamp_commands(v, self._effort_limit_array, out)
+        if bad >= 0:
+            raise ValueError(f'joint {names[bad]!r}: torque {v[bad]} is not finite; rejected (no '
+                             'torque changed)')
+        return out.copy()
 
     def set_torque_enabled(self, joint: str, enabled: bool) -> None:
         k = self._slot(self._torque_slot, joint, 'external_torque (not actuated)')

@@ -94,6 +94,67 @@ def pybullet(path):
     return step, (lambda: p.disconnect(cid))
 
 
+#: the controller loop's PD law, the same in every engine: τ = KP (AIM − θ) − KD θ̇ (gains with
+#: which MuJoCo's explicit Euler stays stable on the arm and ours takes 1.00 Newton iteration)
+KP, KD, AIM = 10.0, 0.1, 0.3
+
+
+def ours_controller(path):
+    """One step of a Python controller at 1 kHz: read the joint angles and velocities, a PD
+    torque on every joint, set them, step (World.set_torques and World.step())."""
+    from abd_joint_sim import Scene, World
+    world = World(Scene.from_urdf(path, dt=DT))
+    act = np.array([world.joint_names.index(j) for j in world.actuated_joint_names])
+
+    def step():
+        world.set_torques(KP * (AIM - world.joint_angles()[act]) - KD * world.joint_velocities()[act])
+        world.step()
+    return step
+
+
+def mujoco_controller(path):
+    """The same loop in MuJoCo (qpos, qvel, qfrc_applied, mj_step), or None without it."""
+    try:
+        import mujoco as mj
+    except ImportError:
+        return None
+    m = mj.MjModel.from_xml_path(path)
+    m.opt.timestep = DT
+    m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
+    d = mj.MjData(m)
+
+    def step():
+        d.qfrc_applied[:] = KP * (AIM - d.qpos) - KD * d.qvel
+        mj.mj_step(m, d)
+    return step
+
+
+def pybullet_controller(path):
+    """The same loop in PyBullet (getJointStates, TORQUE_CONTROL, stepSimulation): (step,
+    disconnect), or None without it."""
+    try:
+        import pybullet as p
+    except ImportError:
+        return None
+    cid = p.connect(p.DIRECT)
+    p.setGravity(0, 0, -9.81, physicsClientId=cid)
+    p.setTimeStep(DT, physicsClientId=cid)
+    rid = p.loadURDF(path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+                     physicsClientId=cid)
+    ids = list(range(p.getNumJoints(rid, physicsClientId=cid)))
+    p.setJointMotorControlArray(rid, ids, p.VELOCITY_CONTROL, forces=[0.0] * len(ids),
+                                physicsClientId=cid)
+
+    def step():
+        states = p.getJointStates(rid, ids, physicsClientId=cid)
+        q = np.array([s[0] for s in states])
+        v = np.array([s[1] for s in states])
+        p.setJointMotorControlArray(rid, ids, p.TORQUE_CONTROL, forces=KP * (AIM - q) - KD * v,
+                                    physicsClientId=cid)
+        p.stepSimulation(physicsClientId=cid)
+    return step, (lambda: p.disconnect(cid))
+
+
 def run(quick=False, peers=True):
     """Print the robot's row; returns (path, ours s/step) or None without the file. The
     engines take turns round after round (a burst of load on this shared machine then falls
@@ -109,6 +170,10 @@ def run(quick=False, peers=True):
     pb = pybullet(path) if peers else None
     single = {'ours': [], 'mujoco': [], 'pybullet': []}
     many = {'ours': [], 'mujoco': []}
+    loop = {'ours': [], 'mujoco': [], 'pybullet': []}
+    ctl = ours_controller(path)
+    mj_ctl = mujoco_controller(path) if peers else None
+    pb_ctl = pybullet_controller(path) if peers else None
     try:
         for _ in range(repeats):
             single['ours'].append(_time(step, steps, 1))
@@ -120,9 +185,16 @@ def run(quick=False, peers=True):
             many['ours'].append(_time(lambda: step_n(steps), 1, 1) / steps)
             if mj:
                 many['mujoco'].append(_time(lambda: mj[1](5 * steps), 1, 1) / (5 * steps))
+        for _ in range(repeats):
+            loop['ours'].append(_time(ctl, steps, 1))
+            if mj_ctl:
+                loop['mujoco'].append(_time(mj_ctl, 5 * steps, 1))
+            if pb_ctl:
+                loop['pybullet'].append(_time(pb_ctl[0], 5 * steps, 1))
     finally:
-        if pb:
-            pb[1]()
+        for peer_ in (pb, pb_ctl):
+            if peer_:
+                peer_[1]()
     t, t_n = statistics.median(single['ours']), statistics.median(many['ours'])
     mj_t = statistics.median(single['mujoco']) if mj else None
     mj_n = statistics.median(many['mujoco']) if mj else None
@@ -140,6 +212,14 @@ def run(quick=False, peers=True):
     if mj_n:
         print(f'n steps per call on both sides: ours World.step(n) {t_n * 1e6:.1f} µs/step, MuJoCo '
               f'mj_step(m, d, n) {mj_n * 1e6:.1f} µs/step: ours/MuJoCo {t_n / mj_n:.1f}')
+    c = statistics.median(loop['ours'])
+    line = (f'a Python PD controller on every joint (read θ, θ̇; set the torques; one step): ours '
+            f'{c * 1e6:.1f} µs/step')
+    for name, key in (('MuJoCo', 'mujoco'), ('PyBullet', 'pybullet')):
+        if loop[key]:
+            x = statistics.median(loop[key])
+            line += f', {name} {x * 1e6:.1f}: ours/{name} {c / x:.1f}'
+    print(line)
     return path, t
 
 

@@ -208,3 +208,57 @@ def test_effort_limit_clamps():
     d['joints'][0]['external_torque']['effort_limit'] = 50.0
     w = world_from(d)
     assert w.set_torque('hinge', 80.0) == 50.0 and w.set_torque('hinge', -80.0) == -50.0
+
+
+def _chain_with_limits():
+    from abd_joint_sim.builders import chain_scene
+    d = chain_scene(4, torque=0.0)
+    d['joints'][1]['external_torque']['effort_limit'] = 0.5
+    d['joints'][3]['external_torque']['effort_limit'] = 2.0
+    del d['joints'][2]['external_torque']          # not actuated: set_torques skips it
+    return d
+
+
+def test_set_torques_does_what_set_torque_per_joint_does():
+    """One array in actuated_joint_names order, clamped like set_torque; the same bits after
+    steps as the same torques set joint by joint."""
+    d = _chain_with_limits()
+    a, b = world_from(d), world_from(d)
+    assert a.actuated_joint_names == ('j1', 'j2', 'j4')
+    for values in ([0.3, -0.9, 3.5], [-1.0, 0.2, -2.5], [0.0, -0.0, 1e-3]):
+        expected = np.array([a.set_torque(j, v) for j, v in zip(a.actuated_joint_names, values)])
+        got = b.set_torques(values)
+        assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+        assert np.array_equal(b.applied_torques(), a.applied_torques())
+        a.step(5)
+        b.step(5)
+        assert np.array_equal(a.state.q, b.state.q)
+    assert list(got) == [0.0, -0.0, 1e-3]
+    clamped = b.set_torques(np.array([9.0, 9.0, 9.0]))
+    assert list(clamped) == [9.0, 0.5, 2.0]
+    clamped[:] = 0.0                                # a copy: the world's torques stay
+    assert b.applied_torques()[[0, 1, 3]].tolist() == [9.0, 0.5, 2.0]
+    # any array layout: a strided view, a read-only array, integers
+    b.set_torques(np.arange(6.0)[::2])
+    ro = np.array([0.1, 0.2, 0.3])
+    ro.flags.writeable = False
+    assert b.set_torques(ro).tolist() == [0.1, 0.2, 0.3]
+    assert b.set_torques((1, 0, -1)).tolist() == [1.0, 0.0, -1.0]
+
+
+@pytest.mark.parametrize('values, message', [
+    ([0.1, 0.2], r"3 values expected \(one per actuated joint: j1, j2, j4\), got shape \(2,\)"),
+    ([[0.1, 0.2, 0.3]], r'got shape \(1, 3\)'),
+    (0.5, r'got shape \(\)'),
+    ([0.1, float('nan'), 0.3], r"joint 'j2': torque nan is not finite; rejected \(no torque changed\)"),
+    ([0.1, 0.2, -float('inf')], r"joint 'j4': torque -inf is not finite"),
+    (['a', 0.2, 0.3], r'values must be 3 numbers'),
+    ({'j1': 1.0}, r'values must be 3 numbers'),
+])
+def test_set_torques_refuses_bad_input_with_one_message_and_changes_nothing(values, message):
+    w = world_from(_chain_with_limits())
+    w.set_torques([0.25, -0.25, 0.5])
+    before = w.applied_torques()
+    with pytest.raises(ValueError, match=message):
+        w.set_torques(values)
+    assert np.array_equal(w.applied_torques(), before)
