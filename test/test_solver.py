@@ -91,6 +91,76 @@ def test_a_large_loop_is_refused_with_a_message_and_a_small_one_runs_dense():
     assert tree.solver.data.solve_kind == linsolve.TREE
 
 
+def _check_elimination(nf, sp, sc):
+    """linsolve's order over the forest with edges (sp, sc): children first along graph
+    edges, one root per component; returns (order, parent, roles, depth of the deepest body)."""
+    order, parent = linsolve._forest(nf, np.asarray(sp, dtype=np.int64), np.asarray(sc, dtype=np.int64))
+    roles = linsolve.pair_roles(order, parent)
+    assert sorted(order.tolist()) == list(range(nf))
+    position = {int(s): t for t, s in enumerate(order)}
+    edges = {frozenset((int(a), int(b))) for a, b in zip(sp, sc)}
+    for s_, p in enumerate(parent.tolist()):
+        if p >= 0:
+            assert position[p] > position[s_] and frozenset((s_, p)) in edges
+    components = nf - len(edges)                 # a forest: one root per component
+    assert int((parent < 0).sum()) == components
+    t = 0
+    while t < nf:                                # pairs: independent, children done before
+        if roles[t] == 1:
+            a, b = int(order[t]), int(order[t + 1])
+            assert roles[t + 1] == 2 and parent[a] != b and parent[b] != a
+            assert all(position[c] < t for c in np.flatnonzero(parent == b).tolist())
+            t += 2
+        else:
+            assert roles[t] == 0
+            t += 1
+    depth = 0
+    for s_ in range(nf):
+        d, x = 0, s_
+        while parent[x] >= 0:
+            x, d = int(parent[x]), d + 1
+        depth = max(depth, d)
+    return order, parent, roles, depth
+
+
+def test_the_tree_solve_order_roots_each_tree_at_its_centre_and_pairs_independent_blocks():
+    """A chain is eliminated from both ends towards its middle, so that all but one or two of
+    its blocks are factored two at a time (linsolve.pair_roles); random forests keep the
+    order's rules: children first along edges, one root per tree, a pair never holding a
+    block and its parent or a block whose children are not all eliminated."""
+    for n in (1, 2, 3, 4, 7, 10, 31):
+        _, _, roles, depth = _check_elimination(n, range(n - 1), range(1, n))
+        assert depth == n // 2                  # rooted at the middle
+        assert int((roles == 0).sum()) <= 2
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        n = int(rng.integers(1, 40))
+        sp, sc = [], []
+        for c in range(1, n):                   # a random forest: attach to an earlier slot, or not
+            if rng.random() < 0.85:
+                sp.append(int(rng.integers(0, c)))
+                sc.append(c)
+        perm = rng.permutation(n)               # slots in any order
+        _check_elimination(n, perm[sp].tolist(), perm[sc].tolist())
+
+
+def test_a_pair_of_factorisations_gives_the_bits_of_two_single_ones():
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        blocks = []
+        for _ in range(2):
+            a = rng.standard_normal((12, 12)) * 10.0 ** rng.integers(-3, 4)
+            blocks.append(a @ a.T + 1e-3 * np.eye(12))
+        single, paired = np.stack(blocks), np.stack(blocks)
+        d1, d2 = np.zeros((2, 12)), np.zeros((2, 12))
+        assert linsolve.factor_block(single, 0, d1, 0) and linsolve.factor_block(single, 1, d1, 1)
+        assert linsolve.factor_pair(paired, 1, 0, d2, 1, 0)
+        assert np.array_equal(np.tril(single), np.tril(paired)) and np.array_equal(d1, d2)
+        indefinite = np.stack([blocks[0], -blocks[1]])
+        assert not linsolve.factor_pair(indefinite, 0, 1, np.zeros((2, 12)), 0, 1)
+        assert not linsolve.factor_pair(indefinite[::-1].copy(), 0, 1, np.zeros((2, 12)), 0, 1)
+
+
 def test_svd3_matches_lapack():
     rng = np.random.default_rng(2)
     cases = [random_rotation(rng), np.diag([1.0, 1.0, 1e-9]), np.diag([2.0, 0.0, 0.0]),
