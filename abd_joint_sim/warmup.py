@@ -67,6 +67,7 @@ def _run_kernels():
         state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
         solver.clean_steps(state, control, 2)
         torque.clamp_commands(control.torque_value.copy(), model.torque_effort_limit, control.torque_value)
+        torque.clamp_command(1.0, 2.0)
         revolute.max_separation(state.q, solver.data)
         ctx = solver.context(state, control, model.dt)
         for term in (ortho, revolute, driving, limit):

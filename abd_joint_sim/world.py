@@ -40,7 +40,7 @@ class World:
         self._joint_index = {n: k for k, n in enumerate(m.joint_names)}
         self._torque_slot = {m.joint_names[j]: k for k, j in enumerate(m.torque_joints)}
         self._actuated = tuple(m.joint_names[j] for j in m.torque_joints)
-        # the effort limits as Python floats too: set_torque's per-call work stays in Python
+        # the effort limits as an array (set_torques) and as Python floats (set_torque)
         self._effort_limit_array = np.array(m.torque_effort_limit, dtype=np.float64)
         self._effort_limit = self._effort_limit_array.tolist()
         self._drive_slot = {m.joint_names[j]: k for k, j in enumerate(m.drive_joints)}
@@ -124,8 +124,7 @@ class World:
         value = float(value)
         if not math.isfinite(value):
             raise ValueError(f'joint {joint!r}: torque {value} is not finite; rejected')
-        limit_ = self._effort_limit[k]
-        value = min(max(value, -limit_), limit_)
+        value = torque.clamp_command(value, self._effort_limit[k])
         self.control.torque_value[k] = value
         return value
 

@@ -60,6 +60,16 @@ def ours(path):
 
 def mujoco(path):
     """(one-step call, n-step call), or None without MuJoCo."""
+    arm = _mujoco_arm(path)
+    if arm is None:
+        return None
+    mj, m, d = arm
+    d.qfrc_applied[:] = torques(m.nv)
+    return (lambda: mj.mj_step(m, d)), (lambda n: mj.mj_step(m, d, n))     # nstep: one call
+
+
+def _mujoco_arm(path):
+    """(mujoco, model, data) of the URDF at dt DT, contacts off; None without MuJoCo."""
     try:
         import mujoco as mj
     except ImportError:
@@ -67,13 +77,26 @@ def mujoco(path):
     m = mj.MjModel.from_xml_path(path)
     m.opt.timestep = DT
     m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
-    d = mj.MjData(m)
-    d.qfrc_applied[:] = torques(m.nv)
-    return (lambda: mj.mj_step(m, d)), (lambda n: mj.mj_step(m, d, n))     # nstep: one call
+    return mj, m, mj.MjData(m)
 
 
 def pybullet(path):
     """(one-step call, disconnect), or None without PyBullet."""
+    arm = _pybullet_arm(path)
+    if arm is None:
+        return None
+    p, cid, rid, ids = arm
+    tau = torques(len(ids))
+
+    def step():     # a torque command holds for one step in PyBullet: set it every step
+        p.setJointMotorControlArray(rid, ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
+        p.stepSimulation(physicsClientId=cid)
+    return step, (lambda: p.disconnect(cid))
+
+
+def _pybullet_arm(path):
+    """(pybullet, client, robot, joint ids): the URDF on a fixed base, gravity, dt DT, the
+    default velocity motors off (so torques act alone); None without PyBullet."""
     try:
         import pybullet as p
     except ImportError:
@@ -86,12 +109,7 @@ def pybullet(path):
     ids = list(range(p.getNumJoints(rid, physicsClientId=cid)))
     p.setJointMotorControlArray(rid, ids, p.VELOCITY_CONTROL, forces=[0.0] * len(ids),
                                 physicsClientId=cid)
-    tau = torques(len(ids))
-
-    def step():     # a torque command holds for one step in PyBullet: set it every step
-        p.setJointMotorControlArray(rid, ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
-        p.stepSimulation(physicsClientId=cid)
-    return step, (lambda: p.disconnect(cid))
+    return p, cid, rid, ids
 
 
 #: the controller loop's PD law, the same in every engine: τ = KP (AIM − θ) − KD θ̇ (gains with
@@ -114,14 +132,10 @@ def ours_controller(path):
 
 def mujoco_controller(path):
     """The same loop in MuJoCo (qpos, qvel, qfrc_applied, mj_step), or None without it."""
-    try:
-        import mujoco as mj
-    except ImportError:
+    arm = _mujoco_arm(path)
+    if arm is None:
         return None
-    m = mj.MjModel.from_xml_path(path)
-    m.opt.timestep = DT
-    m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
-    d = mj.MjData(m)
+    mj, m, d = arm
 
     def step():
         d.qfrc_applied[:] = KP * (AIM - d.qpos) - KD * d.qvel
@@ -132,18 +146,10 @@ def mujoco_controller(path):
 def pybullet_controller(path):
     """The same loop in PyBullet (getJointStates, TORQUE_CONTROL, stepSimulation): (step,
     disconnect), or None without it."""
-    try:
-        import pybullet as p
-    except ImportError:
+    arm = _pybullet_arm(path)
+    if arm is None:
         return None
-    cid = p.connect(p.DIRECT)
-    p.setGravity(0, 0, -9.81, physicsClientId=cid)
-    p.setTimeStep(DT, physicsClientId=cid)
-    rid = p.loadURDF(path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
-                     physicsClientId=cid)
-    ids = list(range(p.getNumJoints(rid, physicsClientId=cid)))
-    p.setJointMotorControlArray(rid, ids, p.VELOCITY_CONTROL, forces=[0.0] * len(ids),
-                                physicsClientId=cid)
+    p, cid, rid, ids = arm
 
     def step():
         states = p.getJointStates(rid, ids, physicsClientId=cid)

@@ -56,6 +56,13 @@ def axis_at(q, parent, child, x_bar, j, e, es):
 
 
 @njit(cache=True, error_model='numpy')
+def clamp_command(value, effort_limit):
+    """A commanded torque clamped to [−effort_limit, effort_limit] (World.set_torque; the one
+    place of this rule)."""
+    return min(max(value, -effort_limit), effort_limit)
+
+
+@njit(cache=True, error_model='numpy')
 def clamp_commands(values, effort_limit, out):
     """out[k] = values[k] clamped to [−effort_limit[k], effort_limit[k]], the torques a
     controller commands (World.set_torques: one compiled call costs a fifth of numpy's checks
@@ -65,7 +72,7 @@ def clamp_commands(values, effort_limit, out):
         if not math.isfinite(values[k]):
             return k
     for k in range(values.size):
-        out[k] = min(max(values[k], -effort_limit[k]), effort_limit[k])
+        out[k] = clamp_command(values[k], effort_limit[k])
     return -1
 
 
