@@ -222,10 +222,11 @@ class World:
         """Advance n steps of size dt; returns (and stores in `last_step`) the last report.
         Raises SimulationError when a step cannot be finished even with sub-steps; the state
         is then that of the last good step (time stays a multiple of dt)."""
-        n = int(n)
-        if n == 1:
-            self.last_step = self.solver.step_resident(self._resident, self.control)
-            return self.last_step
+        if n != 1:
+            n = int(n)
+        if n == 1:                  # (a controller's loop: this call every step)
+            self.last_step = report = self.solver.step_resident(self._resident, self.control)
+            return report
         while n > 0:
             # the solver never writes a State: on SimulationError self.state is the last good one
             self.state, self.last_step, done = self.solver.advance(self.state, self.control, n)

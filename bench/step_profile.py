@@ -60,13 +60,13 @@ def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
             joint_blocks = newton.assemble(q, m, ctx, ws.grad, ws.diag, ws.pair)
             linsolve.solve(m, ws.diag, joint_blocks, ws.grad, ws.dq, ws)
         elif which == 6:
-            retract(q, ws.dq, 1.0, m, ws.trial)
+            retract(q, ws.dq, 1.0, m, ws, ws.trial)
         elif which == 7:
             ws.q_new[:] = q
             newton.minimize(m, ctx, ws.q_new, ws, False)
         elif which == 8:
             ws.acc[:] = 0.0
-            torque.add_acceleration(q, m, c_tv, c_te, ws.acc, skipped)
+            torque.add_acceleration(q, m, c_tv, c_te, ws.acc, skipped, ws.torque_axes)
     subnormals.leave(saved)
     return acc
 

@@ -10,7 +10,7 @@ import pytest
 
 from abd_joint_sim import Scene
 from abd_joint_sim.model import compile_scene
-from abd_joint_sim.solver import model_data
+from abd_joint_sim.solver import model_data, workspace
 from abd_joint_sim.solver import retraction
 from abd_joint_sim.solver.retraction import SCREW_STRAIN, SMALL_ANGLE, floating_groups
 
@@ -20,7 +20,9 @@ from conftest import SCENES
 def _apply(model, q, dq):
     """q ⊕ dq of the compiled retraction for a model."""
     out = np.empty_like(q)
-    retraction.retract(np.ascontiguousarray(q), np.ascontiguousarray(dq), 1.0, model_data.build(model), out)
+    data = model_data.build(model)
+    retraction.retract(np.ascontiguousarray(q), np.ascontiguousarray(dq), 1.0, data,
+                       workspace.build(model, data), out)
     return out
 
 

@@ -606,7 +606,7 @@ def test_torque_acceleration_is_bit_identical_to_dense_inverse_mass():
         expected = np.full((B, 12), 0.25)
         _dense_apply(MODEL.body_Minv, F, expected)
         acc = np.full((B, 12), 0.25)
-        assert torque.add_acceleration(q, DATA, taus, on, acc, np.zeros(4, np.int64)) == 0
+        assert torque.add_acceleration(q, DATA, taus, on, acc, np.zeros(4, np.int64), np.empty((4, 3))) == 0
         assert np.abs(acc - 0.25).max() > 1e-3
         np.testing.assert_array_equal(acc, expected)
 
@@ -626,7 +626,7 @@ def test_torque_singular_guard_lists_each_skipped_side_in_order():
         assert skipped[:n].tolist() == listed
         assert np.all(F[singular] == 0.0)
         acc, skipped2 = np.zeros((MODEL.body_count, 12)), np.zeros(4, np.int64)
-        assert torque.add_acceleration(q, DATA, taus, on, acc, skipped2) == n
+        assert torque.add_acceleration(q, DATA, taus, on, acc, skipped2, np.empty((4, 3))) == n
         assert skipped2[:n].tolist() == listed and np.all(acc[singular] == 0.0)
         others = [k for k in range(MODEL.body_count) if k not in singular and not MODEL.body_fixed[k]]
         assert all(np.abs(acc[k]).max() > 0.0 for k in others)

@@ -154,14 +154,14 @@ def minimize(m, ctx, q, ws, try_alt):
             # decrease test could only choose between two answers that both pass them (q, or
             # q ⊕ Δq); the step is the better one (nearer the minimum by O(|Δq|²)), and Π at
             # the trial cost as much as the rest of the iteration's energy evaluations.
-            retract(q, dq, 1.0, m, trial)
+            retract(q, dq, 1.0, m, ws, trial)
             q[:] = trial
             return CONVERGED, it, halvings
         alpha = 1.0
         found = False
         E_new = E
         for _ in range(m.line_search_max):
-            retract(q, dq, alpha, m, trial)
+            retract(q, dq, alpha, m, ws, trial)
             E_new = potential(trial, m, ctx)
             if E_new <= E + ROUNDOFF * abs(E):
                 found = True

@@ -35,6 +35,9 @@ SCREW_STRAIN = 1e-2   # max |A Aᵀ − I| up to which a body's step is applied 
 # [rad] below: Taylor series of the screw coefficients to θ⁶ (truncation < 1e-21 relative);
 # above, the closed forms lose ~eps/θ² to cancellation (< 3e-12 relative)
 SMALL_ANGLE = 1e-2
+# planes of Workspace.retract_tmp: W = skew(ΔA A⁻¹), W A, D = ΔA − W A, W D, W (A + D), A⁻¹ (as
+# adj(A)) and S = α ΔA A⁻¹
+_W, _WA, _D, _WD, _Y, _AINV, _S = range(7)
 
 
 def floating_groups(model):
@@ -84,25 +87,19 @@ def screw_coefficients(th):
 
 
 @njit(cache=True, error_model='numpy')
-def retract(q, dq, alpha, m, out):
+def retract(q, dq, alpha, m, ws, out):
     """out = q ⊕ α·dq: each free body moved along the screw motion of its step, the floating
-    groups' mean turn translation removed."""
+    groups' mean turn translation removed. Works in ws (workspace.Workspace): its 3x3
+    temporaries are the planes of ws.retract_tmp, named below (planes, not views or
+    allocations: each of those costs reference counts or a malloc per call)."""
     free_idx, group, share, ngroups = m.free_bodies, m.body_group, m.group_share, m.group_count
-    mean = np.zeros((max(ngroups, 1), 3))
+    mean, T = ws.group_mean, ws.retract_tmp
     nf = len(free_idx)
     for g in range(ngroups):
         mean[g, 0] = mean[g, 1] = mean[g, 2] = 0.0
     for b in range(q.shape[0]):
         for r in range(12):
             out[b, r] = q[b, r] + alpha * dq[b, r]
-    buf = np.empty(7 * 9)                   # one allocation, cut into named 3x3 views
-    W = buf[0:9].reshape((3, 3))
-    R = buf[9:18].reshape((3, 3))
-    AD = buf[18:27].reshape((3, 3))
-    corr_wd = buf[27:36].reshape((3, 3))
-    Y = buf[36:45].reshape((3, 3))
-    Ainv = buf[45:54].reshape((3, 3))
-    S = buf[54:63].reshape((3, 3))
     for k in range(nf):
         b = free_idx[k]
         strain = 0.0
@@ -118,22 +115,22 @@ def retract(q, dq, alpha, m, out):
         for i in range(3):
             for j in range(3):
                 i1, i2, j1, j2 = (j + 1) % 3, (j + 2) % 3, (i + 1) % 3, (i + 2) % 3
-                Ainv[i, j] = (q[b, 3 + 3 * i1 + j1] * q[b, 3 + 3 * i2 + j2]
-                              - q[b, 3 + 3 * i1 + j2] * q[b, 3 + 3 * i2 + j1])
-        det = q[b, 3] * Ainv[0, 0] + q[b, 4] * Ainv[1, 0] + q[b, 5] * Ainv[2, 0]
+                T[_AINV, i, j] = (q[b, 3 + 3 * i1 + j1] * q[b, 3 + 3 * i2 + j2]
+                                  - q[b, 3 + 3 * i1 + j2] * q[b, 3 + 3 * i2 + j1])
+        det = q[b, 3] * T[_AINV, 0, 0] + q[b, 4] * T[_AINV, 1, 0] + q[b, 5] * T[_AINV, 2, 0]
         for i in range(3):
             for j in range(3):
                 acc = 0.0
                 for c in range(3):
-                    acc += dq[b, 3 + 3 * i + c] * Ainv[c, j]
-                S[i, j] = alpha * acc / det
-        w0 = 0.5 * (S[2, 1] - S[1, 2])
-        w1 = 0.5 * (S[0, 2] - S[2, 0])
-        w2 = 0.5 * (S[1, 0] - S[0, 1])
-        W[0, 0] = W[1, 1] = W[2, 2] = 0.0
-        W[2, 1], W[1, 2] = w0, -w0
-        W[0, 2], W[2, 0] = w1, -w1
-        W[1, 0], W[0, 1] = w2, -w2
+                    acc += dq[b, 3 + 3 * i + c] * T[_AINV, c, j]
+                T[_S, i, j] = alpha * acc / det
+        w0 = 0.5 * (T[_S, 2, 1] - T[_S, 1, 2])
+        w1 = 0.5 * (T[_S, 0, 2] - T[_S, 2, 0])
+        w2 = 0.5 * (T[_S, 1, 0] - T[_S, 0, 1])
+        T[_W, 0, 0] = T[_W, 1, 1] = T[_W, 2, 2] = 0.0
+        T[_W, 2, 1], T[_W, 1, 2] = w0, -w0
+        T[_W, 0, 2], T[_W, 2, 0] = w1, -w1
+        T[_W, 1, 0], T[_W, 0, 1] = w2, -w2
         th2 = w0 * w0 + w1 * w1 + w2 * w2
         th = math.sqrt(th2)
         cs, cc, cb = screw_coefficients(th)
@@ -143,22 +140,22 @@ def retract(q, dq, alpha, m, out):
             for j in range(3):
                 wa = 0.0
                 for c in range(3):
-                    wa += W[i, c] * q[b, 3 + 3 * c + j]
-                R[i, j] = wa                                          # W A
-                AD[i, j] = alpha * dq[b, 3 + 3 * i + j] - wa          # D
+                    wa += T[_W, i, c] * q[b, 3 + 3 * c + j]
+                T[_WA, i, j] = wa                                     # W A
+                T[_D, i, j] = alpha * dq[b, 3 + 3 * i + j] - wa       # D
         for i in range(3):
             for j in range(3):
                 wd = 0.0
                 for c in range(3):
-                    wd += W[i, c] * AD[c, j]
-                corr_wd[i, j] = wd                                    # W D
-                Y[i, j] = R[i, j] + wd                                # W (A + D)
+                    wd += T[_W, i, c] * T[_D, c, j]
+                T[_WD, i, j] = wd                                     # W D
+                T[_Y, i, j] = T[_WA, i, j] + wd                       # W (A + D)
         for i in range(3):
             for j in range(3):
                 wwad = 0.0
                 for c in range(3):
-                    wwad += W[i, c] * Y[c, j]
-                out[b, 3 + 3 * i + j] += -cb * R[i, j] + cs * corr_wd[i, j] + cc * wwad
+                    wwad += T[_W, i, c] * T[_Y, c, j]
+                out[b, 3 + 3 * i + j] += -cb * T[_WA, i, j] + cs * T[_WD, i, j] + cc * wwad
         t0, t1, t2 = alpha * dq[b, 0], alpha * dq[b, 1], alpha * dq[b, 2]
         wt = w0 * t0 + w1 * t1 + w2 * t2
         f = wt / th2 if th2 > 0.0 else 0.0

@@ -67,8 +67,9 @@ def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
         return 0
     if bdf2:
         bdf.force_point(q, q_prev, bdf2, ws.q_force)
-        return torque.add_acceleration(ws.q_force, m, torque_value, torque_enabled, acc, skipped)
-    return torque.add_acceleration(q, m, torque_value, torque_enabled, acc, skipped)
+        return torque.add_acceleration(ws.q_force, m, torque_value, torque_enabled, acc, skipped,
+                                       ws.torque_axes)
+    return torque.add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, ws.torque_axes)
 
 
 @njit(cache=True, error_model='numpy')

@@ -32,6 +32,9 @@ FIELDS = (
     ('dense_H', '(n,n) dense solve: the matrix (n = 12 F, or 0 with the tree solve)'),
     ('dense_x', '(n,) dense solve: right-hand side / solution'),
     ('zero', '(B,12) zeros, never written (a direction d = d_plus − 0)'),
+    ('torque_axes', '(T+2,3) UID 668 torque axes ê of the T torque joints, and 2 rows of scratch'),
+    ('retract_tmp', "(7,3,3) the screw retraction's 3x3 temporaries"),
+    ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
 )
 
 
@@ -57,7 +60,9 @@ def build(model, data) -> Workspace:
                   angle_start=(J,),
                   drive_target=(D,), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
-                  dense_H=(n, n), dense_x=(n,), zero=(B, 12))
+                  dense_H=(n, n), dense_x=(n,), zero=(B, 12),
+                  torque_axes=(len(model.torque_joints) + 2, 3), retract_tmp=(7, 3, 3),
+                  group_mean=(max(int(data.group_count), 1), 3))
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
     ws = Workspace(*(values[name] for name, _ in FIELDS))
     ws.__dict__.update(values)

@@ -146,15 +146,14 @@ def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
 
 
 @njit(cache=True, error_model='numpy')
-def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled):
-    """ê (T,3) of the active torque joints (rows of the others unset; one allocation)."""
+def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled, e):
+    """e[:T] = ê of the active torque joints (rows of the others unset), e (T+2,3): its last
+    two rows are scratch."""
     T = torque_joints.size
-    e = np.empty((T + 2, 3))
     es = e[T:]
     for k in range(T):
         if torque_enabled[k] and torque_value[k] != 0.0:
             axis_at(q, parent, child, x_bar, torque_joints[k], e[k], es)
-    return e
 
 
 @njit(cache=True, error_model='numpy')
@@ -183,7 +182,8 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
     if not _any_active(torque_value, torque_enabled):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
-    e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
+    e = np.empty((tj.size + 2, 3))
+    _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)
     bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
     any_skipped = False
     for t in range(bodies.size):
@@ -207,14 +207,15 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
 
 
 @njit(cache=True, error_model='numpy')
-def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped):
+def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
     """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
     only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
-    (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product."""
+    (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product.
+    e (T+2,3): work array for the axes (Workspace.torque_axes)."""
     if not _any_active(torque_value, torque_enabled):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
-    e = _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled)
+    _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)
     bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
     Minv_bar = m.body_Minv_bar
     any_skipped = False
