@@ -457,6 +457,31 @@ def test_a_failed_one_step_call_keeps_the_last_good_state():
         assert np.array_equal(x, y)
 
 
+def test_the_compiled_step_allocates_nothing_per_step():
+    """The arrays a step works in live in the Solver's Workspace (docs/speed.md, "The tenth
+    round"): an allocation inside the step costs a malloc and keeps numba from pruning the
+    reference counts of the function that makes it. Counted by numba's NRT statistics: a
+    batch of 200 steps allocates what one of 20 does (the call's own arguments), on a chain
+    under torque, with the screw retraction and the torque axes at work, and with gravity."""
+    from numba.core.runtime import _nrt_python as nrt      # (numba is pinned)
+    d = chain_dict(4, torque=0.8, gravity=(0.0, 0.0, -9.81))
+    w = _world(d)
+    w.step(5)
+    was_on = nrt.memsys_stats_enabled()
+    nrt.memsys_enable_stats()
+    try:
+        counts = []
+        for n in (20, 200):
+            before = nrt.memsys_get_stats_alloc()
+            w.step(n)
+            counts.append(nrt.memsys_get_stats_alloc() - before)
+    finally:
+        if not was_on:
+            nrt.memsys_disable_stats()
+    assert w.last_step.newton_iterations >= 1 and abs(w.joint_velocities()).max() > 0.1
+    assert counts[0] > 0 and counts[1] == counts[0], counts
+
+
 def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
     """Solver calls the compiled step's entry point directly (no per-call typing) only with
     arrays the step made or Control arrays it checked; a State or Control whose arrays have
