@@ -240,12 +240,16 @@ ROBOT_OPTIONS = {'franka_panda/panda.urdf': {'lock': ['panda_finger_joint1',
                                                       'panda_finger_joint2']}}
 
 
-def mujoco_model(path, lock=()):
+def mujoco_model(path, lock=(), repair=False):
     """MuJoCo's model of the URDF at `path`, its joints in `lock` fixed as ours holds them.
     Where MuJoCo cannot open the meshes (`package://` paths it does not resolve), the same
     file without its <visual> and <collision> elements: with contacts off the geometry plays
-    no part in the dynamics, which the <inertial> elements give. Returns (model, whether the
-    geometry was removed)."""
+    no part in the dynamics, which the <inertial> elements give. With `repair`, an inertia
+    MuJoCo's compiler rejects (a principal moment above the sum of the other two, a
+    massless moving body) is repaired by its own options (`balanceinertia`, `boundmass`,
+    `boundinertia`, given in the URDF's <mujoco> extension) instead of refused: the model
+    then has the file's structure but not quite its inertias, good for timing only. Returns
+    (model, what was changed: '' or a note)."""
     import xml.etree.ElementTree as ET
     import mujoco as mj
     text = open(path).read()
@@ -253,17 +257,24 @@ def mujoco_model(path, lock=()):
     for joint in root.iter('joint'):
         if joint.get('name') in lock:
             joint.set('type', 'fixed')
-    if lock:
+    notes = []
+    if repair:
+        ext = ET.SubElement(root, 'mujoco')
+        ET.SubElement(ext, 'compiler', balanceinertia='true', boundmass='1e-6', boundinertia='1e-9')
+        notes.append('inertias repaired by MuJoCo')
+    if lock or repair:
         text = ET.tostring(root, encoding='unicode')
     try:
-        return mj.MjModel.from_xml_string(text) if lock else mj.MjModel.from_xml_path(path), False
+        model = mj.MjModel.from_xml_string(text) if lock or repair else mj.MjModel.from_xml_path(path)
+        return model, ', '.join(notes)
     except ValueError as exc:
-        if 'package:' not in str(exc):
+        if 'package:' not in str(exc) and 'opening file' not in str(exc):
             raise
     for link in root.iter('link'):
         for geometry in link.findall('visual') + link.findall('collision'):
             link.remove(geometry)
-    return mj.MjModel.from_xml_string(ET.tostring(root, encoding='unicode')), True
+    return mj.MjModel.from_xml_string(ET.tostring(root, encoding='unicode')), ', '.join(
+        notes + ['without its meshes'])
 
 
 def robots(quick=False, peers=True):
@@ -296,11 +307,17 @@ def robots(quick=False, peers=True):
         t0 = time.process_time()
         world.step(steps)
         ours_t = (time.process_time() - t0) / steps
-        mj_t, why, stripped = None, '', False
+        mj_t, why, note = None, '', ''
         if peers:
             try:
                 import mujoco as mj
-                m, stripped = mujoco_model(path, ROBOT_OPTIONS.get(name, {}).get('lock', ()))
+                lock = ROBOT_OPTIONS.get(name, {}).get('lock', ())
+                try:
+                    m, note = mujoco_model(path, lock)
+                except ValueError as exc:           # an inertia MuJoCo's compiler rejects
+                    if 'inertia' not in str(exc) and 'mass' not in str(exc):
+                        raise
+                    m, note = mujoco_model(path, lock, repair=True)
                 m.opt.timestep = DT
                 m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
                 d = mj.MjData(m)
@@ -313,8 +330,8 @@ def robots(quick=False, peers=True):
                 why = str(exc).splitlines()[0][:60]
         ratio = f'{ours_t / mj_t:.1f}' if mj_t else '–'
         mj_cell = f'{mj_t * 1e6:.1f}' if mj_t else f'– ({why})' if why else '–'
-        if mj_t and stripped:
-            mj_cell += ' (without its meshes)'
+        if mj_t and note:
+            mj_cell += f' ({note})'
         print(f'| {name} | {world.model.body_count} | {its:.2f} | {ours_t * 1e6:.1f} | '
               f'{mj_cell} | {ratio} |', flush=True)
         rows.append((name, ours_t, mj_t))
