@@ -16,7 +16,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from . import linsolve, retraction
+from . import borrowed, linsolve, retraction
 from .bdf import BETA_BDF2
 
 # Joint anchors further apart than SEPARATION_WARN x the smaller body's size: the step warns
@@ -277,4 +277,4 @@ def build(model, force_dense: bool = False) -> ModelData:
     values['inertia_scales'], values['constant_diag_inertia'] = scales, _arr(base, np.float64)
     data = ModelData(*(values[name] for name, _ in FIELDS))
     data.__dict__.update(values)
-    return data
+    return borrowed.borrow(data)

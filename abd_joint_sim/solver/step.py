@@ -26,7 +26,7 @@ from numba import njit
 from .. import angles
 from ..terms import gravity, revolute, torque
 from ..terms.context import StepContext
-from . import bdf, newton, subnormals
+from . import bdf, borrowed, newton, subnormals
 
 # columns of a step's outcome row
 OUT_STATUS = 0           #: newton status code
@@ -114,6 +114,14 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     = bodies without torque. `order` (State.extrapolation_order): Newton starts from the warm
     start extrapolated over the last three steps (2), the last two (1), or from warm_start
     alone (0). Subnormal numbers are flushed to zero while it runs (subnormals.py)."""
+    # the caller keeps these alive: no reference counts below (borrowed.py)
+    q, v, q_prev, v_prev = borrowed.array(q), borrowed.array(v), borrowed.array(q_prev), borrowed.array(v_prev)
+    warm_start, warm_start_prev = borrowed.array(warm_start), borrowed.array(warm_start_prev)
+    warm_start_prev2, joint_angle = borrowed.array(warm_start_prev2), borrowed.array(joint_angle)
+    torque_value, torque_enabled = borrowed.array(torque_value), borrowed.array(torque_enabled)
+    drive_aim, drive_enabled = borrowed.array(drive_aim), borrowed.array(drive_enabled)
+    drive_passive, skipped = borrowed.array(drive_passive), borrowed.array(skipped)
+    new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
     saved = subnormals.enter()
     B, J = q.shape[0], m.joint_parent.size
     outcome[:] = 0.0
@@ -209,6 +217,7 @@ def step_in_ring(m, ring, angles, cur, torque_value, torque_enabled, drive_aim, 
     of a State's 8 arrays and the 2 new ones is most of what a one-step call saves,
     docs/speed.md.)"""
     prev, prev2, nxt = (cur + 3) % 4, (cur + 2) % 4, (cur + 1) % 4
+    ring, angles = borrowed.array(ring), borrowed.array(angles)
     step(m, ring[cur, 0], ring[cur, 1], ring[prev, 0], ring[prev, 1], ring[cur, 2], ring[prev, 2],
          ring[prev2, 2], angles[cur, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
          drive_passive, h, bdf2, order, may_split, ws, ring[nxt], angles[nxt], skipped, outcome)
@@ -227,6 +236,10 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
     the Solver's rule (solver._history): the input's counts only where it was made by steps
     of size h (`uniform_first`: its last step was; `order_first`: its extrapolation_order),
     and every step here has size h."""
+    # the caller keeps these alive: no reference counts for them or their views (borrowed.py)
+    q, v, q_prev, v_prev = borrowed.array(q), borrowed.array(v), borrowed.array(q_prev), borrowed.array(v_prev)
+    warm_start, warm_start_prev = borrowed.array(warm_start), borrowed.array(warm_start_prev)
+    new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
     done = 0
     for k in range(n):
         if k == 0:

@@ -10,7 +10,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from . import linsolve
+from . import borrowed, linsolve
 
 #: (name, meaning) of every field; the shapes come from `build`.
 FIELDS = (
@@ -66,4 +66,4 @@ def build(model, data) -> Workspace:
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
     ws = Workspace(*(values[name] for name, _ in FIELDS))
     ws.__dict__.update(values)
-    return ws
+    return borrowed.borrow(ws)
