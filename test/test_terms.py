@@ -7,7 +7,7 @@ import pytest
 from numba import njit
 
 import oracle
-from abd_joint_sim import Scene, compile_scene
+from abd_joint_sim import Scene, angles, compile_scene
 from abd_joint_sim.solver import model_data
 from abd_joint_sim.terms import driving, inertia, limit, ortho, revolute, torque
 from abd_joint_sim.terms.context import StepContext
@@ -51,7 +51,7 @@ def _ctx(q_tilde=None, on=True, angle_start=None):
     q_tilde = MODEL.body_q0.copy() if q_tilde is None else q_tilde
     start = np.zeros(J) if angle_start is None else np.asarray(angle_start, float)
     return StepContext(0.01, 9.0 / 4.0, q_tilde, start, np.full(len(MODEL.drive_joints), 0.9),
-                       np.full(len(MODEL.drive_joints), on))
+                       np.full(len(MODEL.drive_joints), on), np.empty(angles.ANGLE_WORK_SHAPE))
 
 
 def _oracle_energy(name, q, ctx):
@@ -317,7 +317,8 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
     start = np.zeros(MODEL.joint_count)
     theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
     for offset, gauss_newton in ((0.5, True), (0.02, False)):
-        ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]))
+        ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
+                             np.empty(angles.ANGLE_WORK_SHAPE))
         _, g, Hp = dense(driving, q, ctx, project=True)
         _, g_raw, _ = dense(driving, q, ctx, project=False)
         np.testing.assert_array_equal(g, g_raw)
@@ -528,7 +529,8 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
         for offset in (0.03, -0.05, 0.4):
             # drives: target beside the angle; limits: the step-start branch and init shift x
             start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
-            ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]))
+            ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
+                             np.empty(angles.ANGLE_WORK_SHAPE))
             joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
             if n == 0:
                 continue

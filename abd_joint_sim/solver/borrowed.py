@@ -17,8 +17,9 @@ from __future__ import annotations
 
 from numba import njit
 from numba.core import cgutils, types
-from numba.experimental.structref import _Utils
-from numba.extending import intrinsic
+from numba.core.datamodel import models
+from numba.experimental.structref import _Utils, define_attributes
+from numba.extending import intrinsic, register_model
 
 
 @intrinsic
@@ -63,3 +64,42 @@ def borrow(proxy):
     every array field must also be in `proxy.__dict__`. Returns proxy."""
     _borrow(proxy)
     return proxy
+
+
+class Struct(types.StructRef):
+    """A structref read without reference counting: `struct(s)` inside a compiled call that
+    received s from its caller. Same fields and layout as the original type."""
+
+    def __init__(self, original):
+        self.original = original
+        self._fields = original._fields
+        self._typename = f'Borrowed[{type(original).__qualname__}]'
+        types.Type.__init__(self, name=f'numba.{self._typename}{self._fields}')
+
+    def __reduce__(self):           # the kernel cache pickles signatures
+        return (Struct, (self.original,))
+
+
+@register_model(Struct)
+class _StructModel(models.StructRefModel):
+    # the same value as a structref (a MemInfo pointer) that numba neither increfs nor decrefs
+    def has_nrt_meminfo(self):
+        return False
+
+    def traverse(self, builder):
+        return []
+
+
+define_attributes(Struct)
+
+
+@intrinsic
+def struct(typingctx, struct_type):
+    """`struct(s)`: the structref s as a `Struct`, for the duration of a call that received s
+    from its caller (who keeps it alive): no reference counting of s in the functions it is
+    passed to."""
+    if isinstance(struct_type, Struct):
+        return struct_type(struct_type), lambda context, builder, sig, args: args[0]
+    if not isinstance(struct_type, types.StructRef):
+        return None
+    return Struct(struct_type)(struct_type), lambda context, builder, sig, args: args[0]

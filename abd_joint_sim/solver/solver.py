@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import angles
 from ..errors import SimulationError
 from ..state import Control, State
 from ..terms.context import StepContext
@@ -133,7 +134,8 @@ class Solver:
         target = np.where(control.drive_passive, start[m.drive_joints], control.drive_aim - init)
         return StepContext(float(h), 1.0, state.q if q_tilde is None else q_tilde, start,
                            np.ascontiguousarray(target, dtype=float),
-                           np.ascontiguousarray(control.drive_enabled, dtype=bool))
+                           np.ascontiguousarray(control.drive_enabled, dtype=bool),
+                           np.empty(angles.ANGLE_WORK_SHAPE))
 
     # -- one step, with recovery ---------------------------------------------------------
     def step(self, state: State, control: Control) -> tuple[State, StepReport]:

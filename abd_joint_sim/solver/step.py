@@ -115,6 +115,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     start extrapolated over the last three steps (2), the last two (1), or from warm_start
     alone (0). Subnormal numbers are flushed to zero while it runs (subnormals.py)."""
     # the caller keeps these alive: no reference counts below (borrowed.py)
+    m, ws = borrowed.struct(m), borrowed.struct(ws)
     q, v, q_prev, v_prev = borrowed.array(q), borrowed.array(v), borrowed.array(q_prev), borrowed.array(v_prev)
     warm_start, warm_start_prev = borrowed.array(warm_start), borrowed.array(warm_start_prev)
     warm_start_prev2, joint_angle = borrowed.array(warm_start_prev2), borrowed.array(joint_angle)
@@ -147,7 +148,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     for k in range(drive_joints.size):
         j = drive_joints[k]
         drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
-    ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled)
+    ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled, ws.angle_work)
     cw = h * h / scale
     q_new, q_alt = ws.q_new, ws.q_alt
     # The correction (q − q̃)/(c h²) is the acceleration the stiff terms add to the explicit

@@ -10,6 +10,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
+from .. import angles
 from . import borrowed, linsolve
 
 #: (name, meaning) of every field; the shapes come from `build`.
@@ -35,6 +36,7 @@ FIELDS = (
     ('torque_axes', '(T+2,3) UID 668 torque axes ê of the T torque joints, and 2 rows of scratch'),
     ('retract_tmp', "(7,3,3) the screw retraction's 3x3 temporaries"),
     ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
+    ('angle_work', '(25,18) angles.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
 )
 
 
@@ -62,7 +64,7 @@ def build(model, data) -> Workspace:
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12),
                   torque_axes=(len(model.torque_joints) + 2, 3), retract_tmp=(7, 3, 3),
-                  group_mean=(max(int(data.group_count), 1), 3))
+                  group_mean=(max(int(data.group_count), 1), 3), angle_work=angles.ANGLE_WORK_SHAPE)
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
     ws = Workspace(*(values[name] for name, _ in FIELDS))
     ws.__dict__.update(values)

@@ -6,5 +6,7 @@ from collections import namedtuple
 #: h [s] step size; scale s of the inertia term (1 BDF1, 9/4 BDF2); q_tilde (B,12) the
 #: prediction q̃; angle_start [rad] (J,) unwrapped joint angle minus init_angle at the
 #: start of the step; drive_target [rad] (D,) UID 19 target relative to init_angle (the
-#: aim, or angle_start when passive); drive_on (D,) bool.
-StepContext = namedtuple('StepContext', ['h', 'scale', 'q_tilde', 'angle_start', 'drive_target', 'drive_on'])
+#: aim, or angle_start when passive); drive_on (D,) bool; angle_work: scratch of
+#: angles.ANGLE_WORK_SHAPE the drives and limits work in (no allocation in the step).
+StepContext = namedtuple('StepContext', ['h', 'scale', 'q_tilde', 'angle_start', 'drive_target', 'drive_on',
+                                         'angle_work'])

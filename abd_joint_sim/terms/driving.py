@@ -57,25 +57,13 @@ def active_joints(q, m, ctx):
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and the (projected) Hessian of the enabled drives (active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint). Without an enabled drive this
-    allocates nothing (an allocation here would also keep numba from removing the call's
-    reference counts, docs/speed.md)."""
-    on = ctx.drive_on
-    for k in range(on.size):
-        if on[k]:
-            _accumulate_from(q, m, ctx, grad, diag, pair, project, k)
-            return
-
-
-@njit(cache=True, error_model='numpy')
-def _accumulate_from(q, m, ctx, grad, diag, pair, project, first):
-    """accumulate's work from drive `first` (enabled) on, in one work array."""
+    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work."""
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget
-    work = np.empty(angles.ANGLE_WORK_SHAPE)
-    for k in range(first, drive_joints.size):
+    work = ctx.angle_work
+    for k in range(drive_joints.size):
         if on[k]:
             j = drive_joints[k]
             x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])

@@ -79,24 +79,12 @@ def active_joints(q, m, ctx):
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and the (projected) Hessian of the active limits (active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint). A robot's limits are mostly
-    inactive: this only looks for the first active one, and allocates nothing (an
-    allocation here would also keep numba from removing the call's reference counts)."""
-    lower, upper = m.limit_lower, m.limit_upper
-    for k in range(lower.size):
-        if active(angle(q, m, ctx, k), lower[k], upper[k]):
-            _accumulate_from(q, m, ctx, grad, diag, pair, project, k)
-            return
-
-
-@njit(cache=True, error_model='numpy')
-def _accumulate_from(q, m, ctx, grad, diag, pair, project, first):
-    """accumulate's work from limit `first` (active) on, in one work array."""
+    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget
-    work = np.empty(angles.ANGLE_WORK_SHAPE)
-    for k in range(first, limit_joints.size):
+    work = ctx.angle_work
+    for k in range(limit_joints.size):
         x = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
