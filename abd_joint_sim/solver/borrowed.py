@@ -1,17 +1,24 @@
-"""Structref fields as borrowed arrays: no reference counting in the compiled step.
+"""The compiled step without numba's reference counts (docs/decisions.md, docs/speed.md
+"The eleventh round").
 
-numba counts references to every array it reads out of a structref (an atomic increment
-and decrement of the array's MemInfo), and LLVM's reference-count pruning removes those
-counts only in functions that call no other compiled function (docs/speed.md, "The tenth
-round"). A step reads ~100 fields per link, and an atomic add costs ~20 cycles here.
+numba counts a reference (an atomic add and subtract on a MemInfo, ~20 cycles each here) for
+every array read out of a structref, every array argument, every view and every structref
+passed to a function, and its pruning pass removes the pairs only in functions that call no
+other compiled function: ~270 per step on a chain, ~470 on a 7-joint arm in its limits. The
+step's arrays all have an owner outside compiled code for as long as it runs, so:
 
-`borrow(struct)` sets every array field's MemInfo to null. numba's incref and decref of a
-null MemInfo return at once, so reading such a field, or a view of it, counts nothing. The
-arrays stay alive because the Python proxy keeps them in its `__dict__` (`model_data.build`,
-`workspace.build` put them there), and the struct lives no longer than its proxy: nothing
-compiled returns or stores the struct. Each field keeps its `parent` pointer, the numpy
-array itself, so a field boxed back to Python (`ModelData`'s `__dict__` is what Python
-reads anyway) is that same array.
+- `borrow(proxy)` nulls the MemInfo of every array field of a ModelData or Workspace, once.
+  The arrays stay alive in the proxy's `__dict__` (`model_data.build`, `workspace.build` put
+  them there), and the struct lives no longer than its proxy: nothing compiled returns or
+  stores it. Each field keeps its `parent` pointer, the numpy array itself, so a field that
+  compiled code hands back to Python is that same array.
+- `array(a)` nulls the MemInfo of an argument for the duration of the call (the caller
+  holds a); every view of it inherits the null.
+- `struct(s)` retypes a structref argument as `Struct`, whose data model has no MemInfo;
+  the kernels it is passed to are compiled for that type.
+
+numba's incref and decref of a null MemInfo return at once, and a value without a MemInfo is
+never counted.
 """
 from __future__ import annotations
 
