@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from ..smallmat import cholesky, lower_solve, upper_solve
+from . import flat
 from .vectorize import slp_vectorized
 
 DENSE, TREE = 0, 1
@@ -162,7 +163,7 @@ def solve_dense(m, diag, pair, grad, dq, ws):
     nf = free_idx.size
     n = 12 * nf
     H = ws.dense_H
-    H[:] = 0.0
+    flat.fill(H, 0.0)
     for s in range(nf):
         b = free_idx[s]
         for r in range(12):

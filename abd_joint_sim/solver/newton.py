@@ -24,7 +24,7 @@ import math
 from numba import njit
 
 from ..terms import driving, inertia, limit, ortho, revolute
-from . import linsolve
+from . import flat, linsolve
 from .retraction import retract
 
 # Every term of Π is nonnegative and computed without cancellation, so Π's rounding error
@@ -57,19 +57,19 @@ def assemble(q, m, ctx, grad, diag, pair):
     nothing). The constant Hessians, UID 18's and the inertia term's s·M, are summed once per
     model (model_data: constant_diag_inertia, one per BDF scale s); their terms add only
     their gradients here."""
-    grad[:] = 0.0
+    flat.fill(grad, 0.0)
     scales = m.inertia_scales
     k = 0 if ctx.scale == scales[0] else (1 if ctx.scale == scales[1] else -1)
     if k >= 0:
-        diag[:] = m.constant_diag_inertia[k]
+        flat.copy(diag, m.constant_diag_inertia[k])
         inertia.accumulate_gradient(q, m, ctx, grad)
     else:                                   # another s (a caller's own context)
-        diag[:] = m.constant_diag
+        flat.copy(diag, m.constant_diag)
         inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     if m.drive_joints.size == 0 and m.limit_joints.size == 0:
         pair = m.constant_pair              # read only: no term below adds to it
     else:
-        pair[:] = m.constant_pair
+        flat.copy(pair, m.constant_pair)
     ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
     revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
     if m.drive_joints.size:
@@ -127,14 +127,14 @@ def minimize(m, ctx, q, ws, try_alt):
     if try_alt and E_tilde < E:
         E_alt = potential(ws.q_alt, m, ctx)
         if E_alt < E:
-            q[:] = ws.q_alt
+            flat.copy(q, ws.q_alt)
             E = E_alt
     if E_tilde < E:
-        q[:] = ctx.q_tilde
+        flat.copy(q, ctx.q_tilde)
         E = E_tilde
     energy_tol = 0.5 * m.free_mass * (m.velocity_tol * h) ** 2
     grad, diag, pair, dq, trial = ws.grad, ws.diag, ws.pair, ws.dq, ws.trial
-    dq[:] = 0.0                                 # fixed bodies' rows are never solved for
+    flat.fill(dq, 0.0)                          # fixed bodies' rows are never solved for
     halvings = 0
     for it in range(1, m.max_iterations + 1):
         joint_blocks = assemble(q, m, ctx, grad, diag, pair)
@@ -155,7 +155,7 @@ def minimize(m, ctx, q, ws, try_alt):
             # q ⊕ Δq); the step is the better one (nearer the minimum by O(|Δq|²)), and Π at
             # the trial cost as much as the rest of the iteration's energy evaluations.
             retract(q, dq, 1.0, m, ws, trial)
-            q[:] = trial
+            flat.copy(q, trial)
             return CONVERGED, it, halvings
         alpha = 1.0
         found = False
@@ -172,6 +172,6 @@ def minimize(m, ctx, q, ws, try_alt):
             return LINE_SEARCH_FAILED, it, halvings
         if not math.isfinite(E_new):
             return NONFINITE, it, halvings
-        q[:] = trial
+        flat.copy(q, trial)
         E = E_new
     return MAX_ITERATIONS, m.max_iterations, halvings

@@ -26,7 +26,7 @@ from numba import njit
 from .. import angles
 from ..terms import gravity, revolute, torque
 from ..terms.context import StepContext
-from . import bdf, borrowed, newton, subnormals
+from . import bdf, borrowed, flat, newton, subnormals
 
 # columns of a step's outcome row
 OUT_STATUS = 0           #: newton status code
@@ -61,7 +61,7 @@ def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
     """Section 1: ws.acc = g_q + M⁻¹F, the torque at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2, ws.q_force,
     formed only when a torque acts); returns the number of bodies the torque skipped."""
     acc = ws.acc
-    acc[:] = 0.0
+    flat.fill(acc, 0.0)
     gravity.add_acceleration(q, m, acc)
     if not torque.any_active(m, torque_value, torque_enabled):
         return 0
@@ -125,7 +125,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
     saved = subnormals.enter()
     B, J = q.shape[0], m.joint_parent.size
-    outcome[:] = 0.0
+    flat.fill(outcome, 0.0)
     outcome[OUT_APART_JOINT] = -1.0
     # 1. forces
     outcome[OUT_SKIPPED] = forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped)
