@@ -2,10 +2,10 @@
 steps from the same state in `World.step(n)` (one compiled call), one `World.step()` call
 each (the state kept in the solver's ring, solver/resident.py) and one `Solver.step` call
 each on immutable States (what World.step() did before); World.step()'s excess over
-step(n) split into leaving and re-entering compiled code (the compiled ring step called once
-from Python against the same step in a compiled loop, on one state), unboxing its 16
-arguments (a compiled no-op with its signature) and the rest, the Python around (the slots,
-the outcome row, the StepReport). Chains of 1 and 10 links and
+step(n) split into leaving and re-entering compiled code (the compiled `step_resident`
+called once from Python against the same call in a compiled loop), unboxing its 7
+arguments (a compiled no-op with its signature) and the rest, the Python around (the
+binding check, the outcome row, the StepReport). Chains of 1 and 10 links and
 the KUKA iiwa URDF, dt 1 ms, torque on every joint; fastest of 9 rounds, wall time.
 
     python bench/call_cost.py
@@ -31,14 +31,13 @@ from abd_joint_sim.solver import step as kernel                 # noqa: E402
 
 
 @njit
-def _loop(n, m, ring, angles, cur, tv, te, da, de, dp, h, bdf2, order, may, ws, sk, out):
+def _loop(n, m, io, ws, h, bdf2, may, clean_rotation):
     for _ in range(n):
-        kernel.step_in_ring(m, ring, angles, cur, tv, te, da, de, dp, h, bdf2, order, may, ws, sk,
-                            out)
+        kernel.step_resident(m, io, ws, h, bdf2, may, clean_rotation)
 
 
 @njit
-def _noop(n, m, ring, angles, cur, tv, te, da, de, dp, h, bdf2, order, may, ws, sk, out):
+def _noop(n, m, io, ws, h, bdf2, may, clean_rotation):
     return n
 
 
@@ -99,8 +98,8 @@ def budget(name):
     w.step()
     s, r, c = w.solver, w._resident, w.control
     h = w.model.dt
-    args = (s.data, r.ring, r.angles, r.cur, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, h,
-            w.model.integrator == 'bdf2', r.known, True, s.work, s._skipped, s._outcome)
+    assert r.io_key[1] is c.torque_value                 # (bound by the step above)
+    args = (s.data, r.io, s.work, h, w.model.integrator == 'bdf2', True, s._clean_rotation)
     _loop(1, *args)
     _noop(1, *args)
     loop = _loop.overloads[_loop.signatures[0]].entry_point
@@ -118,7 +117,7 @@ def main():
     print(f'load {os.getloadavg()[0]:.2f}; µs per World.step() call')
     print('| scene | `World.step(n)` µs/step | `World.step()` µs/call | `Solver.step` on States µs/call '
           '| World.step() − step(n) | of it: leaving and re-entering compiled code | unboxing the '
-          '16 arguments | the Python around (slots, report) |')
+          '7 arguments | the Python around (binding check, report) |')
     print('|---|---|---|---|---|---|---|---|')
     for name in ('chain 1', 'chain 10', 'KUKA iiwa'):
         if name == 'KUKA iiwa' and robot_bench.robot_path() is None:

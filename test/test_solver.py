@@ -427,7 +427,7 @@ def test_one_step_calls_keep_the_state_in_the_solver_with_the_same_bits(case):
     ref.state = s
     for x, y in zip(_state_fields(w), _state_fields(ref)):
         assert np.array_equal(x, y)
-    assert w.solver._ring_entry is not None             # the call skipped numba's dispatcher
+    assert w.solver._resident_entry is not None         # the call skipped numba's dispatcher
     assert np.array_equal(held[0].q, held[1]) and np.array_equal(held[0].warm_start_prev, held[2])
     if case in ('hinge_substeps', 'hinge_fast_warns'):
         assert report.warnings                  # the recovery path was taken
@@ -519,7 +519,9 @@ def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
             c.torque_enabled = strided(c.torque_enabled)
             assert not c.torque_value.flags.c_contiguous
         odd.step()
-    assert plain.solver._entry is not None and odd.solver._entry is not None
+    assert plain.solver._resident_entry is not None and odd.solver._resident_entry is not None
+    # World.step() calls the entry point with the plain Control, the dispatcher with the odd one
+    assert plain._resident.io_key[-1] is True and odd._resident.io_key[-1] is False
     for x, y in zip(_state_fields(plain), _state_fields(odd)):
         assert np.array_equal(x, y)
     # and the odd arrays really are read where they are: a torque written into the strided

@@ -6,7 +6,8 @@ much as the step itself on a small robot (docs/speed.md, "The eighth round"). So
 keeps the state here instead. Slots of one (4,3,B,12) ring hold (q, v, warm_start) for the
 current state (slot `cur`), the state before it (`cur − 1`: q_prev, v_prev, warm_start_prev)
 and the one before that (`cur − 2`: warm_start_prev2), modulo 4; a step writes slot
-`cur + 1`, which then becomes the current one (`Solver.step_resident`). The `State` is built only when it is read (`state()`), as copies,
+`cur + 1`, which then becomes the current one (the compiled `step.step_resident` turns the
+slots and the clock of a clean step; `Solver.step_resident`). The `State` is built only when it is read (`state()`), as copies,
 so a State a caller holds never changes. Whenever a State has been set or read since the
 last step it is the current state, and the next step copies it into the ring first (so a
 caller that changed its arrays in place, as tests and studies do to perturb a state, is
@@ -18,25 +19,67 @@ the unknown ones by identity (`State.known_history`).
 from __future__ import annotations
 
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
 
 from ..state import State
+from . import borrowed
+
+#: the arrays one compiled `World.step()` reads and writes (step.step_resident), in one struct:
+#: a structref argument is unboxed in about the time of one array, and these were eleven
+IO_FIELDS = ('ring', 'angles', 'slots', 'clock', 'torque_value', 'torque_enabled', 'drive_aim',
+             'drive_enabled', 'drive_passive', 'skipped', 'outcome')
+
+
+@structref.register
+class ResidentIOType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class ResidentIO(structref.StructRefProxy):
+    """A Resident's ring and clock, a Control's arrays and a Solver's skipped/outcome rows,
+    as the compiled one-step call takes them (Solver.step_resident binds it)."""
+
+
+structref.define_proxy(ResidentIO, ResidentIOType, list(IO_FIELDS))
 
 
 class Resident:
     """Holds the current state: as a State (`_state`, when set or read since the last
-    step; it then wins), else in the ring."""
+    step; it then wins), else in the ring. The slot numbers and clock live in two small
+    arrays (`slots`: cur, known, step_count; `clock`: time, history_dt) because the compiled
+    step advances them (step.step_resident); the properties read them."""
 
-    __slots__ = ('ring', 'angles', 'cur', 'time', 'step_count', 'history_dt', 'known', '_state')
+    __slots__ = ('ring', 'angles', 'slots', 'clock', '_state', 'io', 'io_key')
 
     def __init__(self, body_count: int, joint_count: int):
         self.ring = np.zeros((4, 3, body_count, 12))
         self.angles = np.zeros((4, 2, joint_count))
-        self.cur = 0
-        self.time = 0.0
-        self.step_count = 0
-        self.history_dt = 0.0
-        self.known = 0
+        self.slots = np.zeros(3, dtype=np.int64)
+        self.clock = np.zeros(2)
         self._state = None
+        self.io = None                  # the ResidentIO last bound, and what it was bound to
+        self.io_key = ()
+
+    cur = property(lambda self: int(self.slots[0]), doc='slot of the current state in the ring')
+    known = property(lambda self: int(self.slots[1]), doc='past warm starts known (0, 1 or 2)')
+    step_count = property(lambda self: int(self.slots[2]))
+    time = property(lambda self: float(self.clock[0]), doc='[s] time of the state in the ring')
+    history_dt = property(lambda self: float(self.clock[1]), doc='[s] size of the step that made it')
+
+    def bind(self, key, control, skipped, outcome) -> ResidentIO:
+        """The ResidentIO of this ring with a Control's arrays and a Solver's rows, kept (with
+        `key`, what the caller checks by identity before reusing it) until bound again."""
+        c = control
+        values = dict(ring=self.ring, angles=self.angles, slots=self.slots, clock=self.clock,
+                      torque_value=c.torque_value, torque_enabled=c.torque_enabled,
+                      drive_aim=c.drive_aim, drive_enabled=c.drive_enabled,
+                      drive_passive=c.drive_passive, skipped=skipped, outcome=outcome)
+        io = ResidentIO(*(values[name] for name in IO_FIELDS))
+        io.__dict__.update(values)
+        self.io, self.io_key = borrowed.borrow(io), key
+        return io
 
     def set(self, state: State) -> None:
         """Make `state` the current state (copied into the ring at the next `load`)."""
@@ -45,11 +88,12 @@ class Resident:
     def state(self) -> State:
         """The current state as a State (built from the ring once per step, then kept)."""
         if self._state is None:
-            ring, angles = self.ring, self.angles
-            cur, prev, prev2 = self.cur, (self.cur + 3) % 4, (self.cur + 2) % 4
+            ring, angles, known = self.ring, self.angles, self.known
+            cur = self.cur
+            prev, prev2 = (cur + 3) % 4, (cur + 2) % 4
             w = ring[cur, 2].copy()
-            p1 = w if self.known == 0 else ring[prev, 2].copy()
-            p2 = p1 if self.known <= 1 else ring[prev2, 2].copy()
+            p1 = w if known == 0 else ring[prev, 2].copy()
+            p2 = p1 if known <= 1 else ring[prev2, 2].copy()
             self._state = State(self.time, ring[cur, 0].copy(), ring[cur, 1].copy(),
                                 ring[prev, 0].copy(), ring[prev, 1].copy(),
                                 angles[cur, 0].copy(), angles[cur, 1].copy(),
@@ -58,34 +102,24 @@ class Resident:
 
     def now(self) -> float:
         """[s] the current state's time (without building a State)."""
-        return self._state.time if self._state is not None else self.time
+        return self._state.time if self._state is not None else float(self.clock[0])
 
     def joint_values(self, k: int) -> np.ndarray:
         """A copy of the current joint angles (k = 0) or joint velocities (k = 1)."""
         if self._state is not None:
             return (self._state.joint_velocity if k else self._state.joint_angle).copy()
-        return self.angles[self.cur, k].copy()
+        return self.angles[self.slots[0], k].copy()
 
     def load(self) -> None:
         """Before a step: copy the current State into the ring if there is one."""
         s = self._state
         if s is None:
             return
-        self.cur = 2                        # (history in slots 1 and 0)
         ring, angles = self.ring, self.angles
         ring[2, 0], ring[2, 1], ring[2, 2] = s.q, s.v, s.warm_start
         ring[1, 0], ring[1, 1], ring[1, 2] = s.q_prev, s.v_prev, s.warm_start_prev
         ring[0, 2] = s.warm_start_prev2
         angles[2, 0], angles[2, 1] = s.joint_angle, s.joint_velocity
-        self.time, self.step_count, self.history_dt = s.time, s.step_count, s.history_dt
-        self.known = s.known_history()
-
-    def advance(self, h: float) -> None:
-        """After a step of size h into slot cur + 1: that slot is the current state (the rule
-        of solver._history: the past warm starts count only across steps of one size)."""
-        self.known = min(self.known + 1, 2) if self.history_dt == h else 0
-        self.cur = (self.cur + 1) % 4
-        self.time += h
-        self.step_count += 1
-        self.history_dt = h
-        self._state = None
+        # (history in slots 1 and 0)
+        self.slots[0], self.slots[1], self.slots[2] = 2, s.known_history(), s.step_count
+        self.clock[0], self.clock[1] = s.time, s.history_dt

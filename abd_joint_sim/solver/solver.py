@@ -112,7 +112,7 @@ class Solver:
         #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
         self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + kernel.OUT_COLUMNS)))
         self._entry = None              # the compiled step's entry point (_control_checked)
-        self._ring_entry = None         # and step_in_ring's (step_resident)
+        self._resident_entry = None     # and step_resident's (_bind)
         self._made = (None,) * 7        # state arrays the last step made (_compute)
         self._control = (None,) * 5     # Control arrays checked for the entry point
         self._qvw_shape, self._aw_shape = (3, B, 12), (2, J)
@@ -152,42 +152,59 @@ class Solver:
         return state, self._finish(state, tally)
 
     def step_resident(self, r: Resident, control: Control) -> StepReport:
-        """`step` on the state a Resident holds (World.step()): the compiled step reads and
-        writes r's ring, and a clean step only turns r's slots, building no State. A step
-        that is not clean (a warning, sub-steps, a failure) goes through `step`'s recovery
-        from the result already computed, and its State is set on r. Raises SimulationError
-        as `step` does; r then still holds the last good state. The same bits as `step`."""
+        """`step` on the state a Resident holds (World.step()): the compiled
+        `step.step_resident` reads and writes r's ring, and a clean step only turns r's slots,
+        building no State. A step that is not clean (a warning, sub-steps, a failure) goes
+        through `step`'s recovery from the result already computed, and its State is set on
+        r. Raises SimulationError as `step` does; r then still holds the last good state. The
+        same bits as `step`."""
         r.load()
-        h = self._dt
-        uniform = r.history_dt == h
         c = control
-        args = (self.data, r.ring, r.angles, r.cur, c.torque_value, c.torque_enabled,
-                c.drive_aim, c.drive_enabled, c.drive_passive, h,
-                self._bdf2 and uniform, r.known if uniform else 0, self._may_split, self.work,
-                self._skipped, self._outcome)
-        if self._control_checked(c) and self._ring_entry is not None:
-            self._ring_entry(*args)
-        else:
-            kernel.step_in_ring(*args)
-        out = self._outcome
-        clean = self._clean_report(out, r.time + h)
-        if clean is not None:
-            r.advance(h)
-            return clean
+        k = r.io_key
+        if not (k and k[0] is self and k[1] is c.torque_value and k[2] is c.torque_enabled
+                and k[3] is c.drive_aim and k[4] is c.drive_enabled and k[5] is c.drive_passive):
+            self._bind(r, c)
+        h = self._dt
+        args = (self.data, r.io, self.work, h, self._bdf2, self._may_split, self._clean_rotation)
+        entry = self._resident_entry if r.io_key[6] else None
+        clean = entry(*args) if entry is not None else kernel.step_resident(*args)
+        if clean:
+            r._state = None
+            # the report of _clean_report, from the row step.clean passed
+            _, newton_its, halvings, rotation, _, _, separation, _, _ = self._outcome.tolist()
+            return _new_tuple(StepReport, (r.clock.item(0), _CONVERGED, True, int(newton_its), int(halvings),
+                                           1, separation, rotation if rotation > 0.0 else 0.0, ()))
         state, k = r.state(), (r.cur + 1) % 4
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
-                    (r.angles[k, 0].copy(), r.angles[k, 1].copy()), out)
+                    (r.angles[k, 0].copy(), r.angles[k, 1].copy()), self._outcome)
         tally = _Tally()
         new = self._advance(state, control, h, 0, tally, computed)
         r.set(new)
         return self._finish(new, tally)
 
+    def _bind(self, r: Resident, c: Control) -> None:
+        """Bind r to Control c's arrays and this Solver's rows (Resident.bind), and the
+        compiled step_resident's entry point, once: it skips the dispatcher's typing of the
+        arguments (~0.65 µs per structref) and unboxes by the compiled signature, so it is
+        used only when c's arrays have the layout and dtypes it was compiled for (the key's
+        last item); other arrays go through the dispatcher, which types them."""
+        arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
+        standard = all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
+                       and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES))
+        io = r.bind((self,) + arrays + (standard,), c, self._skipped, self._outcome)
+        if standard and self._resident_entry is None:
+            try:
+                sig = tuple(kernel.step_resident.typeof_pyval(a) for a in (
+                    self.data, io, self.work, 1.0, True, True, 1.0))
+                self._resident_entry = kernel.step_resident.overloads[sig].entry_point
+            except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
+                self._resident_entry = None
+
     def _clean_report(self, out, time):
-        """The StepReport of a step whose outcome row `out` is clean (converged, no failure,
-        no skipped torque, no overloaded joint, no accuracy warning), else None: such a step
-        needs none of the recovery and warnings of `_advance` and `_finish`. Built with
-        tuple.__new__, as StepReport._make does: the NamedTuple's own __new__ is a Python
-        function with keyword defaults, which cost ~0.4 µs more per one-step call."""
+        """The StepReport of a step whose outcome row `out` is clean (the test of step.clean),
+        else None: such a step needs none of the recovery and warnings of `_advance` and
+        `_finish`. Built with tuple.__new__, as StepReport._make does: the NamedTuple's own
+        __new__ is a Python function with keyword defaults, ~0.4 µs more per one-step call."""
         status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = out.tolist()
         if (failure == _FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
                 and rotation <= self._clean_rotation):
@@ -269,13 +286,13 @@ class Solver:
         return qvw, aw, out
 
     def _control_checked(self, c) -> bool:
-        """Whether the compiled step's entry points (`_entry`, `_ring_entry`; None until
-        bound, once) may be called with Control c's arrays. Why bypass numba's dispatcher:
+        """Whether the compiled step's entry point (`_entry`; None until bound, once) may be
+        called with Control c's arrays (`_bind` does the same for step_resident's). Why bypass numba's dispatcher:
         it types every argument on every call, ~0.65 µs for each of the two structrefs (a
         Python-level typeof), a fifth of a one-body step's Python. The entry point skips
         that and unboxes by the compiled signature, so it would misread an array of another
-        layout or dtype: it is only given arrays the step made itself (_made), a Resident's
-        ring, and Control arrays checked here (checked again whenever one is replaced);
+        layout or dtype: it is only given arrays the step made itself (_made) and Control
+        arrays checked here (checked again whenever one is replaced);
         anything else goes through the dispatcher, which types (and if needed compiles) it."""
         arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
         known = self._control
@@ -298,15 +315,6 @@ class Solver:
                 self._entry = kernel.step.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
                 self._entry = None
-        if self._ring_entry is None:
-            try:
-                ring, angles = np.zeros((4,) + self._qvw_shape), np.zeros((4,) + self._aw_shape)
-                sig = tuple(kernel.step_in_ring.typeof_pyval(a) for a in (
-                    self.data, ring, angles, 0, *arrays, 1.0, True, 2, True, self.work,
-                    self._skipped, self._outcome))
-                self._ring_entry = kernel.step_in_ring.overloads[sig].entry_point
-            except (AttributeError, KeyError, TypeError):
-                self._ring_entry = None
         return True
 
     def _state(self, s, h, qvw, aw):

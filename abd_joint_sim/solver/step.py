@@ -225,14 +225,48 @@ def step_in_ring(m, ring, angles, cur, torque_value, torque_enabled, drive_aim, 
 
 
 @njit(cache=True, error_model='numpy')
+def clean(o, clean_rotation):
+    """Whether the step of outcome row o is clean: no failure, Newton converged, no torque
+    skipped, no joint turned more than `clean_rotation` (the accuracy warning's threshold) and
+    none overloaded. Such a step needs none of the Solver's sub-stepping or warnings."""
+    return (o[OUT_FAILURE] == FAIL_NONE and o[OUT_STATUS] == newton.CONVERGED and o[OUT_SKIPPED] == 0.0
+            and o[OUT_ROTATION] <= clean_rotation and o[OUT_OVERLOADED] == 0.0)
+
+
+@njit(cache=True, error_model='numpy')
+def step_resident(m, io, ws, h, bdf2, may_split, clean_rotation):
+    """`World.step()`: `step_in_ring` on a Resident's ring (io: resident.ResidentIO, which
+    also holds the Control's arrays and the Solver's skipped and outcome rows), and when the
+    step is `clean`, the Resident advanced to it: slot cur + 1 becomes the current state,
+    the clock moves by h, and the past warm starts count only across steps of one size
+    (solver._history's rule: known + 1, at most 2, if the last step had size h, else 0).
+    Returns whether it was clean; if not, nothing but the ring's slot cur + 1 and the
+    outcome row changed, and the Solver recovers from there."""
+    io = borrowed.struct(io)
+    slots, clock = io.slots, io.clock
+    cur, known = slots[0], slots[1]
+    uniform = clock[1] == h
+    step_in_ring(m, io.ring, io.angles, cur, io.torque_value, io.torque_enabled, io.drive_aim,
+                 io.drive_enabled, io.drive_passive, h, bdf2 and uniform, known if uniform else 0,
+                 may_split, ws, io.skipped, io.outcome)
+    if not clean(io.outcome, clean_rotation):
+        return False
+    slots[0] = (cur + 1) % 4
+    slots[1] = min(known + 1, 2) if uniform else 0
+    slots[2] += 1
+    clock[0] += h
+    clock[1] = h
+    return True
+
+
+@njit(cache=True, error_model='numpy')
 def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
           torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
           bdf2_next, uniform_first, order_first, may_split, n, clean_rotation, ws, new_qvw,
           new_angles, skipped, outcome):
     """Up to n consecutive steps, each `step` on the previous one's output, stopping before the
-    first that is not clean: a failure, an unconverged Newton, a skipped torque, a rotation
-    above `clean_rotation` or an overloaded joint (the steps on which the Solver sub-steps or
-    warns; the caller redoes that one alone). Step k writes new_qvw[k], new_angles[k],
+    first that is not `clean` (the steps on which the Solver sub-steps or warns; the caller
+    redoes that one alone). Step k writes new_qvw[k], new_angles[k],
     outcome[k]. Returns the number of clean steps. Each state's warm-start history follows
     the Solver's rule (solver._history): the input's counts only where it was made by steps
     of size h (`uniform_first`: its last step was; `order_first`: its extrapolation_order),
@@ -268,9 +302,7 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
                  new_qvw[k - 1, 2], new_qvw[k - 2, 2], new_qvw[k - 3, 2], new_angles[k - 1, 0],
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
                  bdf2_next, 2, may_split, ws, new_qvw[k], new_angles[k], skipped, outcome[k])
-        o = outcome[k]
-        if (o[OUT_FAILURE] != FAIL_NONE or o[OUT_STATUS] != newton.CONVERGED or o[OUT_SKIPPED] != 0.0
-                or not o[OUT_ROTATION] <= clean_rotation or o[OUT_OVERLOADED] != 0.0):
+        if not clean(outcome[k], clean_rotation):
             break
         done += 1
     return done
