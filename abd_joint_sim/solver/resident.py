@@ -51,7 +51,7 @@ class Resident:
     arrays (`slots`: cur, known, step_count; `clock`: time, history_dt) because the compiled
     step advances them (step.step_resident); the properties read them."""
 
-    __slots__ = ('ring', 'angles', 'slots', 'clock', '_state', 'io', 'io_key')
+    __slots__ = ('ring', 'angles', 'slots', 'clock', '_state', 'io', 'io_key', 'io_call')
 
     def __init__(self, body_count: int, joint_count: int):
         self.ring = np.zeros((4, 3, body_count, 12))
@@ -61,6 +61,7 @@ class Resident:
         self._state = None
         self.io = None                  # the ResidentIO last bound, and what it was bound to
         self.io_key = ()
+        self.io_call = None             # (function, arguments) of the compiled step on it (Solver)
 
     cur = property(lambda self: int(self.slots[0]), doc='slot of the current state in the ring')
     known = property(lambda self: int(self.slots[1]), doc='past warm starts known (0, 1 or 2)')

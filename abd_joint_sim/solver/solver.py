@@ -164,11 +164,8 @@ class Solver:
         if not (k and k[0] is self and k[1] is c.torque_value and k[2] is c.torque_enabled
                 and k[3] is c.drive_aim and k[4] is c.drive_enabled and k[5] is c.drive_passive):
             self._bind(r, c)
-        h = self._dt
-        args = (self.data, r.io, self.work, h, self._bdf2, self._may_split, self._clean_rotation)
-        entry = self._resident_entry if r.io_key[6] else None
-        clean = entry(*args) if entry is not None else kernel.step_resident(*args)
-        if clean:
+        call, args = r.io_call
+        if call(*args):
             r._state = None
             # the report of _clean_report, from the row step.clean passed
             _, newton_its, halvings, rotation, _, _, separation, _, _ = self._outcome.tolist()
@@ -178,7 +175,7 @@ class Solver:
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
                     (r.angles[k, 0].copy(), r.angles[k, 1].copy()), self._outcome)
         tally = _Tally()
-        new = self._advance(state, control, h, 0, tally, computed)
+        new = self._advance(state, control, self._dt, 0, tally, computed)
         r.set(new)
         return self._finish(new, tally)
 
@@ -199,6 +196,9 @@ class Solver:
                 self._resident_entry = kernel.step_resident.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
                 self._resident_entry = None
+        call = self._resident_entry if standard and self._resident_entry is not None else kernel.step_resident
+        r.io_call = (call, (self.data, io, self.work, self._dt, self._bdf2, self._may_split,
+                            self._clean_rotation))
 
     def _clean_report(self, out, time):
         """The StepReport of a step whose outcome row `out` is clean (the test of step.clean),
