@@ -40,7 +40,7 @@ ACCURACY_NOTE = {
 
 #: [bytes] the states of one compiled batch (Solver.advance): within a core's L2 cache
 BATCH_BYTES = 1 << 20
-_FAIL_NONE, _CONVERGED, _new_tuple = float(kernel.FAIL_NONE), Status.CONVERGED, tuple.__new__
+_CONVERGED, _new_tuple = Status.CONVERGED, tuple.__new__
 
 #: dtypes of Control's arrays as the compiled step takes them
 CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
@@ -165,12 +165,9 @@ class Solver:
                 and k[3] is c.drive_aim and k[4] is c.drive_enabled and k[5] is c.drive_passive):
             self._bind(r, c)
         call, args = r.io_call
-        if call(*args):
+        if call(*args):                     # clean (step.clean): the Resident has advanced
             r._state = None
-            # the report of _clean_report, from the row step.clean passed
-            _, newton_its, halvings, rotation, _, _, separation, _, _ = self._outcome.tolist()
-            return _new_tuple(StepReport, (r.clock.item(0), _CONVERGED, True, int(newton_its), int(halvings),
-                                           1, separation, rotation if rotation > 0.0 else 0.0, ()))
+            return self._report(self._outcome, r.clock.item(0))
         state, k = r.state(), (r.cur + 1) % 4
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
                     (r.angles[k, 0].copy(), r.angles[k, 1].copy()), self._outcome)
@@ -201,16 +198,21 @@ class Solver:
                             self._clean_rotation))
 
     def _clean_report(self, out, time):
-        """The StepReport of a step whose outcome row `out` is clean (the test of step.clean),
-        else None: such a step needs none of the recovery and warnings of `_advance` and
-        `_finish`. Built with tuple.__new__, as StepReport._make does: the NamedTuple's own
-        __new__ is a Python function with keyword defaults, ~0.4 µs more per one-step call."""
-        status, newton_its, halvings, rotation, failure, skipped, separation, overloaded, _ = out.tolist()
-        if (failure == _FAIL_NONE and status == 0.0 and skipped == 0.0 and overloaded == 0.0
-                and rotation <= self._clean_rotation):
-            return _new_tuple(StepReport, (time, _CONVERGED, True, int(newton_its), int(halvings), 1,
-                                           separation, rotation if rotation > 0.0 else 0.0, ()))
-        return None
+        """The StepReport of a step whose outcome row `out` is clean (`step.clean`, the rule
+        the compiled batches and step_resident apply), else None: such a step needs none of
+        the recovery and warnings of `_advance` and `_finish`."""
+        if not kernel.clean(out, self._clean_rotation):
+            return None
+        return self._report(out, time)
+
+    @staticmethod
+    def _report(out, time):
+        """The StepReport of a clean step from its outcome row. Built with tuple.__new__, as
+        StepReport._make does: the NamedTuple's own __new__ is a Python function with keyword
+        defaults, ~0.4 µs more per one-step call."""
+        _, newton_its, halvings, rotation, _, _, separation, _, _ = out.tolist()
+        return _new_tuple(StepReport, (time, _CONVERGED, True, int(newton_its), int(halvings), 1,
+                                       separation, rotation if rotation > 0.0 else 0.0, ()))
 
     def _advance(self, state, control, h, depth, tally, computed=None):
         max_depth = self.model.newton.max_substep_depth
