@@ -7,8 +7,8 @@ keeps the state here instead. Slots of one (4,3,B,12) ring hold (q, v, warm_star
 current state (slot `cur`), the state before it (`cur − 1`: q_prev, v_prev, warm_start_prev)
 and the one before that (`cur − 2`: warm_start_prev2), modulo 4; a step writes slot
 `cur + 1`, which then becomes the current one (the compiled `step.step_resident` turns the
-slots and the clock of a clean step; `Solver.step_resident`). The `State` is built only when it is read (`state()`), as copies,
-so a State a caller holds never changes. Whenever a State has been set or read since the
+slots and the clock of a clean step; `Solver.step_resident`). The `State` is built only
+when it is read (`state()`), as copies, so a State a caller holds never changes. Whenever a State has been set or read since the
 last step it is the current state, and the next step copies it into the ring first (so a
 caller that changed its arrays in place, as tests and studies do to perturb a state, is
 obeyed as before).

@@ -47,6 +47,13 @@ CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64)
                   np.dtype(np.bool_))
 
 
+def _compiled_layout(arrays) -> bool:
+    """Whether Control's five arrays have the layout and dtypes the compiled entry points
+    were built for (C-contiguous, aligned, writable, 1-d, CONTROL_DTYPES)."""
+    return all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
+               and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES))
+
+
 @dataclass(frozen=True)
 class CleanSteps:
     """Result of `Solver.clean_steps`."""
@@ -183,8 +190,7 @@ class Solver:
         used only when c's arrays have the layout and dtypes it was compiled for (the key's
         last item); other arrays go through the dispatcher, which types them."""
         arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
-        standard = all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
-                       and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES))
+        standard = _compiled_layout(arrays)
         io = r.bind((self,) + arrays + (standard,), c, self._skipped, self._outcome)
         if standard and self._resident_entry is None:
             try:
@@ -301,8 +307,7 @@ class Solver:
         if (arrays[0] is known[0] and arrays[1] is known[1] and arrays[2] is known[2]
                 and arrays[3] is known[3] and arrays[4] is known[4]):
             return True
-        if not all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
-                   and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES)):
+        if not _compiled_layout(arrays):
             self._control = (None,) * 5
             return False
         self._control = arrays
