@@ -885,6 +885,25 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
     assert np.array([1e-310])[0] * 1.0 == 1e-310
 
 
+def test_flat_copies_and_fills_match_numpy_assignment():
+    """solver/flat.py's loops write what `dst[...] = src` and `dst[...] = value` write, on the
+    shapes the step uses (a copy into another array's memory, not a view of it)."""
+    from abd_joint_sim.solver import flat
+    rng = np.random.default_rng(3)
+    for shape in ((7,), (5, 12), (4, 12, 12), (2, 3, 5, 12)):
+        src = rng.standard_normal(shape)
+        dst = np.full(shape, np.nan)
+        flat.copy(dst, src)
+        assert np.array_equal(dst, src) and not np.shares_memory(dst, src)
+        src[(0,) * len(shape)] += 1.0
+        assert not np.array_equal(dst, src)
+        flat.fill(dst, -2.5)
+        assert np.all(dst == -2.5)
+    view = np.zeros((2, 4, 12, 12))
+    flat.copy(view[1], np.ones((4, 12, 12)))        # a C-contiguous slab of a larger array
+    assert view[1].all() and not view[0].any()
+
+
 def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
     """forward_block12 and schur_update12 are written for LLVM's SLP vectoriser and always
     compiled with it (vectorize.slp_vectorized; numba keeps it off by default after
