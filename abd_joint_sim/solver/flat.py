@@ -4,7 +4,8 @@ numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through i
 iterator, one index computation per element; a loop over the flat array is what the compiler
 turns into vector moves. On the 13 12x12 blocks of a robot's Newton matrix the flat copy
 took 0.18 µs against 0.66 (docs/speed.md, "The twelfth round"). Same values, bit for bit:
-a copy is a copy. Both arrays must be C-contiguous (every array of the step is).
+a copy is a copy. `a.flat[i]` rather than a reshaped view: numba's reshape calls a C helper,
+~20 ns a time, as much as copying a small robot's q.
 """
 from __future__ import annotations
 
@@ -14,14 +15,14 @@ from numba import njit
 @njit(cache=True, error_model='numpy')
 def copy(dst, src):
     """dst[...] = src (the same size and C order)."""
-    d, s = dst.reshape(dst.size), src.reshape(src.size)
-    for i in range(s.size):
+    d, s = dst.flat, src.flat
+    for i in range(src.size):
         d[i] = s[i]
 
 
 @njit(cache=True, error_model='numpy')
 def fill(dst, value):
     """dst[...] = value."""
-    d = dst.reshape(dst.size)
-    for i in range(d.size):
+    d = dst.flat
+    for i in range(dst.size):
         d[i] = value
