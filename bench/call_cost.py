@@ -3,8 +3,8 @@ steps from the same state in `World.step(n)` (one compiled call), one `World.ste
 each (the state kept in the solver's ring, solver/resident.py) and one `Solver.step` call
 each on immutable States (what World.step() did before); World.step()'s excess over
 step(n) split into leaving and re-entering compiled code (the compiled `step_resident`
-called once from Python against the same call in a compiled loop), unboxing its 7
-arguments (a compiled no-op with its signature) and the rest, the Python around (the
+called once from Python against the same call in a compiled loop), unboxing its
+argument (a compiled no-op with its signature) and the rest, the Python around (the
 binding check, the outcome row, the StepReport). Chains of 1 and 10 links and
 the KUKA iiwa URDF, dt 1 ms, torque on every joint; fastest of 9 rounds, wall time.
 
@@ -31,13 +31,13 @@ from abd_joint_sim.solver import step as kernel                 # noqa: E402
 
 
 @njit
-def _loop(n, m, io, ws, h, bdf2, may, clean_rotation):
+def _loop(n, io):
     for _ in range(n):
-        kernel.step_resident(m, io, ws, h, bdf2, may, clean_rotation)
+        kernel.step_resident(io)
 
 
 @njit
-def _noop(n, m, io, ws, h, bdf2, may, clean_rotation):
+def _noop(n, io):
     return n
 
 
@@ -97,9 +97,8 @@ def budget(name):
     w.state = start.copy()
     w.step()
     s, r, c = w.solver, w._resident, w.control
-    h = w.model.dt
     assert r.io_key[1] is c.torque_value                 # (bound by the step above)
-    args = (s.data, r.io, s.work, h, w.model.integrator == 'bdf2', True, s._clean_rotation)
+    args = (r.io,)
     _loop(1, *args)
     _noop(1, *args)
     loop = _loop.overloads[_loop.signatures[0]].entry_point
@@ -117,7 +116,7 @@ def main():
     print(f'load {os.getloadavg()[0]:.2f}; µs per World.step() call')
     print('| scene | `World.step(n)` µs/step | `World.step()` µs/call | `Solver.step` on States µs/call '
           '| World.step() − step(n) | of it: leaving and re-entering compiled code | unboxing the '
-          '7 arguments | the Python around (binding check, report) |')
+          'argument | the Python around (binding check, report) |')
     print('|---|---|---|---|---|---|---|---|')
     for name in ('chain 1', 'chain 10', 'KUKA iiwa'):
         if name == 'KUKA iiwa' and robot_bench.robot_path() is None:

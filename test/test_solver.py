@@ -433,6 +433,28 @@ def test_one_step_calls_keep_the_state_in_the_solver_with_the_same_bits(case):
         assert report.warnings                  # the recovery path was taken
 
 
+def test_a_one_step_call_whose_line_search_halved_reports_the_halvings():
+    """The compiled one-step call returns a clean step's Newton iterations, or −1 when its line
+    search halved the step, and the report then comes from the outcome row. A real robot
+    (the Minitaur of pybullet_data, light legs under 5x the benchmark's torques) halves on
+    its first step: the reports, and states, match Solver.step's on States."""
+    import pybullet_data
+    path = os.path.join(pybullet_data.getDataPath(), 'quadruped', 'minitaur_derpy.urdf')
+    w, ref = World(Scene.from_urdf(path, dt=1e-3)), World(Scene.from_urdf(path, dt=1e-3))
+    for x in (w, ref):
+        for k, name in enumerate(x.actuated_joint_names):
+            x.set_torque(name, 5.0 * (-1) ** k * (2.0 - 0.2 * k))
+    s, halved = ref.state, 0
+    for _ in range(4):
+        s, report = ref.solver.step(s, ref.control)
+        assert w.step() == report
+        halved += report.line_search_iterations > 0 and not report.warnings
+    assert halved                                       # the path was taken
+    ref.state = s
+    for x, y in zip(_state_fields(w), _state_fields(ref)):
+        assert np.array_equal(x, y)
+
+
 def test_a_failed_one_step_call_keeps_the_last_good_state():
     """SimulationError from World.step() leaves the state of the last good step: one held
     only in the solver's buffers (never read as a State), and one read and changed in place

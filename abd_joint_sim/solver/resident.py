@@ -25,10 +25,13 @@ from numba.experimental import structref
 from ..state import State
 from . import borrowed
 
-#: the arrays one compiled `World.step()` reads and writes (step.step_resident), in one struct:
-#: a structref argument is unboxed in about the time of one array, and these were eleven
+#: what one compiled `World.step()` reads and writes (step.step_resident), in one struct, its
+#: only argument: a structref argument is unboxed in about the time of one array, and these
+#: were eleven arrays, two structs and four scalars. `model` and `work` are the Solver's
+#: ModelData and Workspace; h, bdf2, may_split and clean_rotation its constant settings.
 IO_FIELDS = ('ring', 'angles', 'slots', 'clock', 'torque_value', 'torque_enabled', 'drive_aim',
-             'drive_enabled', 'drive_passive', 'skipped', 'outcome')
+             'drive_enabled', 'drive_passive', 'skipped', 'outcome', 'model', 'work', 'h', 'bdf2',
+             'may_split', 'clean_rotation')
 
 
 @structref.register
@@ -51,13 +54,14 @@ class Resident:
     arrays (`slots`: cur, known, step_count; `clock`: time, history_dt) because the compiled
     step advances them (step.step_resident); the properties read them."""
 
-    __slots__ = ('ring', 'angles', 'slots', 'clock', '_state', 'io', 'io_key', 'io_call')
+    __slots__ = ('ring', 'angles', 'slots', 'clock', 'clock_view', '_state', 'io', 'io_key', 'io_call')
 
     def __init__(self, body_count: int, joint_count: int):
         self.ring = np.zeros((4, 3, body_count, 12))
         self.angles = np.zeros((4, 2, joint_count))
         self.slots = np.zeros(3, dtype=np.int64)
         self.clock = np.zeros(2)
+        self.clock_view = memoryview(self.clock)     # clock_view[0]: the time as a Python float
         self._state = None
         self.io = None                  # the ResidentIO last bound, and what it was bound to
         self.io_key = ()
@@ -69,14 +73,15 @@ class Resident:
     time = property(lambda self: float(self.clock[0]), doc='[s] time of the state in the ring')
     history_dt = property(lambda self: float(self.clock[1]), doc='[s] size of the step that made it')
 
-    def bind(self, key, control, skipped, outcome) -> ResidentIO:
-        """The ResidentIO of this ring with a Control's arrays and a Solver's rows, kept (with
-        `key`, what the caller checks by identity before reusing it) until bound again."""
+    def bind(self, key, control, **solver) -> ResidentIO:
+        """The ResidentIO of this ring with a Control's arrays and a Solver's (`solver`: the
+        IO_FIELDS from `skipped` on), kept (with `key`, what the caller checks by identity
+        before reusing it) until bound again."""
         c = control
         values = dict(ring=self.ring, angles=self.angles, slots=self.slots, clock=self.clock,
                       torque_value=c.torque_value, torque_enabled=c.torque_enabled,
                       drive_aim=c.drive_aim, drive_enabled=c.drive_enabled,
-                      drive_passive=c.drive_passive, skipped=skipped, outcome=outcome)
+                      drive_passive=c.drive_passive, **solver)
         io = ResidentIO(*(values[name] for name in IO_FIELDS))
         io.__dict__.update(values)
         self.io, self.io_key = borrowed.borrow(io), key

@@ -234,29 +234,33 @@ def clean(o, clean_rotation):
 
 
 @njit(cache=True, error_model='numpy')
-def step_resident(m, io, ws, h, bdf2, may_split, clean_rotation):
+def step_resident(io):
     """`World.step()`: `step_in_ring` on a Resident's ring (io: resident.ResidentIO, which
-    also holds the Control's arrays and the Solver's skipped and outcome rows), and when the
-    step is `clean`, the Resident advanced to it: slot cur + 1 becomes the current state,
-    the clock moves by h, and the past warm starts count only across steps of one size
-    (solver._history's rule: known + 1, at most 2, if the last step had size h, else 0).
-    Returns whether it was clean; if not, nothing but the ring's slot cur + 1 and the
-    outcome row changed, and the Solver recovers from there."""
+    also holds the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome
+    rows and its settings), and when the step is `clean`, the Resident advanced to it: slot
+    cur + 1 becomes the current state, the clock moves by h, and the past warm starts count
+    only across steps of one size (solver._history's rule: known + 1, at most 2, if the last
+    step had size h, else 0). If the step was not clean it returns 0, and nothing but the
+    ring's slot cur + 1 and the outcome row changed: the Solver recovers from there. A clean
+    step returns its Newton iterations (≥ 1), or −1 if its line search halved the step (the
+    outcome row has the count): the caller builds the step's report without converting
+    the row's floats."""
     io = borrowed.struct(io)
-    slots, clock = io.slots, io.clock
+    slots, clock, h = io.slots, io.clock, io.h
     cur, known = slots[0], slots[1]
     uniform = clock[1] == h
-    step_in_ring(m, io.ring, io.angles, cur, io.torque_value, io.torque_enabled, io.drive_aim,
-                 io.drive_enabled, io.drive_passive, h, bdf2 and uniform, known if uniform else 0,
-                 may_split, ws, io.skipped, io.outcome)
-    if not clean(io.outcome, clean_rotation):
-        return False
+    outcome = io.outcome
+    step_in_ring(io.model, io.ring, io.angles, cur, io.torque_value, io.torque_enabled, io.drive_aim,
+                 io.drive_enabled, io.drive_passive, h, io.bdf2 and uniform, known if uniform else 0,
+                 io.may_split, io.work, io.skipped, outcome)
+    if not clean(outcome, io.clean_rotation):
+        return 0
     slots[0] = (cur + 1) % 4
     slots[1] = min(known + 1, 2) if uniform else 0
     slots[2] += 1
     clock[0] += h
     clock[1] = h
-    return True
+    return int(outcome[OUT_NEWTON]) if outcome[OUT_LINE_SEARCH] == 0.0 else -1
 
 
 @njit(cache=True, error_model='numpy')
