@@ -167,7 +167,8 @@ class Solver:
         through `step`'s recovery from the result already computed, and its State is set on
         r. Raises SimulationError as `step` does; r then still holds the last good state. The
         same bits as `step`."""
-        r.load()
+        if r._state is not None:            # (load's own test, without the call)
+            r.load()
         c = control
         k = r.io_key
         if not (k and k[0] is self and k[1] is c.torque_value and k[2] is c.torque_enabled
