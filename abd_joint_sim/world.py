@@ -104,8 +104,8 @@ class World:
             b = self.model.body_names.index(body)
         except ValueError:
             raise KeyError(f'unknown body {body!r}; bodies: {", ".join(self.model.body_names)}') from None
-        q = self.state.q[b]
-        return q[:3].copy(), q[3:12].reshape(3, 3).copy()
+        q = self._resident.body_q(b)        # (a copy, without building a State)
+        return q[:3], q[3:12].reshape(3, 3)
 
     # -- control ------------------------------------------------------------------------
     def _slot(self, table, joint, what):

@@ -455,6 +455,67 @@ def test_a_one_step_call_whose_line_search_halved_reports_the_halvings():
         assert np.array_equal(x, y)
 
 
+def test_a_state_set_in_another_layout_is_stepped_as_numpy_copies_it_and_a_wrong_shape_is_refused():
+    """World.step() copies a State that was set into the solver's ring in one compiled call
+    (resident.load_ring). A State whose arrays are Fortran-ordered or strided views steps
+    exactly as the same State in plain arrays; one whose q has a body too many raises
+    numpy's ValueError naming the shapes, and copies nothing."""
+    from abd_joint_sim.state import State
+    d, _, setup = BATCH_CASES['default_torques']
+    w, ref = _world(d), _world(d)
+    for x in (w, ref):
+        setup(x)
+        x.step(5)
+    s = ref.state
+
+    def strided(a):                         # every other column of a wider array
+        wide = np.zeros(a.shape[:-1] + (2 * a.shape[-1],))
+        wide[..., ::2] = a
+        return wide[..., ::2]
+    odd = State(s.time, np.asfortranarray(s.q), strided(s.v), strided(s.q_prev),
+                np.asfortranarray(s.v_prev), strided(s.joint_angle), s.joint_velocity.copy(),
+                s.step_count, s.history_dt, strided(s.warm_start), np.asfortranarray(s.warm_start_prev),
+                strided(s.warm_start_prev2))
+    assert not odd.q.flags.c_contiguous and not odd.v.flags.c_contiguous
+    w.state = odd
+    ref.state = s.copy()
+    for _ in range(3):
+        assert w.step() == ref.step()
+    for x, y in zip(_state_fields(w), _state_fields(ref)):
+        assert np.array_equal(x, y)
+    before = w.state.copy()
+    bad = before.copy()
+    bad.q = np.vstack([bad.q, bad.q[-1:]])
+    w.state = bad
+    with pytest.raises(ValueError, match='broadcast'):
+        w.step()
+    w.state = before
+    w.step()
+    ref.step()
+    assert np.array_equal(w.state.q, ref.state.q)
+
+
+def test_body_pose_reads_the_solver_buffers_without_building_a_state():
+    """World.body_pose after one-step calls copies the body's row of the solver's ring: no
+    State is built (which, with its copy back before the next step, cost more than half a
+    7-joint arm's step), the values are the state's, and changing the returned arrays
+    changes nothing in the World."""
+    d, _, setup = BATCH_CASES['default_torques']
+    w = _world(d)
+    setup(w)
+    name = w.body_names[-1]
+    for _ in range(4):
+        w.step()
+    p, A = w.body_pose(name)
+    assert w._resident._state is None
+    p[:] = 7.0
+    A[:] = 7.0
+    q = w.state.q[w.body_names.index(name)]
+    p2, A2 = w.body_pose(name)
+    assert np.array_equal(p2, q[:3]) and np.array_equal(A2, q[3:12].reshape(3, 3))
+    assert not (p2 == 7.0).any()
+
+
 def test_a_failed_one_step_call_keeps_the_last_good_state():
     """SimulationError from World.step() leaves the state of the last good step: one held
     only in the solver's buffers (never read as a State), and one read and changed in place

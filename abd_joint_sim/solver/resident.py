@@ -19,6 +19,7 @@ the unknown ones by identity (`State.known_history`).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from numba.core import types
 from numba.experimental import structref
 
@@ -92,19 +93,28 @@ class Resident:
         self._state = state
 
     def state(self) -> State:
-        """The current state as a State (built from the ring once per step, then kept)."""
+        """The current state as a State (built from the ring once per step, then kept). Its
+        arrays are views of three fresh copies (the current slot, the one before, the
+        angles): no array of it is the ring's, and a slot copied whole costs what one of its
+        arrays did."""
         if self._state is None:
-            ring, angles, known = self.ring, self.angles, self.known
-            cur = self.cur
-            prev, prev2 = (cur + 3) % 4, (cur + 2) % 4
-            w = ring[cur, 2].copy()
-            p1 = w if known == 0 else ring[prev, 2].copy()
-            p2 = p1 if known <= 1 else ring[prev2, 2].copy()
-            self._state = State(self.time, ring[cur, 0].copy(), ring[cur, 1].copy(),
-                                ring[prev, 0].copy(), ring[prev, 1].copy(),
-                                angles[cur, 0].copy(), angles[cur, 1].copy(),
-                                self.step_count, self.history_dt, w, p1, p2)
+            ring = self.ring
+            cur, known, step_count = self.slots.tolist()
+            time, history_dt = self.clock.tolist()
+            prev = (cur + 3) % 4
+            now, before, angles = ring[cur].copy(), ring[prev].copy(), self.angles[cur].copy()
+            w = now[2]
+            p1 = w if known == 0 else before[2]
+            p2 = p1 if known <= 1 else ring[(cur + 2) % 4, 2].copy()
+            self._state = State(time, now[0], now[1], before[0], before[1], angles[0], angles[1],
+                                step_count, history_dt, w, p1, p2)
         return self._state
+
+    def body_q(self, b: int) -> np.ndarray:
+        """A copy of body b's current q (12,), without building a State."""
+        if self._state is not None:
+            return self._state.q[b].copy()
+        return self.ring[self.slots[0], 0, b].copy()
 
     def now(self) -> float:
         """[s] the current state's time (without building a State)."""
@@ -122,10 +132,44 @@ class Resident:
         if s is None:
             return
         ring, angles = self.ring, self.angles
-        ring[2, 0], ring[2, 1], ring[2, 2] = s.q, s.v, s.warm_start
-        ring[1, 0], ring[1, 1], ring[1, 2] = s.q_prev, s.v_prev, s.warm_start_prev
-        ring[0, 2] = s.warm_start_prev2
-        angles[2, 0], angles[2, 1] = s.joint_angle, s.joint_velocity
+        arrays = (s.q, s.v, s.warm_start, s.q_prev, s.v_prev, s.warm_start_prev, s.warm_start_prev2,
+                  s.joint_angle, s.joint_velocity)
+        try:
+            done = load_ring(ring, angles, *arrays)
+        except Exception:  # noqa: BLE001 - numba cannot type it (not arrays, other dimensions)
+            done = False
+        if not done:    # another shape or type: numpy's assignment (its casts, its error)
+            ring[2, 0], ring[2, 1], ring[2, 2] = s.q, s.v, s.warm_start
+            ring[1, 0], ring[1, 1], ring[1, 2] = s.q_prev, s.v_prev, s.warm_start_prev
+            ring[0, 2] = s.warm_start_prev2
+            angles[2, 0], angles[2, 1] = s.joint_angle, s.joint_velocity
         # (history in slots 1 and 0)
         self.slots[0], self.slots[1], self.slots[2] = 2, s.known_history(), s.step_count
         self.clock[0], self.clock[1] = s.time, s.history_dt
+
+
+@njit(cache=True, error_model='numpy')
+def load_ring(ring, angles, q, v, w, q_prev, v_prev, w_prev, w_prev2, joint_angle, joint_velocity):
+    """Resident.load's copies in one compiled call (numpy's nine assignments cost ~2x more):
+    slot 2 = (q, v, w), slot 1 = (q_prev, v_prev, w_prev), slot 0's warm start = w_prev2,
+    angle slot 2 = (joint_angle, joint_velocity). False, copying nothing, unless every array
+    has the ring's shape."""
+    B, J = ring.shape[2], angles.shape[2]
+    for x in (q.shape, v.shape, w.shape, q_prev.shape, v_prev.shape, w_prev.shape, w_prev2.shape):
+        if x != (B, 12):
+            return False
+    if joint_angle.shape != (J,) or joint_velocity.shape != (J,):
+        return False
+    for b in range(B):
+        for r in range(12):
+            ring[2, 0, b, r] = q[b, r]
+            ring[2, 1, b, r] = v[b, r]
+            ring[2, 2, b, r] = w[b, r]
+            ring[1, 0, b, r] = q_prev[b, r]
+            ring[1, 1, b, r] = v_prev[b, r]
+            ring[1, 2, b, r] = w_prev[b, r]
+            ring[0, 2, b, r] = w_prev2[b, r]
+    for j in range(J):
+        angles[2, 0, j] = joint_angle[j]
+        angles[2, 1, j] = joint_velocity[j]
+    return True
