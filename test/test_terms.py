@@ -597,8 +597,9 @@ def test_inertia_on_the_4x4_blocks_is_bit_identical_to_the_dense_mass_matrix(see
 
 def test_torque_acceleration_is_bit_identical_to_dense_inverse_mass():
     """add_acceleration (A⁻¹ once per body, M⁻¹F on the 4x4 blocks) = M⁻¹ (dense) applied to
-    generalized_force (checked against the oracle above); body b is the child of both joints,
-    so its force is a sum of two joints' in their order."""
+    generalized_force (checked against the oracle above) on the free bodies; body b is the
+    child of both joints, so its force is a sum of two joints' in their order. The fixed body
+    c, a torque body too, gets nothing: its acceleration is never read."""
     B = MODEL.body_count
     for seed in range(3):
         q = _state(seed)
@@ -609,8 +610,10 @@ def test_torque_acceleration_is_bit_identical_to_dense_inverse_mass():
         _dense_apply(MODEL.body_Minv, F, expected)
         acc = np.full((B, 12), 0.25)
         assert torque.add_acceleration(q, DATA, taus, on, acc, np.zeros(4, np.int64), np.empty((4, 3))) == 0
-        assert np.abs(acc - 0.25).max() > 1e-3
-        np.testing.assert_array_equal(acc, expected)
+        free = ~MODEL.body_fixed
+        assert np.abs(acc[free] - 0.25).max() > 1e-3
+        np.testing.assert_array_equal(acc[free], expected[free])
+        assert np.all(acc[MODEL.body_fixed] == 0.25) and np.abs(expected[MODEL.body_fixed] - 0.25).max() > 1e-3
 
 
 def test_torque_singular_guard_lists_each_skipped_side_in_order():

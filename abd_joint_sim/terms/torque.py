@@ -211,16 +211,19 @@ def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
     """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
     only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
     (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product.
-    e (T+2,3): work array for the axes (Workspace.torque_axes)."""
+    A fixed body (a robot's base) gets none: its acceleration is never read (bdf.predict
+    keeps it where it is). e (T+2,3): work array for the axes (Workspace.torque_axes)."""
     if not _any_active(torque_value, torque_enabled):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
     _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)
     bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
-    Minv_bar = m.body_Minv_bar
+    Minv_bar, fixed = m.body_Minv_bar, m.body_fixed
     any_skipped = False
     for t in range(bodies.size):
         b = bodies[t]
+        if fixed[b]:
+            continue
         status, f0, f1, f2, f3, f4, f5, f6, f7, f8 = _body_force(q, b, ptr[t], ptr[t + 1], entries, e,
                                                                  torque_value, torque_enabled)
         if status == 0:
