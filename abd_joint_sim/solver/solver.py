@@ -449,11 +449,13 @@ class Solver:
         if count == 0:
             return CleanSteps(0, s, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
         h = self.model.dt
-        times = []
-        t = s.time
-        for _ in range(count):
-            t = t + h                                  # as `step` accumulates it
-            times.append(t)
+        # t + h, + h, ... as `step` accumulates it: numpy's accumulate adds in order (no
+        # pairwise sum), the same bits as a Python loop at a sixth of its cost per step
+        acc = np.full(count + 1, h)
+        acc[0] = s.time
+        np.add.accumulate(acc, out=acc)
+        times = acc[1:].tolist()
+        t = times[-1]
         k = count - 1
         J = self.model.joint_count
         w = qvw[k, 2]
