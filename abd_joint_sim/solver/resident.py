@@ -52,8 +52,9 @@ structref.define_proxy(ResidentIO, ResidentIOType, list(IO_FIELDS))
 class Resident:
     """Holds the current state: as a State (`_state`, when set or read since the last
     step; it then wins), else in the ring. The slot numbers and clock live in two small
-    arrays (`slots`: cur, known, step_count; `clock`: time, history_dt) because the compiled
-    step advances them (step.step_resident); the properties read them."""
+    arrays because the compiled step advances them (step.step_resident): `slots` = (cur, the
+    slot of the current state; known, the past warm starts known: 0, 1 or 2; step_count),
+    `clock` = (time [s], history_dt [s]: the size of the step that made the state)."""
 
     __slots__ = ('ring', 'angles', 'slots', 'clock', 'clock_view', '_state', 'io', 'io_key', 'io_call')
 
@@ -69,10 +70,6 @@ class Resident:
         self.io_call = None             # (function, arguments) of the compiled step on it (Solver)
 
     cur = property(lambda self: int(self.slots[0]), doc='slot of the current state in the ring')
-    known = property(lambda self: int(self.slots[1]), doc='past warm starts known (0, 1 or 2)')
-    step_count = property(lambda self: int(self.slots[2]))
-    time = property(lambda self: float(self.clock[0]), doc='[s] time of the state in the ring')
-    history_dt = property(lambda self: float(self.clock[1]), doc='[s] size of the step that made it')
 
     def bind(self, key, control, **solver) -> ResidentIO:
         """The ResidentIO of this ring with a Control's arrays and a Solver's (`solver`: the
