@@ -326,6 +326,10 @@ def robots(quick=False, peers=True):
                 t0 = time.process_time()
                 mj.mj_step(m, d, steps)
                 mj_t = (time.process_time() - t0) / steps
+                resets = d.warning[mj.mjtWarning.mjWARN_BADQACC].number
+                if resets:          # its explicit integration diverged: it reset the state
+                    note = ', '.join(filter(None, [note, f'unstable: MuJoCo reset its state '
+                                                         f'{resets}× in {steps + 3} steps']))
             except Exception as exc:                     # noqa: BLE001 (a peer's refusal)
                 why = str(exc).splitlines()[0][:60]
         ratio = f'{ours_t / mj_t:.1f}' if mj_t else '–'
