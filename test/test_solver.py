@@ -915,6 +915,63 @@ def test_the_constant_joint_blocks_are_never_written():
     assert np.abs(plain.joint_angles()).max() > 1e-3
 
 
+def _singular_arm(w):
+    """The hinge's arm with a rank ~2 affine matrix and a torque: the first step skips its
+    torque (warning), and the shape term restores A within it (clean steps follow)."""
+    w.set_torque('hinge', 10.0)
+    w.state.q[1, 3:12] = np.array([[1, 0, 0], [0, 1, 0], [1, 1e-8, 1e-8]]).ravel()
+
+
+def _overloaded(w):
+    w.state.q[1, :3] += 0.05 * w.model.body_size[1]   # 5 % of the body: overloaded, not apart
+
+
+WARNING_CASES = {
+    # every step from the 13th on turns more than 0.1 rad: bdf1's accuracy warning
+    'fast_spin': (hinge_dict(dt=0.01), 30, _torques(3000.0), 'damps rotation', -1),
+    'skipped_torque': (hinge_dict(), 5, _singular_arm, 'near-singular', 0),
+    'overloaded': (dict(hinge_dict(), joints=[dict(hinge_dict()['joints'][0], strength_ratio=1e-4)]),
+                   4, _overloaded, 'overloaded', 1),
+}
+
+
+@pytest.mark.parametrize('case', sorted(WARNING_CASES))
+def test_step_n_keeps_steps_that_only_warn_in_its_compiled_batch(case):
+    """A step that needs no sub-step but warns (a joint turned more than the accuracy
+    threshold, an overloaded joint, a skipped torque) stays in World.step(n)'s compiled batch
+    and in World.step()'s compiled call (step.kept): the same states, bit for bit, and the
+    same reports, warnings worded, as the functional Solver.step on States; no step goes
+    through the Solver's recovery. A batch ends after a step that skipped a torque (its
+    `skipped` row is the step's own)."""
+    d, n, setup, words, warn_at = WARNING_CASES[case]
+    worlds = [_world(d) for _ in range(3)]
+    for w in worlds:
+        setup(w)
+    ref, many, one = worlds
+    s = ref.state
+    reports = []
+    for _ in range(n):
+        s, r = ref.solver.step(s, ref.control)
+        reports.append(r)
+    assert words in ' '.join(reports[warn_at].warnings)
+    assert all(r.substeps == 1 for r in reports)          # (1: the step itself, not split)
+    recovered = []
+    for w in (many, one):
+        real = w.solver._advance
+
+        def counted(*args, real=real):
+            recovered.append(args)
+            return real(*args)
+        w.solver._advance = counted
+    assert many.step(n) == reports[-1]
+    assert [one.step() for _ in range(n)] == reports
+    assert not recovered
+    ref.state = s
+    for w in (many, one):
+        for x, y in zip(_state_fields(ref), _state_fields(w)):
+            assert np.array_equal(x, y)
+
+
 def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
     """World.step(n) runs at most `batch_limit` steps per compiled call (the batch writes every
     step's state: unbounded, World.step(100_000) would allocate gigabytes); split or not, the
@@ -926,9 +983,9 @@ def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
     split.solver.batch_limit = 4
     sizes, batch = [], split.solver._batch
 
-    def counted(s, c, n):
+    def counted(s, c, n, keep_rotation):
         sizes.append(n)
-        return batch(s, c, n)
+        return batch(s, c, n, keep_rotation)
     split.solver._batch = counted
     for _ in range(25):
         one.step()

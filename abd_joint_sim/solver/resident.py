@@ -29,10 +29,11 @@ from . import borrowed
 #: what one compiled `World.step()` reads and writes (step.step_resident), in one struct, its
 #: only argument: a structref argument is unboxed in about the time of one array, and these
 #: were eleven arrays, two structs and four scalars. `model` and `work` are the Solver's
-#: ModelData and Workspace; h, bdf2, may_split and clean_rotation its constant settings.
+#: ModelData and Workspace; h, bdf2, may_split, clean_rotation and keep_rotation its constant
+#: settings.
 IO_FIELDS = ('ring', 'angles', 'slots', 'clock', 'torque_value', 'torque_enabled', 'drive_aim',
              'drive_enabled', 'drive_passive', 'skipped', 'outcome', 'model', 'work', 'h', 'bdf2',
-             'may_split', 'clean_rotation')
+             'may_split', 'clean_rotation', 'keep_rotation')
 
 
 @structref.register

@@ -42,6 +42,7 @@ ACCURACY_NOTE = {
 BATCH_BYTES = 1 << 20
 _CONVERGED, _new_tuple = Status.CONVERGED, tuple.__new__
 _OUT_ROTATION, _OUT_SEPARATION = kernel.OUT_ROTATION, kernel.OUT_SEPARATION
+_KEPT_WITH_WARNINGS = kernel.KEPT_WITH_WARNINGS
 
 #: dtypes of Control's arrays as the compiled step takes them
 CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
@@ -125,6 +126,7 @@ class Solver:
         self._outcome = np.zeros(kernel.OUT_COLUMNS)
         self._outcome_view = memoryview(self._outcome)      # (step_resident's report)
         self._clean_rotation = min(model.newton.max_step_rotation, ACCURACY_ROTATION[model.integrator])
+        self._keep_rotation = float(model.newton.max_step_rotation)     # (step.kept)
         self._shape = (B, J)
         #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
         self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + kernel.OUT_COLUMNS)))
@@ -184,8 +186,10 @@ class Solver:
             self._bind(r, c)
         call, args = r.io_call
         code = call(*args)
-        if code:                            # clean (step.clean): the Resident has advanced
+        if code:                            # clean or kept (step.kept): the Resident has advanced
             r._state = None
+            if code == _KEPT_WITH_WARNINGS:
+                return self._kept_report(self._outcome, r.clock.item(0), r.ring[r.cur, 0])
             if code < 0:                    # (line-search halvings: read from the row)
                 return self._report(self._outcome, r.clock.item(0))
             # code is the Newton iterations; two entries read through memoryviews are Python
@@ -210,7 +214,8 @@ class Solver:
         standard = _compiled_layout(arrays)
         io = r.bind((self,) + arrays + (standard,), c, skipped=self._skipped, outcome=self._outcome,
                     model=self.data, work=self.work, h=float(self._dt), bdf2=bool(self._bdf2),
-                    may_split=bool(self._may_split), clean_rotation=float(self._clean_rotation))
+                    may_split=bool(self._may_split), clean_rotation=float(self._clean_rotation),
+                    keep_rotation=self._keep_rotation)
         if standard and self._resident_entry is None:
             try:
                 sig = (kernel.step_resident.typeof_pyval(io),)
@@ -345,67 +350,98 @@ class Solver:
                      *_history(s, h, qvw[2]))
 
     def _decode(self, s, h, qvw, aw, out, tally):
+        """(the new State or None, None or why the step needs sub-steps), counted into tally."""
+        failure = self._count(out, tally, qvw[0])
+        if failure is not None:
+            return None, failure
+        new = self._state(s, h, qvw, aw)
+        rotation, limit = float(out[kernel.OUT_ROTATION]), self.model.newton.max_step_rotation
+        if rotation > limit:
+            return new, f'a joint turned {rotation:.3g} rad in one step (limit {limit:.3g})'
+        status = STATUS_BY_CODE[int(out[kernel.OUT_STATUS])]
+        if status is not Status.CONVERGED:
+            tally.status, tally.converged = status, False
+            return new, f'Newton stopped: {status.value} after {int(out[kernel.OUT_NEWTON])} iterations'
+        return new, None
+
+    def _count(self, out, tally, q):
+        """Add outcome row `out` (the step's new body states q) to tally: its counts and
+        skipped-torque warnings. Returns why the step left nothing to keep, or None."""
         m = self.model
-        for b in self._skipped[:int(out[kernel.OUT_SKIPPED])]:
-            tally.warnings.append(f'body {m.body_names[b]!r}: affine matrix near-singular '
-                                  f'(|det A|/(|a1||a2||a3|) < {SINGULAR_RATIO}); joint torque not applied')
+        skipped = int(out[kernel.OUT_SKIPPED])
+        if skipped:
+            tally.warnings += self._skipped_warnings(skipped)
         failure = int(out[kernel.OUT_FAILURE])
         rotation = float(out[kernel.OUT_ROTATION])
         limit = m.newton.max_step_rotation
         if failure == kernel.FAIL_PREDICTED_ROTATION:
-            return None, f'a joint is predicted to turn {rotation:.3g} rad in one step (limit {limit:.3g})'
-        status, iterations = STATUS_BY_CODE[int(out[kernel.OUT_STATUS])], int(out[kernel.OUT_NEWTON])
-        tally.newton_iterations += iterations
+            return f'a joint is predicted to turn {rotation:.3g} rad in one step (limit {limit:.3g})'
+        tally.newton_iterations += int(out[kernel.OUT_NEWTON])
         tally.line_search_iterations += int(out[kernel.OUT_LINE_SEARCH])
         if failure == kernel.FAIL_NEWTON_NONFINITE:
-            return None, 'Newton produced a non-finite state'
+            return 'Newton produced a non-finite state'
         if failure == kernel.FAIL_STEP_NONFINITE:
-            return None, 'step produced a non-finite state'
+            return 'step produced a non-finite state'
         if failure == kernel.FAIL_JOINT_APART:
             j = int(out[kernel.OUT_APART_JOINT])
-            apart = float(joint_separation(qvw[0], self.data, j))
-            return None, (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
-                          f"(> {SEPARATION_FAULT:g} x the bodies' size)")
+            apart = float(joint_separation(q, self.data, j))
+            return (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
+                    f"(> {SEPARATION_FAULT:g} x the bodies' size)")
         tally.max_step_rotation = max(tally.max_step_rotation, rotation)
-        new = self._state(s, h, qvw, aw)
         tally.max_joint_separation = float(out[kernel.OUT_SEPARATION])
         tally.overloaded = bool(out[kernel.OUT_OVERLOADED])
-        if rotation > limit:
-            return new, f'a joint turned {rotation:.3g} rad in one step (limit {limit:.3g})'
-        if status is not Status.CONVERGED:
-            tally.status, tally.converged = status, False
-            return new, f'Newton stopped: {status.value} after {iterations} iterations'
-        return new, None
+        return None
+
+    def _skipped_warnings(self, count) -> list:
+        """The warnings of a step whose torque skipped `count` bodies (listed in _skipped)."""
+        names = self.model.body_names
+        return [f'body {names[b]!r}: affine matrix near-singular (|det A|/(|a1||a2||a3|) < '
+                f'{SINGULAR_RATIO}); joint torque not applied' for b in self._skipped[:count].tolist()]
+
+    def _end_warnings(self, q, time, overloaded, rotation) -> list:
+        """The overloaded-joint and accuracy warnings of a step that ended at `time` with body
+        states q, its largest joint rotation `rotation`."""
+        m, out = self.model, []
+        if overloaded:
+            for j in range(m.joint_count):
+                sep = float(joint_separation(q, self.data, j))
+                if sep > self.data.joint_warn_separation[j]:
+                    out.append(f't={time:.6g}s: joint {m.joint_names[j]!r} anchors {sep:.3g} m apart '
+                               f'(> {SEPARATION_WARN:.0%} of the smaller body): the joint is overloaded; '
+                               'lower the torque or dt, or raise strength_ratio')
+        if rotation > ACCURACY_ROTATION[m.integrator]:
+            out.append(f't={time:.6g}s: a joint turned {rotation:.3g} rad in one step; '
+                       f'{ACCURACY_NOTE[m.integrator]}')
+        return out
+
+    def _kept_report(self, out, time, q) -> StepReport:
+        """The report of a step kept with warnings (step.kept) from its outcome row, at its
+        time and new body states q: what `_decode` and `_finish` make of it (the test
+        compares them), without a State or a _Tally."""
+        _, its, halvings, rotation, _, skipped, separation, overloaded, _ = out.tolist()
+        rotation = rotation if rotation > 0.0 else 0.0
+        warnings = self._skipped_warnings(int(skipped)) if skipped else []
+        warnings += self._end_warnings(q, time, overloaded, rotation)
+        return _new_tuple(StepReport, (time, _CONVERGED, True, int(its), int(halvings), 1, separation,
+                                       rotation, tuple(warnings)))
 
     def _finish(self, state, tally) -> StepReport:
         """The accuracy and overloaded-joint warnings of a finished step, then the report."""
-        m = self.model
-        if tally.overloaded:
-            for j in range(m.joint_count):
-                sep = float(joint_separation(state.q, self.data, j))
-                if sep > self.data.joint_warn_separation[j]:
-                    tally.warnings.append(
-                        f't={state.time:.6g}s: joint {m.joint_names[j]!r} anchors {sep:.3g} m apart '
-                        f'(> {SEPARATION_WARN:.0%} of the smaller body): the joint is overloaded; '
-                        'lower the torque or dt, or raise strength_ratio')
-        x = tally.max_step_rotation
-        if x > ACCURACY_ROTATION[m.integrator]:
-            tally.warnings.append(f't={state.time:.6g}s: a joint turned {x:.3g} rad in one step; '
-                                  f'{ACCURACY_NOTE[m.integrator]}')
+        tally.warnings += self._end_warnings(state.q, state.time, tally.overloaded, tally.max_step_rotation)
         return tally.freeze(state.time)
 
     # -- several steps -------------------------------------------------------------------
     def clean_steps(self, state: State, control: Control, n: int) -> CleanSteps:
         """Up to n steps in one compiled call, stopping before the first step on which `step`
         would sub-step, warn or fail; bit-identical to `count` calls of `step`."""
-        count, qvw, aw, out = self._batch(state, control, n)
+        count, qvw, aw, out = self._batch(state, control, n, -1.0)
         return self._clean_result(state, count, qvw, aw, out)
 
     def advance(self, state: State, control: Control, n: int) -> tuple[State, StepReport, int]:
-        """At least one and at most n steps: (State, report of the last step, count). The clean
-        steps run in one compiled call; the step that stopped them was computed already and is
-        kept when it needs no recovery (it then only adds warnings); one that needs recovery
-        is left to the next call, which takes it through `step` (and may raise
+        """At least one and at most n steps: (State, report of the last step, count). The steps
+        that need no sub-steps run in one compiled call, warnings and all (`step.kept`: only
+        the last step's report is returned, so only its warnings are worded); the step that
+        stopped them is left to the next call, which takes it through `step` (and may raise
         SimulationError, having taken nothing). Bit-identical to `count` calls of `step`. At
         most `batch_limit` steps per call: the compiled call writes every step's state, and a
         batch larger than the cache (or than memory: World.step(100_000) on 100 bodies would
@@ -414,25 +450,17 @@ class Solver:
         if n <= 1:
             state, report = self.step(state, control)
             return state, report, 1
-        count, qvw, aw, out = self._batch(state, control, n)
-        report = None
-        if count:
-            batch = self._clean_result(state, count, qvw, aw, out)
-            state, report = batch.state, batch.report
-        if count < n:
-            o = out[count]
-            simple = (int(o[kernel.OUT_FAILURE]) == kernel.FAIL_NONE and int(o[kernel.OUT_STATUS]) == 0
-                      and o[kernel.OUT_ROTATION] <= self.model.newton.max_step_rotation)
-            if simple:
-                tally = _Tally()
-                state, _ = self._decode(state, self.model.dt, qvw[count], aw[count], o, tally)
-                return state, self._finish(state, tally), count + 1
-            if count == 0:
-                state, report = self.step(state, control)
-                return state, report, 1
-        return state, report, count
+        count, qvw, aw, out = self._batch(state, control, n, self._keep_rotation)
+        if count == 0:
+            state, report = self.step(state, control)
+            return state, report, 1
+        batch = self._clean_result(state, count, qvw, aw, out)
+        o = out[count - 1]
+        if not kernel.clean(o, self._clean_rotation):
+            return batch.state, self._kept_report(o, batch.state.time, batch.state.q), count
+        return batch.state, batch.report, count
 
-    def _batch(self, s, c, n):
+    def _batch(self, s, c, n, keep_rotation):
         m = self.model
         B, J = self._shape
         qvw = np.empty((n, 3, B, 12))
@@ -444,8 +472,8 @@ class Solver:
                              s.warm_start_prev, s.warm_start_prev2, s.joint_angle, c.torque_value,
                              c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, m.dt,
                              bdf2 and uniform, bdf2, uniform, s.extrapolation_order(m.dt),
-                             self._may_split, int(n), self._clean_rotation, self.work, qvw, aw,
-                             self._skipped, out)
+                             self._may_split, int(n), self._clean_rotation, keep_rotation,
+                             self.work, qvw, aw, self._skipped, out)
         return int(count), qvw, aw, out
 
     def _clean_result(self, s, count, qvw, aw, out) -> CleanSteps:

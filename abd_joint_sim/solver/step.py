@@ -14,7 +14,7 @@
 `step` reads its inputs only and writes the new state into the caller's arrays; what
 happened goes into a row `outcome` whose columns are named below (solver.py turns it into a
 StepReport). `steps` runs up to n steps in one call, stopping before the first one that
-needs Python (a failure, a sub-step or a warning), bit-identical to n calls of `step`.
+needs a sub-step (or, for sim_node, a warning), bit-identical to n calls of `step`.
 """
 from __future__ import annotations
 
@@ -234,6 +234,20 @@ def clean(o, clean_rotation):
 
 
 @njit(cache=True, error_model='numpy')
+def kept(o, keep_rotation):
+    """Whether the step of outcome row o is kept as it is, needing no sub-steps (only, where
+    it is not `clean`, warnings: a joint turned more than the accuracy threshold, a joint
+    overloaded, a torque skipped): no failure, Newton converged, no joint turned more than
+    `keep_rotation` (max_step_rotation). The rule of Solver._decode."""
+    return (o[OUT_FAILURE] == FAIL_NONE and o[OUT_STATUS] == newton.CONVERGED
+            and o[OUT_ROTATION] <= keep_rotation)
+
+
+#: step_resident's return value for a step kept with warnings (its report names them)
+KEPT_WITH_WARNINGS = -2
+
+
+@njit(cache=True, error_model='numpy')
 def step_resident(io):
     """`World.step()`: `step_in_ring` on a Resident's ring (io: resident.ResidentIO, which
     also holds the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome
@@ -244,7 +258,9 @@ def step_resident(io):
     ring's slot cur + 1 and the outcome row changed: the Solver recovers from there. A clean
     step returns its Newton iterations (≥ 1), or −1 if its line search halved the step (the
     outcome row has the count): the caller builds the step's report without converting
-    the row's floats."""
+    the row's floats. A step that is not clean but `kept` (it only warns) advances the
+    Resident as a clean one and returns KEPT_WITH_WARNINGS: the caller words the warnings
+    from the outcome row."""
     io = borrowed.struct(io)
     slots, clock, h = io.slots, io.clock, io.h
     cur, known = slots[0], slots[1]
@@ -253,25 +269,31 @@ def step_resident(io):
     step_in_ring(io.model, io.ring, io.angles, cur, io.torque_value, io.torque_enabled, io.drive_aim,
                  io.drive_enabled, io.drive_passive, h, io.bdf2 and uniform, known if uniform else 0,
                  io.may_split, io.work, io.skipped, outcome)
-    if not clean(outcome, io.clean_rotation):
+    if clean(outcome, io.clean_rotation):
+        code = int(outcome[OUT_NEWTON]) if outcome[OUT_LINE_SEARCH] == 0.0 else -1
+    elif kept(outcome, io.keep_rotation):
+        code = KEPT_WITH_WARNINGS
+    else:
         return 0
     slots[0] = (cur + 1) % 4
     slots[1] = min(known + 1, 2) if uniform else 0
     slots[2] += 1
     clock[0] += h
     clock[1] = h
-    return int(outcome[OUT_NEWTON]) if outcome[OUT_LINE_SEARCH] == 0.0 else -1
+    return code
 
 
 @njit(cache=True, error_model='numpy')
 def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
           torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
-          bdf2_next, uniform_first, order_first, may_split, n, clean_rotation, ws, new_qvw,
-          new_angles, skipped, outcome):
+          bdf2_next, uniform_first, order_first, may_split, n, clean_rotation, keep_rotation, ws,
+          new_qvw, new_angles, skipped, outcome):
     """Up to n consecutive steps, each `step` on the previous one's output, stopping before the
-    first that is not `clean` (the steps on which the Solver sub-steps or warns; the caller
-    redoes that one alone). Step k writes new_qvw[k], new_angles[k],
-    outcome[k]. Returns the number of clean steps. Each state's warm-start history follows
+    first that is neither `clean` nor `kept` with keep_rotation (the steps on which the
+    Solver sub-steps; with keep_rotation < 0 also those on which it warns: sim_node logs
+    every warning). The caller redoes that one alone. A kept step whose torque skipped a
+    body ends the batch, so `skipped` lists that step's bodies when it is the last. Step k
+    writes new_qvw[k], new_angles[k], outcome[k]. Returns the number of steps taken. Each state's warm-start history follows
     the Solver's rule (solver._history): the input's counts only where it was made by steps
     of size h (`uniform_first`: its last step was; `order_first`: its extrapolation_order),
     and every step here has size h."""
@@ -306,7 +328,12 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
                  new_qvw[k - 1, 2], new_qvw[k - 2, 2], new_qvw[k - 3, 2], new_angles[k - 1, 0],
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
                  bdf2_next, 2, may_split, ws, new_qvw[k], new_angles[k], skipped, outcome[k])
-        if not clean(outcome[k], clean_rotation):
+        if clean(outcome[k], clean_rotation):
+            done += 1
+        elif kept(outcome[k], keep_rotation):
+            done += 1
+            if outcome[k, OUT_SKIPPED] != 0.0:
+                break
+        else:
             break
-        done += 1
     return done
