@@ -31,12 +31,16 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from .errors import SceneError
+from .scene import RANGES
 
 DEFAULT_DT = 1e-3                      # s, from_urdf / robot: scenes
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)    # m/s^2: a robot description assumes Earth's gravity
 FIXED_ROOT_MASS = 1.0                  # kg given to a massless fixed root (it never moves)
 FRAME_MARK_RADIUS = 0.02               # m: the sphere drawn for such a root without visuals
 WATER_DENSITY = 1000.0                 # kg/m^3: volume (for kappa) and the sphere repair
+#: smallest second moment of a link's mass, as a fraction of its largest (_check_inertia):
+#: a plate 1 % as thick as it is wide
+FLAT_RATIO = 1e-4
 
 ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints', 'kappa',
                  'strength_ratio', 'limits', 'torque_enabled', 'driving')
@@ -196,7 +200,9 @@ class _Reader:
                 self.fail(f'joint {joint.name!r} defined twice')
             joints[joint.name] = joint
         if not links:
-            self.fail('no <link> in the robot')
+            hint = (' (the file declares the xacro namespace: a macro file, which xacro expands '
+                    'into the robot that uses it)' if 'xmlns:xacro' in text else '')
+            self.fail('no <link> in the robot' + hint)
         return root.get('name', ''), links, joints
 
     def material_rgba(self, m, materials, where):
@@ -314,6 +320,21 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
         return mean * np.eye(3), (f'principal moments {_fmt(eig)} break the triangle '
                                   f'inequality: set to their mean {mean:.4g} kg m^2 '
                                   '(MuJoCo balanceinertia)')
+    # The body's second moments S_k = ½ tr(I) − I_k (its affine inertia, docs/urdf.md): a
+    # body flat to within FLAT_RATIO (moments on the triangle's edge, I_3 = I_1 + I_2, as
+    # some descriptions give) has an affine mode with next to no inertia, in which Newton
+    # makes no progress. Its smallest S is raised to FLAT_RATIO of the largest.
+    s = 0.5 * eig.sum() - eig
+    floor = FLAT_RATIO * float(s.max())
+    if s.min() < floor:
+        s_new = np.maximum(s, floor)
+        eig_new = s_new.sum() - s_new
+        _, V = np.linalg.eigh(I)
+        return (V * eig_new) @ V.T, (f'principal moments {_fmt(eig)} make a flat body (its '
+                                     f'second moments {_fmt(s)}: the smallest under '
+                                     f'{FLAT_RATIO:g} of the largest, which an affine body '
+                                     f'needs): the smallest raised to that, moments now '
+                                     f'{_fmt(eig_new)} kg m^2')
     return I, ''
 
 
@@ -469,6 +490,19 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if 'limit' in over:
             lim = None if over['limit'] in (None, False) else {**(lim or {}), **over['limit']}
         return (lim['lower'], lim['upper']) if lim and 'lower' in lim and 'upper' in lim else None
+
+    # A limit beyond the angles a scene takes (|x| <= 1e4 rad, ~1600 turns) is how some
+    # descriptions say "no limit" (lower="-1e+16"): such a joint is taken as continuous.
+    angle_max = RANGES['angle'][1]
+    for j in joints.values():
+        if j.type == 'revolute' and j.lower is not None and moving(j) \
+                and not max(abs(j.lower), abs(j.upper)) <= angle_max:
+            msg = (f'{source}: joint {j.name!r}: limit [{j.lower:g}, {j.upper:g}] rad is beyond '
+                   f'the supported |angle| <= {angle_max:g} rad: taken as no limit (a continuous '
+                   'joint)')
+            notes.append(msg)
+            warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+            j.lower = j.upper = None
 
     # Initial positions: as given, else 0 -- or the nearest bound where 0 is outside the
     # joint's limit (some descriptions have it so; the limit would throw the joint back).

@@ -222,6 +222,42 @@ def test_non_physical_inertias_repaired_with_one_warning_each():
     World(scene).step(5)
 
 
+def test_a_flat_body_gets_a_little_thickness_with_a_warning():
+    """Moments on the triangle inequality's edge (I_z = I_x + I_y: a body with no thickness,
+    as the Allegro hand's links in example-robot-data have) are valid for a rigid-body engine
+    but leave an affine body a mode without inertia: its smallest second moment is raised to
+    FLAT_RATIO of its largest, in the same principal axes, with a warning; the rigid inertia
+    changes by that much, and the hinge then turns under torque as a rigid plate would."""
+    from abd_joint_sim.urdf import FLAT_RATIO
+    R = rpy_matrix([0.3, -0.2, 0.5])
+    # S = (8e-5, 2e-5, 5e-12): flat (exactly on the edge, I_z = I_x + I_y, is refused as a
+    # broken triangle inequality; generated descriptions land just inside it)
+    I = R @ np.diag([2e-5, 8e-5, 1e-4 - 1e-11]) @ R.T
+    I = I.tolist()
+    body = (f'<inertial><origin xyz="0 0 0.03"/><mass value="0.065"/><inertia ixx="{I[0][0]!r}" '
+            f'ixy="{I[0][1]!r}" ixz="{I[0][2]!r}" iyy="{I[1][1]!r}" iyz="{I[1][2]!r}" izz="{I[2][2]!r}"/>'
+            '</inertial>')
+    text = robot(link('base', inertial(1.0)), link('plate', body),
+                 joint('j', 'revolute', 'base', 'plate', axis='1 0 0',
+                       extra='<limit lower="-3" upper="3" effort="5"/>'))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(msgs) == 1 and "link 'plate'" in msgs[0] and 'flat body' in msgs[0]
+    got = np.linalg.eigvalsh(np.array(scene.bodies[1].shape.inertia).reshape(3, 3))
+    lift = FLAT_RATIO * (8e-5 - 5e-12) - 5e-12              # S_z raised to FLAT_RATIO S_x
+    assert np.allclose(got, [2e-5 + lift, 8e-5 + lift, 1e-4 - 1e-11], rtol=0, atol=1e-17)
+    world = World(scene)
+    world.set_torque('j', 0.02)
+    reports = [world.step() for _ in range(100)]
+    # the plate turns as a rigid one about the x axis through the joint (t = 0.1 s): I_xx of
+    # the repaired inertia about the COM, 3 cm off the axis
+    i_axis = np.array(scene.bodies[1].shape.inertia).reshape(3, 3)[0, 0] + 0.065 * 0.03 ** 2
+    assert world.joint_angles()[0] == pytest.approx(0.5 * 0.02 / i_axis * 0.1 ** 2, rel=0.02)
+    assert max(r.newton_iterations for r in reports) <= 20 and all(r.substeps == 1 for r in reports)
+
+
 def test_massless_links():
     # A massless frame on a fixed joint merges trivially; a massless moving leaf is held rigid
     # with a warning; a massless moving link carrying a moving joint is refused.
@@ -339,9 +375,39 @@ def test_zero_outside_the_limit_starts_at_the_nearest_bound_with_a_warning():
         Scene.from_urdf(text, initial_positions={'shoulder': 0.0})
 
 
+@pytest.mark.parametrize('bounds', ['lower="-1e+16" upper="1e+16"', 'lower="-1e16" upper="0.5"'])
+def test_a_limit_beyond_the_supported_angles_is_no_limit_with_a_warning(bounds):
+    """lower="-1e+16" upper="1e+16" (a drone's rotors in example-robot-data) is a description's
+    way of saying "unlimited": the joint is taken as continuous, with one warning naming it,
+    and the scene loads (the scene's own |angle| <= 1e4 rad would refuse the number)."""
+    text = ARM.replace('lower="-1.5" upper="1.5"', bounds)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(msgs) == 1 and "joint 'shoulder': limit [-1e+16," in msgs[0] and 'no limit' in msgs[0]
+    assert scene.joints[0].limit is None and scene.joints[0].external_torque.effort_limit == 40.0
+    world = World(scene)
+    world.set_torque('shoulder', 40.0)
+    world.step(50)
+    assert np.isfinite(world.joint_angles()).all() and abs(world.joint_angles()[0]) > 0.0
+    # an override still sets a limit of its own
+    with pytest.warns(UrdfWarning, match='no limit'):
+        scene = Scene.from_urdf(text, joints={'shoulder': {'limit': {'lower': -1.0, 'upper': 1.0}}})
+    assert scene.joints[0].limit.lower == -1.0
+
+
 def test_xacro_substitutions_refused_but_not_in_comments():
     ok = ARM.replace('<link name="base">', '<!-- ${not_expanded} is fine here -->\n<link name="base">')
     assert Scene.from_urdf(ok).joint_names == ('shoulder',)
     bad = ARM.replace('xyz="0 0 0.3"', 'xyz="$(optenv ARM_Z 0 0 0.3)"')
     with pytest.raises(SceneError, match=r"<origin> xyz='\$\(optenv ARM_Z 0 0 0.3\)' is an unexpanded xacro/launch substitution"):
         Scene.from_urdf(bad)
+    # a macro file as xacro leaves it when nothing calls the macro (ur3.urdf of
+    # example-robot-data): no link, and the message says why
+    macro = ('<?xml version="1.0"?>\n<robot xmlns:xacro="http://wiki.ros.org/xacro">\n'
+             '<!-- Author: someone -->\n</robot>\n')
+    with pytest.raises(SceneError, match=r'no <link> in the robot \(the file declares the xacro namespace'):
+        Scene.from_urdf(macro)
+    with pytest.raises(SceneError, match=r'no <link> in the robot$'):
+        Scene.from_urdf('<robot name="empty"/>')
