@@ -38,6 +38,9 @@ DEFAULT_GRAVITY = (0.0, 0.0, -9.81)    # m/s^2: a robot description assumes Eart
 FIXED_ROOT_MASS = 1.0                  # kg given to a massless fixed root (it never moves)
 FRAME_MARK_RADIUS = 0.02               # m: the sphere drawn for such a root without visuals
 WATER_DENSITY = 1000.0                 # kg/m^3: volume (for kappa) and the sphere repair
+#: moments below this fraction of a water-density sphere's of the link's mass are a point
+#: mass (_check_inertia): a sphere of that mass would be ~1e9 times denser than water
+POINT_MASS_RATIO = 1e-6
 #: smallest second moment of a link's mass, as a fraction of its largest (_check_inertia):
 #: a plate 1 % as thick as it is wide
 FLAT_RATIO = 1e-4
@@ -310,11 +313,18 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
     I = 0.5 * (link.inertia + link.inertia.T)
     eig = np.linalg.eigvalsh(I)
     scale = max(float(np.abs(eig).max()), 1e-300)
+    r = (3.0 * link.mass / WATER_DENSITY / (4.0 * math.pi)) ** (1.0 / 3.0)
+    sphere = 0.4 * link.mass * r * r
     if eig[0] <= 1e-12 * scale or eig[0] <= 0.0:
-        r = (3.0 * link.mass / WATER_DENSITY / (4.0 * math.pi)) ** (1.0 / 3.0)
-        new = 0.4 * link.mass * r * r
-        return new * np.eye(3), (f'principal moments {_fmt(eig)} are not all > 0: replaced '
-                                 f'by a solid sphere of water density ({new:.4g} kg m^2 each)')
+        return sphere * np.eye(3), (f'principal moments {_fmt(eig)} are not all > 0: replaced '
+                                    f'by a solid sphere of water density ({sphere:.4g} kg m^2 each)')
+    # moments of ~1e-20 kg m^2 on a 0.7 kg link (iCub's ankle in example-robot-data): a point
+    # mass written with round-off, no affine inertia to speak of
+    if eig[2] < POINT_MASS_RATIO * sphere:
+        return sphere * np.eye(3), (f'principal moments {_fmt(eig)} are negligible for its mass '
+                                    f'(under {POINT_MASS_RATIO:g} of a water-density sphere\'s): '
+                                    f'replaced by a solid sphere of water density ({sphere:.4g} '
+                                    'kg m^2 each)')
     if eig[0] + eig[1] <= eig[2] * (1.0 + 1e-9):
         mean = float(eig.mean())
         return mean * np.eye(3), (f'principal moments {_fmt(eig)} break the triangle '

@@ -258,6 +258,38 @@ def test_a_flat_body_gets_a_little_thickness_with_a_warning():
     assert max(r.newton_iterations for r in reports) <= 20 and all(r.substeps == 1 for r in reports)
 
 
+def test_a_point_mass_written_with_round_off_is_a_sphere_with_a_warning():
+    """Moments of ~1e-20 kg m^2 on a 0.746 kg link (iCub's r_ankle_1 in example-robot-data:
+    positive, so not caught as zero) give an affine body no inertia: the iCub failed within
+    its first steps under 0.02 N m. Below POINT_MASS_RATIO of a water-density sphere's moments
+    they are replaced by that sphere, as zero moments are."""
+    tiny = ('<inertial><mass value="0.746"/><inertia ixx="2.71051e-20" ixy="-1.69407e-21" '
+            'ixz="1.35525e-20" iyy="5.42101e-20" iyz="3.38813e-21" izz="1.35525e-20"/></inertial>')
+    text = robot(link('base', inertial(1.0)), link('foot', tiny),
+                 joint('ankle', 'revolute', 'base', 'foot', axis='0 1 0', xyz='0 0 -0.1',
+                       extra='<limit lower="-1" upper="1" effort="20"/>'))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
+    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    assert len(msgs) == 1 and "link 'foot'" in msgs[0] and 'negligible for its mass' in msgs[0]
+    r = (3 * 0.746 / 1000 / (4 * math.pi)) ** (1 / 3)
+    assert np.allclose(np.array(scene.bodies[1].shape.inertia).reshape(3, 3), 0.4 * 0.746 * r * r * np.eye(3))
+    world = World(scene)
+    world.set_torque('ankle', 0.02)
+    world.step(50)
+    i_axis = 0.4 * 0.746 * r * r                               # (the COM is on the axis)
+    assert world.joint_angles()[0] == pytest.approx(0.5 * 0.02 / i_axis * 0.05 ** 2, rel=0.02)
+    # a real small link (a 10 g, 1 cm aluminium cube) is left alone
+    cube = 0.01 * 0.01 ** 2 / 6
+    small = robot(link('base', inertial(1.0)), link('foot', inertial(0.01, ixx=cube, iyy=cube, izz=cube)),
+                  joint('ankle', 'revolute', 'base', 'foot', axis='0 1 0'))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', UrdfWarning)
+        assert np.allclose(np.array(Scene.from_urdf(small).bodies[1].shape.inertia).reshape(3, 3),
+                           cube * np.eye(3))
+
+
 def test_massless_links():
     # A massless frame on a fixed joint merges trivially; a massless moving leaf is held rigid
     # with a warning; a massless moving link carrying a moving joint is refused.
