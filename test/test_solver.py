@@ -632,6 +632,30 @@ def test_a_joint_that_came_apart_is_a_fault_and_the_state_is_kept(distance):
     assert w.state is good and w.time == pytest.approx(2 * w.dt)
 
 
+def test_a_failed_step_names_a_torque_its_body_cannot_carry_at_this_dt():
+    """A step that fails even with sub-steps says which torque alone would turn its lighter
+    body more than the accuracy threshold in one step from rest, ½ (τ/I) dt² with I the
+    body's moment about the joint's axis from its affine mass matrix: checked against the
+    parallel-axis value of a URDF link (I_xx + m d²), and silent for a torque that is not."""
+    from test_urdf import inertial, joint, link, robot
+    text = robot(link('base', inertial(1.0)),
+                 link('finger', inertial(0.001, xyz='0 0.01 0.02', ixx=1e-9, iyy=2e-9, izz=2e-9)),
+                 joint('j', 'revolute', 'base', 'finger', axis='1 0 0',
+                       extra='<limit lower="-3" upper="3" effort="50"/>'))
+    w = World(Scene.from_urdf(text, gravity=[0, 0, 0]))
+    i_axis = 1e-9 + 0.001 * (0.01 ** 2 + 0.02 ** 2)
+    assert w.solver.axis_inertia(0) == pytest.approx(i_axis, rel=1e-12)
+    w.set_torque('j', 1.0)
+    hint = w.solver._torque_hint(w.control)
+    turn = 0.5 * 1.0 / i_axis * w.dt ** 2
+    assert f"joint 'j' (1 N m on a body of {i_axis:.3g} kg m^2" in hint and f'{turn:.3g} rad' in hint
+    w.set_torque('j', 1e-4)
+    assert w.solver._torque_hint(w.control) == ''
+    w.set_torque('j', 1.0)
+    w.set_torque_enabled('j', False)
+    assert w.solver._torque_hint(w.control) == ''
+
+
 def test_a_moderately_overloaded_joint_only_warns():
     d = hinge_dict()
     d['joints'][0]['strength_ratio'] = 1e-4            # a weak joint keeps its separation

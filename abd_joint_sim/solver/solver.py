@@ -13,6 +13,7 @@ alone, for callers that publish every step (sim_node).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -254,7 +255,8 @@ class Solver:
             return self._advance(half, control, h / 2, depth + 1, tally)
         if new_state is None:       # not finite, or a joint came apart: nothing to keep
             raise SimulationError(f't={state.time:.6g}s: {failure} even with {2 ** depth} sub-steps of '
-                                  f'{h:.3g}s; state kept at the last good step{self._drive_hint(state, control)}')
+                                  f'{h:.3g}s; state kept at the last good step{self._drive_hint(state, control)}'
+                                  f'{self._torque_hint(control)}')
         tally.warnings.append(f't={state.time:.6g}s: {failure} with {2 ** depth} sub-steps; result kept')
         return new_state
 
@@ -277,6 +279,44 @@ class Solver:
         return (f'. The drive of joint(s) {", ".join(far)} asks for more than max_step_rotation = '
                 f'{limit:.3g} rad in one step: a drive reaches its aim within a step or two, so move '
                 'the aim in smaller increments over several steps')
+
+    def axis_inertia(self, j: int) -> float:
+        """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's
+        axis (inf for a fixed body): ½ q̇ᵀ M q̇ = ½ I for a unit turn about the axis, q̇ =
+        (−a × x̄0, [a]ₓ) in the body's rest frame (x = t + A x̄, A's rows in q). The same on
+        any pose: the axis turns with the body."""
+        m = self.model
+        out = math.inf
+        for side, b in enumerate((int(m.joint_parent[j]), int(m.joint_child[j]))):
+            if m.body_fixed[b]:
+                continue
+            x0, x1 = m.joint_anchor0[j, side], m.joint_anchor1[j, side]
+            a = (x1 - x0) / np.linalg.norm(x1 - x0)
+            cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            qdot = np.concatenate([-np.cross(a, x0), cross.ravel()])
+            out = min(out, float(qdot @ m.body_M[b] @ qdot))
+        return out
+
+    def _torque_hint(self, control) -> str:
+        """Why a failed step may be a torque's doing: the torque of the joint that would turn
+        its lighter body the most in one step from rest, ½ (τ/I) dt² with I its moment about
+        the axis, when that is more than the accuracy threshold. (Outboard bodies add inertia,
+        so the turn is an upper bound; a torque the inertia of a finger cannot carry at this
+        dt makes every sub-step's prediction absurd.)"""
+        m = self.model
+        worst, who = 0.0, None
+        for k, j in enumerate(m.torque_joints):
+            tau = abs(float(control.torque_value[k])) if control.torque_enabled[k] else 0.0
+            if tau > 0.0:
+                turn = 0.5 * tau / self.axis_inertia(int(j)) * m.dt ** 2
+                if turn > worst:
+                    worst, who = turn, (int(j), tau)
+        if who is None or not worst > ACCURACY_ROTATION[m.integrator]:
+            return ''
+        j, tau = who
+        return (f'. The torque of joint {m.joint_names[j]!r} ({tau:.3g} N m on a body of '
+                f'{self.axis_inertia(j):.3g} kg m^2 about the axis) alone turns it {worst:.3g} rad '
+                f'in one step of {m.dt:.3g} s from rest: lower the torque or dt')
 
     def _single(self, s, c, h, tally, may_split):
         """One (sub-)step: (new State or None, None or a failure description). The new State
