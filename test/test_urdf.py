@@ -35,6 +35,14 @@ def joint(name, jtype, parent, child, xyz='0 0 0', rpy='0 0 0', axis='0 0 1', ex
             f'<origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="{axis}"/>{extra}</joint>')
 
 
+def _from_urdf_warned(text, **options):
+    """(Scene.from_urdf(text, **options), the UrdfWarning messages it gave)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text, **options)
+    return scene, [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+
+
 ARM = robot(
     '<material name="blue"><color rgba="0 0 1 1"/></material>',
     link('base', inertial(5.0)),
@@ -208,10 +216,7 @@ def test_non_physical_inertias_repaired_with_one_warning_each():
                  link('c', inertial(2.0, ixx=0.0, iyy=0.0, izz=0.0)),        # point mass
                  joint('j1', 'continuous', 'a', 'b', axis='1 0 0'),
                  joint('j2', 'continuous', 'b', 'c', xyz='0 0 0.3', axis='1 0 0'))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        scene = Scene.from_urdf(text)
-    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    scene, msgs = _from_urdf_warned(text)
     assert len(msgs) == 2 and len(scene.warnings) == 2
     assert "link 'b'" in msgs[0] and 'triangle' in msgs[0] and 'balanceinertia' in msgs[0]
     assert np.allclose(np.array(scene.bodies[1].shape.inertia).reshape(3, 3),
@@ -240,10 +245,7 @@ def test_a_flat_body_gets_a_little_thickness_with_a_warning():
     text = robot(link('base', inertial(1.0)), link('plate', body),
                  joint('j', 'revolute', 'base', 'plate', axis='1 0 0',
                        extra='<limit lower="-3" upper="3" effort="5"/>'))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
-    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    scene, msgs = _from_urdf_warned(text, gravity=[0, 0, 0])
     assert len(msgs) == 1 and "link 'plate'" in msgs[0] and 'flat body' in msgs[0]
     got = np.linalg.eigvalsh(np.array(scene.bodies[1].shape.inertia).reshape(3, 3))
     lift = FLAT_RATIO * (8e-5 - 5e-12) - 5e-12              # S_z raised to FLAT_RATIO S_x
@@ -268,10 +270,7 @@ def test_a_point_mass_written_with_round_off_is_a_sphere_with_a_warning():
     text = robot(link('base', inertial(1.0)), link('foot', tiny),
                  joint('ankle', 'revolute', 'base', 'foot', axis='0 1 0', xyz='0 0 -0.1',
                        extra='<limit lower="-1" upper="1" effort="20"/>'))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
-    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    scene, msgs = _from_urdf_warned(text, gravity=[0, 0, 0])
     assert len(msgs) == 1 and "link 'foot'" in msgs[0] and 'negligible for its mass' in msgs[0]
     r = (3 * 0.746 / 1000 / (4 * math.pi)) ** (1 / 3)
     assert np.allclose(np.array(scene.bodies[1].shape.inertia).reshape(3, 3), 0.4 * 0.746 * r * r * np.eye(3))
@@ -392,10 +391,7 @@ def test_bad_overrides_name_the_joint_and_field(opts, match):
 
 def test_zero_outside_the_limit_starts_at_the_nearest_bound_with_a_warning():
     text = ARM.replace('lower="-1.5" upper="1.5"', 'lower="0.5" upper="1.5"')
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
-    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    scene, msgs = _from_urdf_warned(text, gravity=[0, 0, 0])
     assert len(msgs) == 1 and "joint 'shoulder': position 0 is outside its limit [0.5, 1.5]" in msgs[0]
     world = World(scene)
     assert world.joint_angles()[0] == pytest.approx(0.5, abs=1e-12)
@@ -413,10 +409,7 @@ def test_a_limit_beyond_the_supported_angles_is_no_limit_with_a_warning(bounds):
     way of saying "unlimited": the joint is taken as continuous, with one warning naming it,
     and the scene loads (the scene's own |angle| <= 1e4 rad would refuse the number)."""
     text = ARM.replace('lower="-1.5" upper="1.5"', bounds)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        scene = Scene.from_urdf(text)
-    msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    scene, msgs = _from_urdf_warned(text)
     assert len(msgs) == 1 and "joint 'shoulder': limit [-1e+16," in msgs[0] and 'no limit' in msgs[0]
     assert scene.joints[0].limit is None and scene.joints[0].external_torque.effort_limit == 40.0
     world = World(scene)
