@@ -86,6 +86,13 @@ def theta(q, m, j):
 @njit(cache=True, error_model='numpy')
 def theta_at(q, parent, child, nbar, bbar, j):
     """θ of joint j from the frames' dot products, without a work array."""
+    c, s = cos_sin_at(q, parent, child, nbar, bbar, j)
+    return math.atan2(s, c)
+
+
+@njit(cache=True, error_model='numpy')
+def cos_sin_at(q, parent, child, nbar, bbar, j):
+    """(c, s) of joint j: θ = atan2(s, c), both scaled alike by the bodies' stretch."""
     i_body, j_body = parent[j], child[j]
     ninj = bibj = binj = nibj = 0.0
     for r in range(3):
@@ -101,7 +108,7 @@ def theta_at(q, parent, child, nbar, bbar, j):
         bibj += bi * bj
         binj += bi * nj
         nibj += ni * bj
-    return math.atan2(0.5 * (binj - nibj), 0.5 * (ninj + bibj))
+    return 0.5 * (ninj + bibj), 0.5 * (binj - nibj)
 
 
 @njit(cache=True, error_model='numpy')

@@ -51,7 +51,12 @@ def _ctx(q_tilde=None, on=True, angle_start=None):
     q_tilde = MODEL.body_q0.copy() if q_tilde is None else q_tilde
     start = np.zeros(J) if angle_start is None else np.asarray(angle_start, float)
     return StepContext(0.01, 9.0 / 4.0, q_tilde, start, np.full(len(MODEL.drive_joints), 0.9),
-                       np.full(len(MODEL.drive_joints), on), np.empty(angles.ANGLE_WORK_SHAPE))
+                       np.full(len(MODEL.drive_joints), on), np.empty(angles.ANGLE_WORK_SHAPE),
+                       _limit_ref(start))
+
+
+def _limit_ref(start):
+    return limit.references(DATA, np.asarray(start, float), np.empty((len(MODEL.limit_joints), 3)))
 
 
 def _oracle_energy(name, q, ctx):
@@ -318,7 +323,7 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
     theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
     for offset, gauss_newton in ((0.5, True), (0.02, False)):
         ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
-                             np.empty(angles.ANGLE_WORK_SHAPE))
+                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start))
         _, g, Hp = dense(driving, q, ctx, project=True)
         _, g_raw, _ = dense(driving, q, ctx, project=False)
         np.testing.assert_array_equal(g, g_raw)
@@ -530,7 +535,7 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
             # drives: target beside the angle; limits: the step-start branch and init shift x
             start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
             ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
-                             np.empty(angles.ANGLE_WORK_SHAPE))
+                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start))
             joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
             if n == 0:
                 continue
@@ -644,3 +649,45 @@ def test_mass_blocks_reject_a_mass_matrix_without_the_kron_structure():
     M[0, 4, 7] = 1e-3                                   # couples rows 0 and 1 of A
     with pytest.raises(ValueError, match='M̄ ⊗ I3'):
         model_data.mass_blocks(M, Minv)
+
+
+def test_limit_inside_answers_only_where_the_angle_is_inside_and_saves_most_angles():
+    """limit.inside (no atan2) says "inside" only where the exact angle (unwrap of atan2 about
+    the step's start) is at least INSIDE_SAFETY within both bounds; never for a locked joint
+    or a start outside the range; and it does answer for most poses near an inside start (the
+    point of it). Starts near a bound, near ±π from the pose and beyond a turn included."""
+    rng = np.random.default_rng(7)
+    k = 0                                           # j0: [-0.5, 0.1] from its init angle; j1 locked
+    lo, up = DATA.limit_lower[k], DATA.limit_upper[k]
+    j = int(MODEL.limit_joints[k])
+    poses = [_state(seed, 0.02 * (seed % 3)) for seed in range(400)]
+    within = [q for q in poses if lo + 0.05 < angles.unwrap(angles.theta(q, DATA, j), 0.0) < up - 0.05]
+    assert len(within) >= 10
+    answered = near = eligible = 0
+    for trial in range(3000):
+        kind = trial % 4
+        q = within[trial % len(within)] if kind == 0 else poses[trial % len(poses)]
+        x_here = angles.unwrap(angles.theta(q, DATA, j), 0.0)
+        if kind == 0:       # a pose inside, the start within a step of it
+            x0 = x_here + rng.normal(scale=0.02)
+        elif kind == 1:     # a start a hair inside a bound
+            x0 = (lo if rng.random() < 0.5 else up) + rng.choice([-1, 1]) * 10.0 ** rng.uniform(-12, -3)
+        elif kind == 2:     # anywhere, turns away included
+            x0 = rng.uniform(-10.0, 10.0)
+        else:               # the pose half a turn from the start
+            x0 = x_here + np.pi * rng.choice([-1, 1]) + rng.normal(scale=1e-3)
+        start = np.array([x0, 0.0])
+        ref = _limit_ref(start)
+        x = angles.unwrap(angles.theta(q, DATA, j), x0)
+        said = limit.inside(*angles.cos_sin_at(q, DATA.joint_parent, DATA.joint_child, DATA.joint_nbar,
+                                               DATA.joint_bbar, j), ref, k)
+        if said:
+            answered += 1
+            assert lo + limit.INSIDE_SAFETY * 0.5 < x < up - limit.INSIDE_SAFETY * 0.5, (trial, x0, x)
+        if lo + 0.05 < x0 < up - 0.05 and abs(x - x0) < 0.02:     # certainly answerable
+            eligible += 1
+            near += said
+        c1, s1 = angles.cos_sin_at(q, DATA.joint_parent, DATA.joint_child, DATA.joint_nbar,
+                                   DATA.joint_bbar, int(MODEL.limit_joints[1]))
+        assert not limit.inside(c1, s1, ref, 1)     # the locked joint: always the exact path
+    assert answered > 500 and near == eligible > 300

@@ -21,6 +21,7 @@ import numpy as np
 from .. import angles
 from ..errors import SimulationError
 from ..state import Control, State
+from ..terms import limit
 from ..terms.context import StepContext
 from ..terms.revolute import joint_separation
 from ..terms.torque import SINGULAR_RATIO
@@ -155,7 +156,8 @@ class Solver:
         return StepContext(float(h), 1.0, state.q if q_tilde is None else q_tilde, start,
                            np.ascontiguousarray(target, dtype=float),
                            np.ascontiguousarray(control.drive_enabled, dtype=bool),
-                           np.empty(angles.ANGLE_WORK_SHAPE))
+                           np.empty(angles.ANGLE_WORK_SHAPE),
+                           limit.references(self.data, start, np.empty((len(m.limit_joints), 3))))
 
     # -- one step, with recovery ---------------------------------------------------------
     def step(self, state: State, control: Control) -> tuple[State, StepReport]:

@@ -7,6 +7,7 @@ from collections import namedtuple
 #: prediction q̃; angle_start [rad] (J,) unwrapped joint angle minus init_angle at the
 #: start of the step; drive_target [rad] (D,) UID 19 target relative to init_angle (the
 #: aim, or angle_start when passive); drive_on (D,) bool; angle_work: scratch of
-#: angles.ANGLE_WORK_SHAPE the drives and limits work in (no allocation in the step).
+#: angles.ANGLE_WORK_SHAPE the drives and limits work in (no allocation in the step);
+#: limit_ref (L,3) what limit.inside reads, made by limit.references from angle_start.
 StepContext = namedtuple('StepContext', ['h', 'scale', 'q_tilde', 'angle_start', 'drive_target', 'drive_on',
-                                         'angle_work'])
+                                         'angle_work', 'limit_ref'])

@@ -6,8 +6,15 @@
 
 E' and E'' follow; gradient and Hessian via angles.accumulate_angle_joint (PSD-projected, or
 exact where the bodies' inertia keeps Newton's matrix positive definite).
+
+Most limits are inside their range most of the time, where they contribute nothing: `inside`
+shows that without atan2 (the angle's cosine against the step's start), and only the others
+compute the angle. The same results, bit for bit: it answers "inside" only where the angle
+is at least INSIDE_SAFETY from both bounds.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -45,12 +52,65 @@ def angle(q, m, ctx, k):
                          ctx.angle_start[j])
 
 
+#: [rad] `inside` answers "inside" only this far within both bounds (x's rounding is ~1e-12)
+INSIDE_SAFETY = 1e-9
+
+
+@njit(cache=True, error_model='numpy')
+def references(m, angle_start, ref):
+    """ref (L,3) for `inside`, per limit k: cos x₀, sin x₀ of its joint's angle at the step's
+    start x₀ = angle_start[j], and an upper bound T of cos μ, μ = min(x₀ − l, u − x₀) −
+    INSIDE_SAFETY the start's margin inside [l, u]: T = 1 − μ²/2 + μ⁴/24 (≥ cos μ for every
+    μ, so no third trigonometric call), 2 where there is no margin (the start outside or on a
+    bound, a locked joint: `inside` then never answers), −2 where μ ≥ π (any angle within
+    half a turn of the start, as unwrap picks it, is inside). Returns ref."""
+    limit_joints, lower, upper = m.limit_joints, m.limit_lower, m.limit_upper
+    for k in range(limit_joints.size):
+        x0 = angle_start[limit_joints[k]]
+        margin = min(x0 - lower[k], upper[k] - x0) - INSIDE_SAFETY
+        if not (lower[k] < upper[k] and margin > 0.0):
+            ref[k, 2] = 2.0
+        elif margin >= math.pi:
+            ref[k, 2] = -2.0
+        else:
+            ref[k, 0] = math.cos(x0)
+            ref[k, 1] = math.sin(x0)
+            mm = margin * margin
+            ref[k, 2] = min(1.0 - 0.5 * mm + mm * mm / 24.0, 1.0)
+    return ref
+
+
+@njit(cache=True, error_model='numpy')
+def inside(c, s, ref, k):
+    """Whether limit k's joint angle x, atan2(s, c) from its frames' (c, s) unwrapped about the
+    step's start x₀, is shown strictly inside [l, u] without atan2: x = x₀ + δ, |δ| ≤ π as
+    unwrap picks it, and |δ| < μ holds where cos δ > T ≥ cos μ, with r cos δ = c cos x₀ +
+    s sin x₀, r = |(c, s)| (compared squared: no square root). False means "not shown": the
+    caller computes x from the same (c, s)."""
+    T = ref[k, 2]
+    if T > 1.0:
+        return False
+    if T < -1.0:
+        return True
+    d = c * ref[k, 0] + s * ref[k, 1]          # r cos δ
+    t = T * T * (c * c + s * s)                # (r T)²
+    if T >= 0.0:
+        return d > 0.0 and d * d > t
+    return d >= 0.0 or d * d < t
+
+
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
     lower, upper, strength = m.limit_lower, m.limit_upper, m.limit_strength
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    ref, start = ctx.limit_ref, ctx.angle_start
     E = 0.0
     for k in range(lower.size):
-        x = angle(q, m, ctx, k)
+        j = m.limit_joints[k]
+        c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
+        if inside(c, s, ref, k):
+            continue
+        x = angles.unwrap(math.atan2(s, c), start[j])          # = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             E += phi(x, lower[k], upper[k], strength[k])[0]
     return E
@@ -83,11 +143,14 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget
-    work = ctx.angle_work
+    work, ref, start = ctx.angle_work, ctx.limit_ref, ctx.angle_start
     for k in range(limit_joints.size):
-        x = angle(q, m, ctx, k)
+        j = limit_joints[k]
+        c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
+        if inside(c, s, ref, k):
+            continue
+        x = angles.unwrap(math.atan2(s, c), start[j])          # = angle(q, m, ctx, k)
         if active(x, lower[k], upper[k]):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
-            j = limit_joints[k]
             angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
                                           project, work, ctx.scale * budget[j])
