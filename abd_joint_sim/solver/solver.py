@@ -7,9 +7,10 @@ more than `max_step_rotation` (or is predicted to, before solving) or comes apar
 as two half steps, recursively up to 2**max_substep_depth sub-steps. If even that leaves a
 non-finite state or a joint apart, `SimulationError` is raised (the caller keeps its State:
 time stays a multiple of dt); a merely unconverged result is kept and reported.
-`Solver.advance(state, control, n)` takes up to n such steps, the clean ones in one compiled
-call (`step.steps`), with the same results bit for bit; `Solver.clean_steps` is the compiled part
-alone, for callers that publish every step (sim_node).
+`Solver.advance(state, control, n)` takes up to n such steps, all but those that need sub-steps
+in one compiled call (`step.steps`), with the same results bit for bit; `Solver.clean_steps`
+stops before any warning too, for callers that publish every step and log every warning
+(sim_node).
 """
 from __future__ import annotations
 
