@@ -277,6 +277,52 @@ def mujoco_model(path, lock=(), repair=False):
         notes + ['without its meshes'])
 
 
+def ours_robot_steps(world, steps):
+    """(Newton iterations per step over 200 one-step calls, s per step in one call of `steps`)
+    of a loaded robot World under `torques` on every actuated joint, after 3 steps; CPU time."""
+    names = world.actuated_joint_names
+    for joint, tau in zip(names, torques(len(names))):
+        world.set_torque(joint, tau)
+    world.step(3)
+    its = sum(world.step().newton_iterations for _ in range(200)) / 200
+    t0 = time.process_time()
+    world.step(steps)
+    return its, (time.process_time() - t0) / steps
+
+
+def mujoco_robot_steps(path, steps, lock=()):
+    """(s per step or None, note, why not) of MuJoCo on the URDF at `path` under `torques`,
+    contacts off, in one mj_step(m, d, steps) after 3 steps; CPU time. `note` says what
+    mujoco_model changed and whether MuJoCo's integration diverged (it then resets its state);
+    `why` is MuJoCo's refusal, '' if it ran or is not installed."""
+    try:
+        import mujoco as mj
+    except ImportError:
+        return None, '', ''
+    try:
+        try:
+            m, note = mujoco_model(path, lock)
+        except ValueError as exc:           # an inertia MuJoCo's compiler rejects
+            if 'inertia' not in str(exc) and 'mass' not in str(exc):
+                raise
+            m, note = mujoco_model(path, lock, repair=True)
+        m.opt.timestep = DT
+        m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
+        d = mj.MjData(m)
+        d.qfrc_applied[:] = torques(m.nv)
+        mj.mj_step(m, d, 3)
+        t0 = time.process_time()
+        mj.mj_step(m, d, steps)
+        t = (time.process_time() - t0) / steps
+        resets = d.warning[mj.mjtWarning.mjWARN_BADQACC].number
+        if resets:          # its explicit integration diverged: it reset the state
+            note = ', '.join(filter(None, [note, f'unstable: MuJoCo reset its state '
+                                                 f'{resets}× in {steps + 3} steps']))
+        return t, note, ''
+    except Exception as exc:                     # noqa: BLE001 (a peer's refusal)
+        return None, '', str(exc).splitlines()[0][:60]
+
+
 def robots(quick=False, peers=True):
     """One row per robot of ROBOTS: bodies, Newton iterations per step (mean of 200 single
     steps), ours World.step(n) and MuJoCo mj_step(m, d, n) µs/step and their ratio (MuJoCo
@@ -300,38 +346,10 @@ def robots(quick=False, peers=True):
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')             # the importer's repairs (docs/urdf.md)
             world = World(Scene.from_urdf(path, dt=DT, **ROBOT_OPTIONS.get(name, {})))
-        for joint, tau in zip(world.actuated_joint_names, torques(len(world.actuated_joint_names))):
-            world.set_torque(joint, tau)
-        world.step(3)
-        its = sum(world.step().newton_iterations for _ in range(200)) / 200
-        t0 = time.process_time()
-        world.step(steps)
-        ours_t = (time.process_time() - t0) / steps
+        its, ours_t = ours_robot_steps(world, steps)
         mj_t, why, note = None, '', ''
         if peers:
-            try:
-                import mujoco as mj
-                lock = ROBOT_OPTIONS.get(name, {}).get('lock', ())
-                try:
-                    m, note = mujoco_model(path, lock)
-                except ValueError as exc:           # an inertia MuJoCo's compiler rejects
-                    if 'inertia' not in str(exc) and 'mass' not in str(exc):
-                        raise
-                    m, note = mujoco_model(path, lock, repair=True)
-                m.opt.timestep = DT
-                m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
-                d = mj.MjData(m)
-                d.qfrc_applied[:] = torques(m.nv)
-                mj.mj_step(m, d, 3)
-                t0 = time.process_time()
-                mj.mj_step(m, d, steps)
-                mj_t = (time.process_time() - t0) / steps
-                resets = d.warning[mj.mjtWarning.mjWARN_BADQACC].number
-                if resets:          # its explicit integration diverged: it reset the state
-                    note = ', '.join(filter(None, [note, f'unstable: MuJoCo reset its state '
-                                                         f'{resets}× in {steps + 3} steps']))
-            except Exception as exc:                     # noqa: BLE001 (a peer's refusal)
-                why = str(exc).splitlines()[0][:60]
+            mj_t, note, why = mujoco_robot_steps(path, steps, ROBOT_OPTIONS.get(name, {}).get('lock', ()))
         ratio = f'{ours_t / mj_t:.1f}' if mj_t else '–'
         mj_cell = f'{mj_t * 1e6:.1f}' if mj_t else f'– ({why})' if why else '–'
         if mj_t and note:

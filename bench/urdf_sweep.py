@@ -19,16 +19,13 @@ import argparse
 import glob
 import os
 import sys
-import time
 import warnings
 from pathlib import Path
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))     # this checkout's package
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from robot_bench import DT, mujoco_model, torques                # noqa: E402
+from robot_bench import DT, mujoco_robot_steps, ours_robot_steps  # noqa: E402
 
 
 def ours(path):
@@ -41,43 +38,11 @@ def ours(path):
             world = World(Scene.from_urdf(path, dt=DT))
         except SceneError as exc:
             return ('refused', str(exc))
-    names = world.actuated_joint_names
-    for joint, tau in zip(names, torques(len(names))):
-        world.set_torque(joint, tau)
     try:
-        world.step(3)
-        its = sum(world.step().newton_iterations for _ in range(200)) / 200
-        t0 = time.process_time()
-        world.step(1000)
-        return ('ran', world.model.body_count, its, (time.process_time() - t0) / 1000 * 1e6)
+        its, t = ours_robot_steps(world, 1000)
+        return ('ran', world.model.body_count, its, t * 1e6)
     except SimulationError as exc:
         return ('failed', str(exc))
-
-
-def mujoco(path):
-    """(µs per step, note) of MuJoCo on the same file, or (None, why)."""
-    try:
-        import mujoco as mj
-    except ImportError:
-        return None, 'MuJoCo not installed'
-    try:
-        try:
-            m, note = mujoco_model(path)
-        except ValueError:
-            m, note = mujoco_model(path, repair=True)
-        m.opt.timestep = DT
-        m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
-        d = mj.MjData(m)
-        d.qfrc_applied[:] = torques(m.nv)
-        mj.mj_step(m, d, 3)
-        t0 = time.process_time()
-        mj.mj_step(m, d, 1000)
-        t = (time.process_time() - t0) / 1000 * 1e6
-        if d.warning[mj.mjtWarning.mjWARN_BADQACC].number:
-            note = ', '.join(filter(None, [note, 'unstable: MuJoCo reset its state']))
-        return t, note
-    except Exception as exc:                            # noqa: BLE001 (a peer's refusal)
-        return None, str(exc).splitlines()[0][:80]
 
 
 def main(argv=None) -> int:
@@ -102,9 +67,10 @@ def main(argv=None) -> int:
             print(f'| {name} | {result[0]}: {msg} | | | | | |', flush=True)
             continue
         _, bodies, its, t = result
-        mj_t, note = mujoco(path)
+        mj_t, note, why = mujoco_robot_steps(path, 1000)
+        mj_t = mj_t * 1e6 if mj_t else None
         ratio = f'{t / mj_t:.1f}' if mj_t else '–'
-        mj_cell = (f'{mj_t:.1f}' if mj_t else '–') + (f' ({note})' if note else '')
+        mj_cell = (f'{mj_t:.1f}' if mj_t else f'– {why}') + (f' ({note})' if note else '')
         print(f'| {name} | ran | {bodies} | {its:.2f} | {t:.1f} | {mj_cell} | {ratio} |', flush=True)
     print(f'\n{len(files)} files: {counts["ran"]} ran, {counts["refused"]} refused, '
           f'{counts["failed"]} failed (load {os.getloadavg()[0]:.2f})')
