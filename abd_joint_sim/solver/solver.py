@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import angles
 from ..errors import SimulationError
+from ..model import skew
 from ..state import Control, State
 from ..terms import limit
 from ..terms.context import StepContext
@@ -295,8 +296,7 @@ class Solver:
                 continue
             x0, x1 = m.joint_anchor0[j, side], m.joint_anchor1[j, side]
             a = (x1 - x0) / np.linalg.norm(x1 - x0)
-            cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-            qdot = np.concatenate([-np.cross(a, x0), cross.ravel()])
+            qdot = np.concatenate([-np.cross(a, x0), skew(a).ravel()])
             out = min(out, float(qdot @ m.body_M[b] @ qdot))
         return out
 

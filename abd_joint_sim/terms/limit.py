@@ -48,8 +48,14 @@ def active(x, lower, upper):
 def angle(q, m, ctx, k):
     """The unwrapped angle x of limit k's joint at q (relative to init_angle). [rad]"""
     j = m.limit_joints[k]
-    return angles.unwrap(angles.theta_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j),
-                         ctx.angle_start[j])
+    return angle_of(*angles.cos_sin_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j),
+                    ctx.angle_start[j])
+
+
+@njit(cache=True, error_model='numpy')
+def angle_of(c, s, start):
+    """x from the joint frames' (c, s): atan2 unwrapped about the step's start angle. [rad]"""
+    return angles.unwrap(math.atan2(s, c), start)
 
 
 #: [rad] `inside` answers "inside" only this far within both bounds (x's rounding is ~1e-12)
@@ -110,7 +116,7 @@ def energy(q, m, ctx):
         c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
         if inside(c, s, ref, k):
             continue
-        x = angles.unwrap(math.atan2(s, c), start[j])          # = angle(q, m, ctx, k)
+        x = angle_of(c, s, start[j])
         if active(x, lower[k], upper[k]):
             E += phi(x, lower[k], upper[k], strength[k])[0]
     return E
@@ -149,7 +155,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
         if inside(c, s, ref, k):
             continue
-        x = angles.unwrap(math.atan2(s, c), start[j])          # = angle(q, m, ctx, k)
+        x = angle_of(c, s, start[j])
         if active(x, lower[k], upper[k]):
             _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
             angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
