@@ -219,6 +219,7 @@ RANGES = {
     'strength': (1e-6, 1e9, ''),
     'torque': (0.0, 1e9, 'N m'),
     'effort_limit': (1e-9, 1e9, 'N m'),
+    'damping': (0.0, 1e9, 'N m s/rad'),
     'tolerance': (1e-12, 1e3, ''),
 }
 """Sane ranges of the numbers a scene carries (SceneError beyond; docs/robustness.md)."""
@@ -313,6 +314,7 @@ class JointSpec:
     external_torque: TorqueSpec | None = None
     driving: DrivingSpec | None = None
     limit: LimitSpec | None = None
+    damping: float = 0.0                    # [N m s/rad] viscous joint damping; 0 = none
 
 
 @dataclass(frozen=True)
@@ -664,7 +666,7 @@ class _Parser:
 
     def joint(self, where, value, body_names):
         d = self.mapping(where, value, ('name', 'type', 'parent', 'child', 'p0', 'p1', 'strength_ratio',
-                                        'init_angle', 'external_torque', 'driving', 'limit'),
+                                        'init_angle', 'external_torque', 'driving', 'limit', 'damping'),
                          required=('name', 'parent', 'child', 'p0', 'p1'))
         name = self.name(f'{where}.name', d['name'])
         jtype = d.get('type', 'revolute')
@@ -724,4 +726,6 @@ class _Parser:
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
                                                     positive=True, bound='strength'),
                          init_angle=self.number(f'{where}.init_angle', d.get('init_angle', 0.0), bound='angle'),
-                         external_torque=torque, driving=driving, limit=limit)
+                         external_torque=torque, driving=driving, limit=limit,
+                         damping=self.number(f'{where}.damping', d.get('damping', 0.0), nonneg=True,
+                                             bound='damping'))

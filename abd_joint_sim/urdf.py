@@ -46,11 +46,11 @@ POINT_MASS_RATIO = 1e-6
 FLAT_RATIO = 1e-4
 
 ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints', 'kappa',
-                 'strength_ratio', 'limits', 'torque_enabled', 'driving')
+                 'strength_ratio', 'limits', 'torque_enabled', 'driving', 'damping')
 """URDF options of ``from_urdf`` and of a ``robot:`` block (besides ``urdf``)."""
 SCENE_OPTIONS = ('dt', 'gravity', 'integrator', 'newton', 'name')
 """Scene options ``from_urdf`` also takes (in a scene YAML they are top-level keys)."""
-JOINT_OVERRIDES = ('strength_ratio', 'external_torque', 'driving', 'limit')
+JOINT_OVERRIDES = ('strength_ratio', 'external_torque', 'driving', 'limit', 'damping')
 OVERRIDE_KEYS = {'external_torque': ('torque', 'enabled', 'effort_limit'),
                  'driving': ('strength_ratio', 'aim_angle', 'passive', 'enabled'),
                  'limit': ('lower', 'upper', 'strength')}
@@ -77,7 +77,7 @@ class _Link:
 
 class _Joint:
     __slots__ = ('name', 'type', 'parent', 'child', 'origin', 'axis', 'lower', 'upper',
-                 'effort', 'mimic')
+                 'effort', 'mimic', 'damping', 'friction')
 
     def __init__(self, name, jtype, parent, child, origin, axis):
         self.name, self.type, self.parent, self.child = name, jtype, parent, child
@@ -85,6 +85,7 @@ class _Joint:
         self.lower = self.upper = None
         self.effort = None
         self.mimic = None
+        self.damping = self.friction = 0.0     # <dynamics>
 
 
 def rpy_matrix(rpy) -> np.ndarray:
@@ -297,6 +298,17 @@ class _Reader:
                 j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
         if el.find('mimic') is not None:
             j.mimic = el.find('mimic').get('joint', '?')
+        dyn = el.find('dynamics')
+        if dyn is not None:
+            j.damping = self.number(dyn, 'damping', f'{where} <dynamics>', 0.0)
+            j.friction = self.number(dyn, 'friction', f'{where} <dynamics>', 0.0)
+            if j.damping < 0.0:
+                self.fail(f'{where} <dynamics>: damping="{j.damping:g}" is negative (a damper '
+                          'that drives the joint); damping is >= 0 [N m s/rad]')
+            top = RANGES['damping'][1]
+            if j.damping > top:
+                self.fail(f'{where} <dynamics>: damping="{j.damping:g}" is beyond the supported '
+                          f'{top:g} N m s/rad')
         return j
 
 
@@ -369,6 +381,10 @@ class _Options:
         self.limits = opts.get('limits', True)
         if not isinstance(self.limits, bool):
             self.fail('limits', f'must be true or false, got {self.limits!r}')
+        self.damping = opts.get('damping', True)
+        if not isinstance(self.damping, bool):
+            self.fail('damping', f'must be true (the file\'s <dynamics damping>) or false (none), '
+                                 f'got {self.damping!r}')
         self.torque_enabled = opts.get('torque_enabled', True)
         if not isinstance(self.torque_enabled, bool):
             self.fail('torque_enabled', f'must be true or false, got {self.torque_enabled!r}')
@@ -404,6 +420,8 @@ class _Options:
                                                       f'remove it), got {sub!r}')
             if 'strength_ratio' in over:
                 self.positive(f'joints.{name}.strength_ratio', over['strength_ratio'])
+            if over.get('damping') not in (None, False):
+                self.nonnegative(f'joints.{name}.damping', over['damping'])
         for key in ('kappa', 'strength_ratio'):
             if opts.get(key) is not None:
                 self.positive(key, opts[key])
@@ -423,6 +441,11 @@ class _Options:
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not math.isfinite(value) or value <= 0:
             self.fail(field, f'must be a finite number > 0, got {value!r}')
+
+    def nonnegative(self, field, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value) or value < 0:
+            self.fail(field, f'must be a finite number >= 0, got {value!r}')
 
     def mapping(self, field, value):
         if not isinstance(value, dict):
@@ -513,6 +536,16 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             notes.append(msg)
             warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
             j.lower = j.upper = None
+
+    # Coulomb friction (a torque of fixed size against the motion, set-valued at rest) is no
+    # term of this simulator: said once per file rather than dropped silently.
+    rubbing = [j.name for j in joints.values() if moving(j) and j.friction > 0.0]
+    if rubbing:
+        shown = ', '.join(rubbing[:8]) + (f' and {len(rubbing) - 8} more' if len(rubbing) > 8 else '')
+        msg = (f'{source}: <dynamics friction> is not simulated (no Coulomb friction term): '
+               f'ignored on {len(rubbing)} joint(s): {shown} (of <dynamics>, only damping is)')
+        notes.append(msg)
+        warnings.warn(msg, UrdfWarning, stacklevel=4)
 
     # Initial positions: as given, else 0 -- or the nearest bound where 0 is outside the
     # joint's limit (some descriptions have it so; the limit would throw the joint back).
@@ -693,6 +726,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             d['limit'] = {'lower': j.lower, 'upper': j.upper}
         if opt.driving is not None:         # UID 19 on every moving joint, holding its pose
             d['driving'] = {'aim_angle': q0, **opt.driving}
+        if opt.damping and j.damping > 0.0:
+            d['damping'] = j.damping
         over = opt.overrides.get(j.name, {})
         for key in JOINT_OVERRIDES:
             if key not in over:
@@ -700,7 +735,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             value = over[key]
             if value is False or value is None:
                 d.pop(key, None)
-            elif key == 'strength_ratio':
+            elif key in ('strength_ratio', 'damping'):
                 d[key] = value
             elif isinstance(value, dict):
                 base = d.get(key) if isinstance(d.get(key), dict) else {}

@@ -1,7 +1,8 @@
 """Error against run time for a real robot description (issue 11): the KUKA iiwa URDF shipped
 in the pybullet wheel (`pybullet_data/kuka_iiwa/model.urdf`, 7 revolute joints, never copied
 here), loaded with `Scene.from_urdf`, against a rigid-body reference: MuJoCo loading the same
-file (RK4 at dt = 1e-5; its <dynamics> damping, friction loss, armature and contacts off).
+file (RK4 at dt = 1e-5; its <dynamics> damping, friction loss, armature and contacts off;
+the file's joint damping off on our side too, `damping=False`).
 
 Motion: from rest, gravity, and at t = 0 a torque step (−1)^k (2 − 0.2 k) N m on joint k,
 for T = 0.2 s (joint 7 turns ~3 rad), joint limits off in both (hitting one is a
@@ -75,7 +76,8 @@ def run_mujoco(path, dt, integrator='RK4'):
 
 
 def run_ours(path, dt, integrator, kappa):
-    scene = Scene.from_urdf(path, dt=dt, integrator=integrator, kappa=kappa, limits=False)
+    scene = Scene.from_urdf(path, dt=dt, integrator=integrator, kappa=kappa, limits=False,
+                            damping=False)
     world = World(scene)
     for name, tau in zip(scene.joint_names, torques(len(scene.joint_names))):
         world.set_torque(name, tau)

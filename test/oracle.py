@@ -68,6 +68,48 @@ def driving_energy(model, q, angle_start, target, on):
     return E
 
 
+def theta_gradient(model, q, j):
+    """∇θ of joint j w.r.t. [vec A_parent, vec A_child] (18,): θ = atan2(s, c) with
+    c = (n_i·n_j + b_i·b_j)/2, s = (b_i·n_j − n_i·b_j)/2, n = A n̄, so ∂(A n̄)·w/∂A = w n̄ᵀ and
+    ∇θ = (c ∇s − s ∇c)/(c² + s²)."""
+    _, Ai = affine(q, model.joint_parent[j])
+    _, Aj = affine(q, model.joint_child[j])
+    nbi, nbj = model.joint_nbar[j]
+    bbi, bbj = model.joint_bbar[j]
+    ni, nj, bi, bj = Ai @ nbi, Aj @ nbj, Ai @ bbi, Aj @ bbj
+    c, s = 0.5 * (ni @ nj + bi @ bj), 0.5 * (bi @ nj - ni @ bj)
+    dc = 0.5 * np.concatenate([(np.outer(nj, nbi) + np.outer(bj, bbi)).ravel(),
+                               (np.outer(ni, nbj) + np.outer(bi, bbj)).ravel()])
+    ds = 0.5 * np.concatenate([(np.outer(nj, bbi) - np.outer(bj, nbi)).ravel(),
+                               (np.outer(bi, nbj) - np.outer(ni, bbj)).ravel()])
+    return (c * ds - s * dc) / (c * c + s * s)
+
+
+def damping_energy(model, q, q0, q_prev, angle_start, h, bdf2, linear=True):
+    """Joint damping: the potential whose θ-derivative is h² d θ̇ (the torque −d θ̇ times h²,
+    as s M (q − q̃) carries it), θ̇ the integrator's rate at the end of the step: BDF1
+    (θ − θⁿ)/h, BDF2 (3θ − 4θⁿ + θⁿ⁻¹)/(2h), θⁿ⁻¹ the angle at q_prev. θ̇ is linear in θ with
+    slope r = 1/h or 3/(2h), so E = h² d θ̇² / (2r). With `linear`, θ is θ(q0) + ∇θ(q0)·(q − q0)
+    (the compiled term's linearisation at Newton's start), else θ(q) itself."""
+    E = 0.0
+    for k, j in enumerate(model.damping_joints):
+        d = model.damping_coeff[k]
+        now = angle_start[j]
+        if linear:
+            i, c = model.joint_parent[j], model.joint_child[j]
+            dA = np.concatenate([q[i, 3:12] - q0[i, 3:12], q[c, 3:12] - q0[c, 3:12]])
+            x = unwrap(theta(model, q0, j), now) + theta_gradient(model, q0, j) @ dA
+        else:
+            x = unwrap(theta(model, q, j), now)
+        if bdf2:
+            before = unwrap(theta(model, q_prev, j), now)
+            rate, r = (3 * x - 4 * now + before) / (2 * h), 3 / (2 * h)
+        else:
+            rate, r = (x - now) / h, 1 / h
+        E += h * h * d * rate ** 2 / (2 * r)
+    return E
+
+
 def limit_energy(model, q, angle_start):
     """UID 670: s((x − u)/w)³ above u, s((l − x)/w)³ below l, s|x − l|³ for w = 0."""
     E = 0.0

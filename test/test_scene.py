@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from abd_joint_sim import Scene, SceneError, World, compile_scene
-from abd_joint_sim.model import mass_properties, rpy_matrix
+from abd_joint_sim.model import DAMPING_RATIO_MAX, mass_properties, rpy_matrix
 
 from physics_helpers import SCENES, box, hinge_dict, scene_dict
 
@@ -93,6 +93,9 @@ BAD = [
     ('strength_tiny', ('joints', 0, 'strength_ratio'), 1e-300, 'joints[0].strength_ratio', 'supported range'),
     ('torque_huge', ('joints', 0, 'external_torque', 'torque'), 1e300,
      'joints[0].external_torque.torque', 'supported range'),
+    ('damping_negative', ('joints', 0, 'damping'), -0.5, 'joints[0].damping', 'must be >= 0'),
+    ('damping_nan', ('joints', 0, 'damping'), NAN, 'joints[0].damping', 'finite'),
+    ('damping_huge', ('joints', 0, 'damping'), 1e300, 'joints[0].damping', '|value| <= 1e+09 N m s/rad'),
     ('substep_depth_11', ('newton',), {'max_substep_depth': 11}, 'newton.max_substep_depth', 'must be <= 10'),
     ('substep_depth_30', ('newton',), {'max_substep_depth': 30}, 'newton.max_substep_depth', 'must be <= 10'),
     ('init_outside_limit', ('joints', 0), {'name': 'hinge', 'parent': 'base', 'child': 'arm',
@@ -319,7 +322,17 @@ def test_supported_range_corners_build_and_step():
             for b, x in zip(d['bodies'], (-1.5, 1.5)):
                 b.update(box=[size] * 3, density=density, kappa=kappa, position=[x * size, 0, 0])
             d['joints'][0].update(p0=[0, 0, -size], p1=[0, 0, size])
-            world = World(Scene.from_dict(d))
-            for _ in range(2):
-                world.step()
-            assert np.all(np.isfinite(world.joint_angles()))
+            inertia = None
+            for damping in (0.0, 1e9):                  # and the largest joint damping
+                d['joints'][0]['damping'] = damping
+                if inertia is not None and dt * damping > DAMPING_RATIO_MAX * inertia:
+                    # dt d / I up to 4e34 here: one clear refusal naming the joint
+                    with pytest.raises(SceneError, match=r"joint 'hinge': damping 1e\+09 N m s/rad "
+                                                         r"is .* lock it, or lower the damping"):
+                        World(Scene.from_dict(d))
+                    continue
+                world = World(Scene.from_dict(d))
+                inertia = world.solver.axis_inertia(0)
+                for _ in range(2):
+                    world.step()
+                assert np.all(np.isfinite(world.joint_angles()))

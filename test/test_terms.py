@@ -9,12 +9,13 @@ from numba import njit
 import oracle
 from abd_joint_sim import Scene, angles, compile_scene
 from abd_joint_sim.solver import model_data
-from abd_joint_sim.terms import driving, inertia, limit, ortho, revolute, torque
+from abd_joint_sim.terms import damping, driving, inertia, limit, ortho, revolute, torque
 from abd_joint_sim.terms.context import StepContext
 
 from physics_helpers import box, random_rotation
 
-TERMS = {'inertia': inertia, 'ortho': ortho, 'revolute': revolute, 'driving': driving, 'limit': limit}
+TERMS = {'inertia': inertia, 'ortho': ortho, 'revolute': revolute, 'driving': driving, 'limit': limit,
+         'damping': damping}
 
 
 def _model():
@@ -23,7 +24,7 @@ def _model():
                           init_angle=0.3,
                           driving=dict(aim_angle=1.2, enabled=True, strength_ratio=50.0),
                           limit=dict(lower=-0.2, upper=0.4, strength=3.0),
-                          external_torque=dict(torque=1.0)),
+                          external_torque=dict(torque=1.0), damping=40.0),
                      dict(name='j1', parent='c', child='b', p0=[0.8, 0, 0], p1=[0.8, 0, 1],
                           limit=dict(lower=0.1, upper=0.1), external_torque=dict(torque=1.0))])
     return compile_scene(Scene.from_dict(d))
@@ -46,17 +47,29 @@ def _state(seed, scale=0.15):
     return q
 
 
+#: the bodies one step back, for the dampers' BDF2 reference (the contexts are BDF2's, s = 9/4),
+#: and Newton's start, where the dampers' angle is linearised
+Q_PREV = _state(99, scale=0.1)
+Q_START = _state(98, scale=0.1)
+
+
 def _ctx(q_tilde=None, on=True, angle_start=None):
     J = MODEL.joint_count
     q_tilde = MODEL.body_q0.copy() if q_tilde is None else q_tilde
     start = np.zeros(J) if angle_start is None else np.asarray(angle_start, float)
     return StepContext(0.01, 9.0 / 4.0, q_tilde, start, np.full(len(MODEL.drive_joints), 0.9),
                        np.full(len(MODEL.drive_joints), on), np.empty(angles.ANGLE_WORK_SHAPE),
-                       _limit_ref(start))
+                       _limit_ref(start), _damping_ref(start, True))
 
 
 def _limit_ref(start):
     return limit.references(DATA, np.asarray(start, float), np.empty((len(MODEL.limit_joints), 3)))
+
+
+def _damping_ref(start, bdf2=False):
+    return damping.references(DATA, Q_START, Q_PREV, np.asarray(start, float), 0.01, bdf2,
+                              np.empty(angles.ANGLE_WORK_SHAPE),
+                              np.empty((len(MODEL.damping_joints), damping.ROW)))
 
 
 def _oracle_energy(name, q, ctx):
@@ -68,6 +81,8 @@ def _oracle_energy(name, q, ctx):
         return oracle.revolute_energy(MODEL, q)
     if name == 'driving':
         return oracle.driving_energy(MODEL, q, ctx.angle_start, ctx.drive_target, ctx.drive_on)
+    if name == 'damping':
+        return oracle.damping_energy(MODEL, q, Q_START, Q_PREV, ctx.angle_start, ctx.h, True)
     return oracle.limit_energy(MODEL, q, ctx.angle_start)
 
 
@@ -323,7 +338,7 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
     theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
     for offset, gauss_newton in ((0.5, True), (0.02, False)):
         ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
-                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start))
+                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start), _damping_ref(start))
         _, g, Hp = dense(driving, q, ctx, project=True)
         _, g_raw, _ = dense(driving, q, ctx, project=False)
         np.testing.assert_array_equal(g, g_raw)
@@ -508,15 +523,15 @@ def test_angle_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite(
 
 def test_the_angle_budget_shares_a_quarter_of_each_body_inertia():
     """model_data.joint_angle_budget: per joint, the smaller over its free bodies of
-    ANGLE_EXACT_SHARE μ_min(M̄_b) / (angle terms on b's joints); the drives and limits on a
-    body's joints then take at most that share of its inertia together."""
+    ANGLE_EXACT_SHARE μ_min(M̄_b) / (angle terms on b's joints); the drives, limits and
+    dampers on a body's joints then take at most that share of its inertia together."""
     mu = np.linalg.eigvalsh(DATA.body_Mbar)[:, 0]
-    # j0 (a-b: a drive and a limit), j1 (fixed c - b: a limit): a has 2 terms, b has 3
+    # j0 (a-b: a drive, a limit, a damper), j1 (fixed c - b: a limit): a has 3 terms, b has 4
     share = model_data.ANGLE_EXACT_SHARE
-    expect = [min(share * mu[0] / 2, share * mu[1] / 3), share * mu[1] / 3]
+    expect = [min(share * mu[0] / 3, share * mu[1] / 4), share * mu[1] / 4]
     assert np.allclose(DATA.joint_angle_budget, expect, rtol=1e-14, atol=0)
     for b in range(2):                                  # the quarter, summed over b's terms
-        terms = [DATA.joint_angle_budget[0]] * 2 + ([DATA.joint_angle_budget[1]] if b == 1 else [])
+        terms = [DATA.joint_angle_budget[0]] * 3 + ([DATA.joint_angle_budget[1]] if b == 1 else [])
         assert sum(terms) <= share * mu[b] * (1 + 1e-12)
 
 
@@ -535,7 +550,7 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
             # drives: target beside the angle; limits: the step-start branch and init shift x
             start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
             ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
-                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start))
+                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start), _damping_ref(start))
             joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
             if n == 0:
                 continue
@@ -691,3 +706,36 @@ def test_limit_inside_answers_only_where_the_angle_is_inside_and_saves_most_angl
                                    DATA.joint_bbar, int(MODEL.limit_joints[1]))
         assert not limit.inside(c1, s1, ref, 1)     # the locked joint: always the exact path
     assert answered > 500 and near == eligible > 300
+
+
+@pytest.mark.parametrize('bdf2', [False, True])
+def test_damping_is_the_implicit_torque_with_the_angle_linearised_at_newtons_start(bdf2):
+    """terms/damping.py: at Newton's start q0 the gradient is h² times the damping torque
+    d θ̇ along ∇θ (θ̇ the integrator's rate: BDF1 (θ − θⁿ)/h, BDF2 (3θ − 4θⁿ + θⁿ⁻¹)/(2h));
+    away from q0 the energy leaves the unlinearised one by O(|q − q0|²), the curvature of θ
+    the linearisation drops."""
+    start = np.array([0.1, -0.2])
+    ctx = _ctx(angle_start=start)._replace(damping=_damping_ref(start, bdf2))
+    h = ctx.h
+    B, J = MODEL.body_count, MODEL.joint_count
+    grad = np.zeros((B, 12))
+    damping.accumulate(Q_START, DATA, ctx, grad, np.zeros((B, 12, 12)), np.zeros((J, 12, 12)), True)
+    j = int(MODEL.damping_joints[0])
+    d = float(MODEL.damping_coeff[0])
+    now = start[j]
+    x = oracle.unwrap(oracle.theta(MODEL, Q_START, j), now)
+    before = oracle.unwrap(oracle.theta(MODEL, Q_PREV, j), now)
+    rate = (3 * x - 4 * now + before) / (2 * h) if bdf2 else (x - now) / h
+    G = oracle.theta_gradient(MODEL, Q_START, j)
+    expect = h * h * d * rate * G
+    got = np.concatenate([grad[MODEL.joint_parent[j], 3:], grad[MODEL.joint_child[j], 3:]])
+    assert abs(rate) > 1.0                              # a real torque, not a zero compared
+    np.testing.assert_allclose(got, expect, rtol=1e-10, atol=1e-12 * np.abs(expect).max())
+    direction = _state(7, scale=0.2) - MODEL.body_q0
+    gaps = []
+    for eps in (1e-2, 1e-3):
+        q = Q_START + eps * direction
+        lin = damping.energy(q, DATA, ctx)
+        exact = oracle.damping_energy(MODEL, q, Q_START, Q_PREV, start, h, bdf2, linear=False)
+        gaps.append(abs(lin - exact))
+    assert gaps[0] > 0.0 and 0.005 < gaps[1] / gaps[0] < 0.02, gaps   # second order: ×0.01

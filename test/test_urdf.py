@@ -381,6 +381,9 @@ def test_packaged_demo_arm_loads_and_runs():
     ({'joints': {'shoulder': {'limit': 3}}}, r'joints.shoulder.limit: must be a mapping'),
     ({'kappa': -1.0}, r'robot.kappa: must be a finite number > 0'),
     ({'joints': {'shoulder': {'strength_ratio': 0}}}, r'joints.shoulder.strength_ratio: must be'),
+    ({'joints': {'shoulder': {'damping': -0.5}}}, r'joints.shoulder.damping: must be a finite number >= 0'),
+    ({'joints': {'shoulder': {'damping': 'high'}}}, r'joints.shoulder.damping: must be a finite number >= 0'),
+    ({'damping': 0.5}, r'robot.damping: must be true .* or false'),
 ])
 def test_bad_overrides_name_the_joint_and_field(opts, match):
     with pytest.raises(SceneError, match=match):
@@ -436,3 +439,35 @@ def test_xacro_substitutions_refused_but_not_in_comments():
         Scene.from_urdf(macro)
     with pytest.raises(SceneError, match=r'no <link> in the robot$'):
         Scene.from_urdf('<robot name="empty"/>')
+
+
+def _damped_arm(dynamics):
+    return robot(link('base', inertial(5.0)), link('upper', inertial(2.0, xyz='0.25 0 0')),
+                 link('fore', inertial(1.0, xyz='0.2 0 0')),
+                 joint('shoulder', 'revolute', 'base', 'upper', axis='0 1 0',
+                       extra='<limit lower="-1.5" upper="1.5" effort="40" velocity="2"/>' + dynamics),
+                 joint('elbow', 'continuous', 'upper', 'fore', xyz='0.5 0 0', axis='0 1 0',
+                       extra='<dynamics damping="0.25"/>'))
+
+
+def test_joint_damping_is_read_switched_off_and_overridden_and_friction_is_said_once():
+    """<dynamics damping> becomes the joint's damping (terms/damping.py); `damping: false`
+    drops it, `joints: {j: {damping: d}}` sets it; <dynamics friction> is not simulated and
+    said in one warning naming the joints; a negative damping is refused naming the joint."""
+    text = _damped_arm('<dynamics damping="0.7" friction="0.3"/>')
+    scene, msgs = _from_urdf_warned(text)
+    assert {j.name: j.damping for j in scene.joints} == {'shoulder': 0.7, 'elbow': 0.25}
+    assert len(msgs) == 1 and 'friction' in msgs[0] and 'ignored on 1 joint(s): shoulder' in msgs[0]
+    assert World(scene).terms == ('ortho_potential', 'revolute_joint', 'limit', 'joint_damping',
+                                  'gravity', 'external_torque')
+    off, _ = _from_urdf_warned(text, damping=False)
+    assert [j.damping for j in off.joints] == [0.0, 0.0] and 'joint_damping' not in World(off).terms
+    over, _ = _from_urdf_warned(text, joints={'elbow': {'damping': 2.0}, 'shoulder': {'damping': False}})
+    assert {j.name: j.damping for j in over.joints} == {'shoulder': 0.0, 'elbow': 2.0}
+    assert Scene.from_dict(scene.to_dict()).joints == scene.joints     # kept by a bag's scene
+    with pytest.raises(SceneError, match=r"joint 'shoulder' <dynamics>: damping=\"-0.7\" is negative"):
+        Scene.from_urdf(_damped_arm('<dynamics damping="-0.7"/>'))
+    with pytest.raises(SceneError, match=r"joint 'shoulder' <dynamics>: damping=\"1e\+12\" is beyond the supported 1e\+09"):
+        Scene.from_urdf(_damped_arm('<dynamics damping="1e12"/>'))
+    with pytest.raises(SceneError, match=r"joint 'shoulder' <dynamics>: damping='nan' must be 1 finite"):
+        Scene.from_urdf(_damped_arm('<dynamics damping="nan"/>'))

@@ -1,8 +1,9 @@
 """The URDF import checked against PyBullet (an engine nobody here wrote) on robot files
 shipped in the pybullet wheel (`pybullet_data`, never copied into this repository).
 
-From rest, gravity plus a torque on every joint, PyBullet's motors off, no damping, inertia
-from the file; after 40 ms the joint velocities and angle changes must agree within 1 %
+From rest, gravity plus a torque on every joint, PyBullet's motors off, the joints'
+`<dynamics damping>` applied by both engines (the KUKA iiwa has 0.5 N m s/rad on every joint,
+pendulum5 1.0), no link damping, inertia from the file; after 40 ms the joint velocities and angle changes must agree within 1 %
 (relative, norm over the joints). PyBullet runs at dt = 1e-4 (semi-implicit Euler: its own
 angle error is ~h/T = 0.25 %), ours at 5e-4 with BDF2. Figures per robot: README "Robots
 from URDF"; the script at the bottom of docs/urdf.md reproduces them.
@@ -38,8 +39,7 @@ def run_pybullet(path, names, torques, q0, dt=1e-4):
         index = {}
         for k in range(p.getNumJoints(rid, physicsClientId=cid)):
             index[p.getJointInfo(rid, k, physicsClientId=cid)[1].decode()] = k
-            p.changeDynamics(rid, k, linearDamping=0, angularDamping=0, jointDamping=0,
-                             physicsClientId=cid)
+            p.changeDynamics(rid, k, linearDamping=0, angularDamping=0, physicsClientId=cid)
         p.changeDynamics(rid, -1, linearDamping=0, angularDamping=0, physicsClientId=cid)
         ids = [index[n] for n in names]
         for n, k in zip(names, ids):
@@ -56,8 +56,8 @@ def run_pybullet(path, names, torques, q0, dt=1e-4):
     return np.array([s[0] for s in states]), np.array([s[1] for s in states])
 
 
-def compare(rel_path, q0, dt=5e-4, **options):
-    path = os.path.join(pybullet_data.getDataPath(), rel_path)
+def run_ours(path, q0, dt=5e-4, **options):
+    """(world after T_END, joint names, torques): our run of the comparisons, BDF2."""
     scene = Scene.from_urdf(path, dt=dt, integrator='bdf2', initial_positions=q0, **options)
     world = World(scene)
     names = list(scene.joint_names)
@@ -66,6 +66,12 @@ def compare(rel_path, q0, dt=5e-4, **options):
     for n, tau in zip(names, torques):
         world.set_torque(n, tau)
     world.step(int(round(T_END / dt)))
+    return world, names, torques
+
+
+def compare(rel_path, q0, dt=5e-4, **options):
+    path = os.path.join(pybullet_data.getDataPath(), rel_path)
+    world, names, torques = run_ours(path, q0, dt, **options)
     q_ref, v_ref = run_pybullet(path, names, torques, q0)
     start = np.array([q0.get(n, 0.0) for n in names])
     dv = np.linalg.norm(world.joint_velocities() - v_ref) / np.linalg.norm(v_ref)
@@ -100,8 +106,8 @@ def test_a_flipped_torque_sign_is_caught():
 
 
 def run_mujoco(path, names, torques, q0, dt=1e-4, lock=()):
-    """MuJoCo's own URDF import, RK4 at 1e-4; its <dynamics> damping, friction loss,
-    armature and contacts switched off (we simulate none of them); the joints in `lock`
+    """MuJoCo's own URDF import, RK4 at 1e-4, with the file's <dynamics> damping; friction
+    loss, armature and contacts switched off (we simulate none of them); the joints in `lock`
     made fixed, and a file whose `package://` meshes MuJoCo cannot open loaded without its
     geometry (bench/robot_bench.py `mujoco_model`: with contacts off it plays no part)."""
     mujoco = pytest.importorskip('mujoco', reason='mujoco not installed (requirements-test.txt)')
@@ -110,7 +116,6 @@ def run_mujoco(path, names, torques, q0, dt=1e-4, lock=()):
     m.opt.timestep = dt
     m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
-    m.dof_damping[:] = 0.0
     m.dof_frictionloss[:] = 0.0
     m.dof_armature[:] = 0.0
     d = mujoco.MjData(m)
@@ -134,21 +139,25 @@ def run_mujoco(path, names, torques, q0, dt=1e-4, lock=()):
 ])
 def test_joint_motion_agrees_with_mujoco(rel_path, q0, lock):
     """The same runs against MuJoCo loading the same file (a second engine; MuJoCo RK4 and
-    PyBullet agree with each other to ~1e-6 on the KUKA)."""
+    PyBullet agree with each other to ~1e-6 on the KUKA without damping, 6e-4 with it)."""
     path = os.path.join(pybullet_data.getDataPath(), rel_path)
-    scene = Scene.from_urdf(path, dt=5e-4, integrator='bdf2', initial_positions=q0, lock=lock)
-    names = list(scene.joint_names)
-    torques = torques_for(len(names))
-    world = World(scene)
-    for n, tau in zip(names, torques):
-        world.set_torque(n, tau)
-    world.step(int(round(T_END / 5e-4)))
+    world, names, torques = run_ours(path, q0, lock=lock)
     q_ref, v_ref = run_mujoco(path, names, torques, q0, lock=lock)
     start = np.array([q0.get(n, 0.0) for n in names])
     dv = np.linalg.norm(world.joint_velocities() - v_ref) / np.linalg.norm(v_ref)
     dq = np.linalg.norm(world.joint_angles() - q_ref) / np.linalg.norm(q_ref - start)
     print(f'{rel_path} vs MuJoCo: velocity {dv:.2e}, angle {dq:.2e} (relative)')
     assert dv < 0.01 and dq < 0.01
+
+
+def test_leaving_out_the_files_joint_damping_is_caught():
+    """pendulum5's joints carry <dynamics damping="1.0">, which both engines apply and the
+    comparisons above match to ~3e-5: the same run with the damping dropped on our side only
+    (`damping=False`) leaves MuJoCo by far more than their 1 %."""
+    path = os.path.join(pybullet_data.getDataPath(), 'pendulum5.urdf')
+    world, names, torques = run_ours(path, {}, damping=False)
+    _, v_ref = run_mujoco(path, names, torques, {})
+    assert np.linalg.norm(world.joint_velocities() - v_ref) / np.linalg.norm(v_ref) > 0.1
 
 
 def test_robot_study_reduced(tmp_path):
@@ -186,8 +195,14 @@ def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned
         scene = Scene.from_urdf(path, lock=lock)
     msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
     assert len(scene.joint_names) == joints and len(msgs) == len(scene.warnings)
+    friction = [m for m in msgs if '<dynamics friction> is not simulated' in m]
+    msgs = [m for m in msgs if m not in friction]
     if warned is not None:
         assert [m.split("link '")[1].split("'")[0] for m in msgs] == warned
+    if rel_path.startswith('xarm/'):                # friction="1.0" on its six joints: one line
+        assert len(friction) == 1 and 'ignored on 6 joint(s): joint1, joint2' in friction[0]
+    else:
+        assert friction == []
     if rel_path.startswith('a1/'):
         assert len(msgs) == 4 and all('position 0 is outside its limit' in m for m in msgs)
     World(scene).step(3)

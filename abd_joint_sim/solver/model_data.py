@@ -68,6 +68,8 @@ FIELDS = (
     ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),
     ('limit_upper', '[rad] (L,) upper bound relative to init_angle'),
     ('limit_strength', '(L,) s of UID 670'),
+    ('damping_joints', '(P,) joints with viscous damping (terms/damping.py)'),
+    ('damping_coeff', '[N m s/rad] (P,) their damping coefficients d'),
     ('solve_kind', 'linsolve.TREE or linsolve.DENSE'),
     ('tree_order', '(F,) elimination order over free-body slots, leaves first'),
     ('tree_parent', '(F,) elimination parent slot, -1 at a root'),
@@ -171,16 +173,16 @@ def ortho_exact_bound(Mbar, weight):
         return np.where(weight > 0.0, ORTHO_EXACT_SHARE * mu / (4.0 * weight), np.inf)
 
 
-def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints):
+def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints, damping_joints=()):
     """(J,) per joint, min over its free bodies of ANGLE_EXACT_SHARE μ_min(M̄_b) / n_b, n_b the
-    number of angle terms (drives and limits) on the joints of body b: the angle terms'
+    number of angle terms (drives, limits, dampers) on the joints of body b: the angle terms'
     unprojected Hessians, each ≥ −s × its joint's budget, then take at most that share of
     s μ_min(M̄_b) from any direction of body b in Newton's matrix (angles.py). inf for a joint
     between fixed bodies; 0 (always projected) beside a body without inertia."""
     B, J = len(fixed), len(parent)
     mu = inertia_min(Mbar)
     count = np.zeros(B)
-    for j in list(drive_joints) + list(limit_joints):
+    for j in list(drive_joints) + list(limit_joints) + list(damping_joints):
         count[parent[j]] += 1
         count[child[j]] += 1
     budget = np.full(J, np.inf)
@@ -239,6 +241,8 @@ def build(model, force_dense: bool = False) -> ModelData:
         limit_lower=_arr(m.limit_lower - init[lj], np.float64),
         limit_upper=_arr(m.limit_upper - init[lj], np.float64),
         limit_strength=_arr(m.limit_strength, np.float64),
+        damping_joints=_arr(m.damping_joints, np.int64),
+        damping_coeff=_arr(m.damping_coeff, np.float64),
         solve_kind=int(st.kind),
         tree_order=_arr(st.order, np.int64),
         tree_parent=_arr(st.parent, np.int64),
@@ -264,7 +268,8 @@ def build(model, force_dense: bool = False) -> ModelData:
                                        np.float64)
     values['joint_angle_budget'] = _arr(joint_angle_budget(values['body_Mbar'], m.body_fixed,
                                                            m.joint_parent, m.joint_child,
-                                                           m.drive_joints, m.limit_joints), np.float64)
+                                                           m.drive_joints, m.limit_joints,
+                                                           m.damping_joints), np.float64)
     values['torque_bodies'], values['torque_body_ptr'], values['torque_body_entries'] = (
         _arr(x, np.int64) for x in torque_incidence(m.torque_joints, m.joint_parent, m.joint_child))
     values['constant_diag'], values['constant_pair'] = constant_hessian(values, m.body_count, J)

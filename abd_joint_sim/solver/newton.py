@@ -23,7 +23,7 @@ import math
 
 from numba import njit
 
-from ..terms import driving, inertia, limit, ortho, revolute
+from ..terms import damping, driving, inertia, limit, ortho, revolute
 from . import flat, linsolve
 from .retraction import retract
 
@@ -46,15 +46,17 @@ def potential(q, m, ctx):
         E += driving.energy(q, m, ctx)      # UID 19
     if m.limit_joints.size:
         E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)
+    if m.damping_joints.size:
+        E += damping.energy(q, m, ctx)      # joint damping (not a libuipc term)
     return E
 
 
 @njit(cache=True, error_model='numpy')
 def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
-    the joint blocks: `pair`, or m.constant_pair itself in a model without drives and limits
-    (then only UID 18 has joint blocks, and copying them would be a pass over memory for
-    nothing). The constant Hessians, UID 18's and the inertia term's s·M, are summed once per
+    the joint blocks: `pair`, or m.constant_pair itself in a model without angle terms (drives,
+    limits, dampers: then only UID 18 has joint blocks, and copying them would be a pass over
+    memory for nothing). The constant Hessians, UID 18's and the inertia term's s·M, are summed once per
     model (model_data: constant_diag_inertia, one per BDF scale s); their terms add only
     their gradients here."""
     flat.fill(grad, 0.0)
@@ -66,7 +68,7 @@ def assemble(q, m, ctx, grad, diag, pair):
     else:                                   # another s (a caller's own context)
         flat.copy(diag, m.constant_diag)
         inertia.accumulate(q, m, ctx, grad, diag, pair, True)
-    if m.drive_joints.size == 0 and m.limit_joints.size == 0:
+    if m.drive_joints.size == 0 and m.limit_joints.size == 0 and m.damping_joints.size == 0:
         pair = m.constant_pair              # read only: no term below adds to it
     else:
         flat.copy(pair, m.constant_pair)
@@ -76,6 +78,8 @@ def assemble(q, m, ctx, grad, diag, pair):
         driving.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 19
     if m.limit_joints.size:
         limit.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 670
+    if m.damping_joints.size:
+        damping.accumulate(q, m, ctx, grad, diag, pair, True)  # joint damping
     return pair
 
 

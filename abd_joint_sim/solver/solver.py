@@ -21,9 +21,9 @@ import numpy as np
 
 from .. import angles
 from ..errors import SimulationError
-from ..model import skew
+from ..model import axis_inertia
 from ..state import Control, State
-from ..terms import limit
+from ..terms import damping, limit
 from ..terms.context import StepContext
 from ..terms.revolute import joint_separation
 from ..terms.torque import SINGULAR_RATIO
@@ -145,12 +145,14 @@ class Solver:
         # the terms this model uses (energy terms, then forces), named as in World.terms
         uses = (('ortho_potential', B > int(model.body_fixed.sum())), ('revolute_joint', J > 0),
                 ('driving', len(model.drive_joints) > 0), ('limit', len(model.limit_joints) > 0),
+                ('joint_damping', len(model.damping_joints) > 0),
                 ('gravity', model.has_gravity), ('external_torque', len(model.torque_joints) > 0))
         self.terms = tuple(name for name, used in uses if used)
 
     def context(self, state: State, control: Control, h: float, q_tilde=None) -> StepContext:
         """The StepContext of a step from `state` (q̃ = state.q unless given), for the energy
-        functions of terms/ called from Python (World.mechanical_energy, tests)."""
+        functions of terms/ called from Python (World.mechanical_energy, tests); BDF1's, the
+        dampers linearised at state.q (their energy there is 0)."""
         m = self.model
         start = state.joint_angle - m.joint_init_angle
         init = m.joint_init_angle[m.drive_joints]
@@ -159,7 +161,10 @@ class Solver:
                            np.ascontiguousarray(target, dtype=float),
                            np.ascontiguousarray(control.drive_enabled, dtype=bool),
                            np.empty(angles.ANGLE_WORK_SHAPE),
-                           limit.references(self.data, start, np.empty((len(m.limit_joints), 3))))
+                           limit.references(self.data, start, np.empty((len(m.limit_joints), 3))),
+                           damping.references(self.data, state.q, state.q_prev, start, float(h),
+                                              False, np.empty(angles.ANGLE_WORK_SHAPE),
+                                              np.empty((len(m.damping_joints), damping.ROW))))
 
     # -- one step, with recovery ---------------------------------------------------------
     def step(self, state: State, control: Control) -> tuple[State, StepReport]:
@@ -286,19 +291,8 @@ class Solver:
 
     def axis_inertia(self, j: int) -> float:
         """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's
-        axis (inf for a fixed body): ½ q̇ᵀ M q̇ = ½ I for a unit turn about the axis, q̇ =
-        (−a × x̄0, [a]ₓ) in the body's rest frame (x = t + A x̄, A's rows in q). The same on
-        any pose: the axis turns with the body."""
-        m = self.model
-        out = math.inf
-        for side, b in enumerate((int(m.joint_parent[j]), int(m.joint_child[j]))):
-            if m.body_fixed[b]:
-                continue
-            x0, x1 = m.joint_anchor0[j, side], m.joint_anchor1[j, side]
-            a = (x1 - x0) / np.linalg.norm(x1 - x0)
-            qdot = np.concatenate([-np.cross(a, x0), skew(a).ravel()])
-            out = min(out, float(qdot @ m.body_M[b] @ qdot))
-        return out
+        axis (model.axis_inertia)."""
+        return axis_inertia(self.model, j)
 
     def _torque_hint(self, control) -> str:
         """Why a failed step may be a torque's doing: the torque of the joint that would turn

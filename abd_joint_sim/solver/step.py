@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from .. import angles
-from ..terms import gravity, limit, revolute, torque
+from ..terms import damping, gravity, limit, revolute, torque
 from ..terms.context import StepContext
 from . import bdf, borrowed, flat, newton, subnormals
 
@@ -148,8 +148,6 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     for k in range(drive_joints.size):
         j = drive_joints[k]
         drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
-    ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled, ws.angle_work,
-                      limit.references(m, angle_start, ws.limit_ref))
     cw = h * h / scale
     q_new, q_alt = ws.q_new, ws.q_alt
     # The correction (q − q̃)/(c h²) is the acceleration the stiff terms add to the explicit
@@ -184,6 +182,10 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
                 else:
                     w = 2.0 * w - warm_start_prev[b, r]
             q_new[b, r] = q_tilde[b, r] + cw * w
+    ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled, ws.angle_work,
+                      limit.references(m, angle_start, ws.limit_ref),
+                      damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work,
+                                         ws.damping))
     status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
     outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
     if status == newton.NONFINITE or not newton.all_finite(q_new):

@@ -23,6 +23,7 @@ FIELDS = (
     ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
     ('drive_target', '(D,) UID 19 target'),
     ('limit_ref', '(L,3) limit.references of the step (StepContext.limit_ref)'),
+    ('damping', '(P,21) damping.references of the step: K, θ₀ − θ*, ∇θ₀·q₀, ∇θ₀ per damped joint'),
     ('grad', '(B,12) ∇Π'),
     ('diag', '(B,12,12) diagonal blocks of ∇²Π'),
     ('pair', '(J,12,12) joint blocks of ∇²Π'),
@@ -61,7 +62,8 @@ def build(model, data) -> Workspace:
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), q_alt=(B, 12),
                   angle_start=(J,),
-                  drive_target=(D,), limit_ref=(len(model.limit_joints), 3), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
+                  drive_target=(D,), limit_ref=(len(model.limit_joints), 3),
+                  damping=(len(model.damping_joints), 21), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12),
                   torque_axes=(len(model.torque_joints) + 2, 3), retract_tmp=(7, 3, 3),

@@ -2,7 +2,8 @@
 
 - energy terms of the incremental potential Π (`energy(q, m, ctx)` and
   `accumulate(q, m, ctx, grad, diag, pair, project)`): `inertia` (the kinetic part),
-  `ortho` (UID 1), `revolute` (UID 18), `driving` (UID 19), `limit` (UID 670);
+  `ortho` (UID 1), `revolute` (UID 18), `driving` (UID 19), `limit` (UID 670), `damping`
+  (joint damping, not a libuipc term);
 - forces without energy, which enter only the prediction q̃ (`add_acceleration`):
   `gravity`, `torque` (UID 668).
 

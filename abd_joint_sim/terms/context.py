@@ -8,6 +8,8 @@ from collections import namedtuple
 #: start of the step; drive_target [rad] (D,) UID 19 target relative to init_angle (the
 #: aim, or angle_start when passive); drive_on (D,) bool; angle_work: scratch of
 #: angles.ANGLE_WORK_SHAPE the drives and limits work in (no allocation in the step);
-#: limit_ref (L,3) what limit.inside reads, made by limit.references from angle_start.
+#: limit_ref (L,3) what limit.inside reads, made by limit.references from angle_start;
+#: damping (P,21) the dampers' stiffness and angle linearised at Newton's start
+#: (damping.references).
 StepContext = namedtuple('StepContext', ['h', 'scale', 'q_tilde', 'angle_start', 'drive_target', 'drive_on',
-                                         'angle_work', 'limit_ref'])
+                                         'angle_work', 'limit_ref', 'damping'])

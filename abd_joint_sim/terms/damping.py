@@ -1,0 +1,139 @@
+"""Viscous joint damping (docs/physics.md "Joint damping"): a torque −d θ̇ on each damped
+joint, d [N m s/rad] from the scene (`damping:`) or a URDF's `<dynamics damping>`. Not a
+libuipc constitution (libuipc's joints carry none); MuJoCo's and PyBullet's URDF imports
+apply the same torque.
+
+It is integrated implicitly, as the incremental potential of its torque at the end of the
+step, where the integrator's velocity is θ̇ = (θ − θ*)/(c h):
+
+    BDF1: θ* = θⁿ,                  c = 1
+    BDF2: θ* = (4θⁿ − θⁿ⁻¹)/3,      c = 2/3
+    E = K/2 (θ − θ*)²,   K = h d / c
+
+(∂E/∂θ = h² d θ̇: h² times the torque, as the inertia term's s M (q − q̃) carries every force
+of the step, s β = 1). Explicit damping would be unstable beyond h d / I = 2 (I the moment
+about the axis); this is stable for any d.
+
+θ is taken linear in q over the step, from Newton's start q₀ (`references`, once per step):
+
+    θ(q) ≈ θ₀ + ∇θ₀·(q − q₀),   E = K/2 e²,   e = θ₀ − θ* + ∇θ₀·(q − q₀)
+    ∇E = K e ∇θ₀,   ∇²E = K ∇θ₀∇θ₀ᵀ (PSD: nothing to project)
+
+so Newton's loop evaluates no angle (no atan2) for it: a dot product per joint for E, a rank
+one block for the Hessian. What the linearisation leaves out is θ's curvature over
+|q − q₀|, the distance from Newton's start to the answer (about the step tolerance): the
+damping torque acts along ∇θ at the start rather than at the answer, as UID 668's torque
+acts along its axis at the step's explicit point, which is farther away (docs/decisions.md).
+θ is the unwrapped joint angle relative to init_angle (angles.py), as for UID 19.
+"""
+from __future__ import annotations
+
+from numba import njit
+
+from .. import angles
+
+BDF2_RATE = 2.0 / 3.0       # c of BDF2: θ̇ = (3θ − 4θⁿ + θⁿ⁻¹)/(2h) = (θ − θ*)/(c h)
+#: a row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, then ∇θ₀ over [vec A_parent, vec A_child]
+ROW = 3 + 18
+
+
+@njit(cache=True, error_model='numpy')
+def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
+    """out (P, ROW): per damped joint K = h d / c, θ₀ − θ*, ∇θ₀·q₀ and ∇θ₀ for a step of size
+    h whose Newton starts at q0, from the angles at the start of the step, angle_start (θⁿ,
+    relative to init_angle), and, with bdf2, the bodies one step back, q_prev (for θⁿ⁻¹).
+    `work`: an angles.ANGLE_WORK_SHAPE array. Returns out."""
+    joints, d = m.damping_joints, m.damping_coeff
+    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
+    G = work[8]
+    for k in range(joints.size):
+        j = joints[k]
+        now = angle_start[j]
+        if bdf2:
+            before = angles.unwrap(angles.theta_at(q_prev, parent, child, nbar, bbar, j), now)
+            target, rate = (4.0 * now - before) / 3.0, BDF2_RATE
+        else:
+            target, rate = now, 1.0
+        theta0 = angles.theta_derivatives_at(q0, parent, child, nbar, bbar, j, G, work[0:8], False,
+                                             work[0:8])
+        i_body, j_body = parent[j], child[j]
+        dot = 0.0
+        for a in range(9):
+            dot += G[a] * q0[i_body, 3 + a] + G[9 + a] * q0[j_body, 3 + a]
+        for a in range(18):
+            out[k, 3 + a] = G[a]
+        out[k, 0] = h * d[k] / rate
+        out[k, 1] = angles.unwrap(theta0, now) - target
+        out[k, 2] = dot
+    return out
+
+
+@njit(cache=True, error_model='numpy', inline='always')
+def _excess(q, ref, k, i_body, j_body):
+    """e = θ₀ − θ* + ∇θ₀·(q − q₀) of damped joint k (row k of ref)."""
+    dot = 0.0
+    for a in range(9):
+        dot += ref[k, 3 + a] * q[i_body, 3 + a] + ref[k, 12 + a] * q[j_body, 3 + a]
+    return ref[k, 1] + (dot - ref[k, 2])
+
+
+@njit(cache=True, error_model='numpy')
+def energy(q, m, ctx):
+    joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.damping
+    E = 0.0
+    for k in range(joints.size):
+        j = joints[k]
+        e = _excess(q, ref, k, parent[j], child[j])
+        E += 0.5 * ref[k, 0] * e * e
+    return E
+
+
+@njit(cache=True, error_model='numpy')
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    """∇E and ∇²E (exact, PSD: `project` changes nothing)."""
+    joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.damping
+    for k in range(joints.size):
+        j = joints[k]
+        i_body, j_body = parent[j], child[j]
+        K = ref[k, 0]
+        f = K * _excess(q, ref, k, i_body, j_body)
+        # ∇θ₀ of each body in locals and each row written out: vector operations (SLP)
+        a0, a1, a2, a3, a4 = ref[k, 3], ref[k, 4], ref[k, 5], ref[k, 6], ref[k, 7]
+        a5, a6, a7, a8 = ref[k, 8], ref[k, 9], ref[k, 10], ref[k, 11]
+        b0, b1, b2, b3, b4 = ref[k, 12], ref[k, 13], ref[k, 14], ref[k, 15], ref[k, 16]
+        b5, b6, b7, b8 = ref[k, 17], ref[k, 18], ref[k, 19], ref[k, 20]
+        for a in range(9):
+            gi = ref[k, 3 + a]
+            gj = ref[k, 12 + a]
+            grad[i_body, 3 + a] += f * gi
+            grad[j_body, 3 + a] += f * gj
+            gi *= K
+            gj *= K
+            r = 3 + a
+            diag[i_body, r, 3] += gi * a0
+            diag[i_body, r, 4] += gi * a1
+            diag[i_body, r, 5] += gi * a2
+            diag[i_body, r, 6] += gi * a3
+            diag[i_body, r, 7] += gi * a4
+            diag[i_body, r, 8] += gi * a5
+            diag[i_body, r, 9] += gi * a6
+            diag[i_body, r, 10] += gi * a7
+            diag[i_body, r, 11] += gi * a8
+            diag[j_body, r, 3] += gj * b0
+            diag[j_body, r, 4] += gj * b1
+            diag[j_body, r, 5] += gj * b2
+            diag[j_body, r, 6] += gj * b3
+            diag[j_body, r, 7] += gj * b4
+            diag[j_body, r, 8] += gj * b5
+            diag[j_body, r, 9] += gj * b6
+            diag[j_body, r, 10] += gj * b7
+            diag[j_body, r, 11] += gj * b8
+            pair[j, r, 3] += gi * b0
+            pair[j, r, 4] += gi * b1
+            pair[j, r, 5] += gi * b2
+            pair[j, r, 6] += gi * b3
+            pair[j, r, 7] += gi * b4
+            pair[j, r, 8] += gi * b5
+            pair[j, r, 9] += gi * b6
+            pair[j, r, 10] += gi * b7
+            pair[j, r, 11] += gi * b8
