@@ -186,20 +186,30 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
                       limit.references(m, angle_start, ws.limit_ref),
                       damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work,
                                          ws.damping))
-    status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
-    outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
-    if status == newton.NONFINITE or not newton.all_finite(q_new):
-        outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
-        subnormals.leave(saved)
-        return
-    # 4. velocities, joint angles, checks
+    iterations = halvings = 0
     v_new = new_qvw[1]
-    v_finite = bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
-    rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles)
-    if not finite or not v_finite:
-        outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
-        subnormals.leave(saved)
-        return
+    for repeat in range(damping.RELINEARISE_MAX + 1):
+        status, its, halved = newton.minimize(m, ctx, q_new, ws, extrapolate and repeat == 0)
+        iterations += its
+        halvings += halved
+        outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
+        if status == newton.NONFINITE or not newton.all_finite(q_new):
+            outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
+            subnormals.leave(saved)
+            return
+        # 4. velocities, joint angles, checks
+        v_finite = bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
+        rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles)
+        if not finite or not v_finite:
+            outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
+            subnormals.leave(saved)
+            return
+        # the dampers' angle, linearised at Newton's start, checked against the answer's own:
+        # where it missed, linearised again at the answer, from which Newton goes on
+        if m.damping_joints.size == 0 or damping.linearisation_holds(
+                m, q_new, new_angles[0], ws.damping, m.transrate_tol * h):
+            break
+        damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.damping)
     outcome[OUT_ROTATION] = rotation
     separation, overloaded, apart = revolute.check_separations(q_new, m)
     outcome[OUT_SEPARATION] = separation

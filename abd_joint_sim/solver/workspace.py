@@ -11,6 +11,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from .. import angles
+from ..terms import damping
 from . import borrowed, linsolve
 
 #: (name, meaning) of every field; the shapes come from `build`.
@@ -63,7 +64,7 @@ def build(model, data) -> Workspace:
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), q_alt=(B, 12),
                   angle_start=(J,),
                   drive_target=(D,), limit_ref=(len(model.limit_joints), 3),
-                  damping=(len(model.damping_joints), 21), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
+                  damping=(len(model.damping_joints), damping.ROW), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12),
                   torque_axes=(len(model.torque_joints) + 2, 3), retract_tmp=(7, 3, 3),

@@ -24,6 +24,9 @@ one block for the Hessian. What the linearisation leaves out is θ's curvature o
 |q − q₀|, the distance from Newton's start to the answer (about the step tolerance): the
 damping torque acts along ∇θ at the start rather than at the answer, as UID 668's torque
 acts along its axis at the step's explicit point, which is farther away (docs/decisions.md).
+Where the answer's own angle shows the linearisation missed it by more than LINEAR_TOL (a
+start far from the answer: a torque the damper undoes within the step), the step linearises
+again at the answer and Newton goes on from there (`linearisation_holds`, solver/step.py).
 θ is the unwrapped joint angle relative to init_angle (angles.py), as for UID 19.
 """
 from __future__ import annotations
@@ -33,8 +36,15 @@ from numba import njit
 from .. import angles
 
 BDF2_RATE = 2.0 / 3.0       # c of BDF2: θ̇ = (3θ − 4θⁿ + θⁿ⁻¹)/(2h) = (θ − θ*)/(c h)
-#: a row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, then ∇θ₀ over [vec A_parent, vec A_child]
-ROW = 3 + 18
+#: a row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, ∇θ₀ over [vec A_parent, vec A_child], θ*
+ROW = 3 + 18 + 1
+TARGET = ROW - 1
+#: how far the linearised angle may miss the answer's own, as a share of the damper's turn in
+#: the step (θ − θ*) or of the rotation Newton's tolerance allows (transrate_tol h), whichever
+#: is larger: beyond it the angle is linearised again at the answer and Newton continues
+LINEAR_TOL = 1e-3
+#: at most this many such repeats in a step (the second linearisation is at Newton's answer)
+RELINEARISE_MAX = 3
 
 
 @njit(cache=True, error_model='numpy')
@@ -65,7 +75,24 @@ def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
         out[k, 0] = h * d[k] / rate
         out[k, 1] = angles.unwrap(theta0, now) - target
         out[k, 2] = dot
+        out[k, TARGET] = target
     return out
+
+
+@njit(cache=True, error_model='numpy')
+def linearisation_holds(m, q, angle, ref, floor):
+    """Whether at Newton's answer q every damper's linearised angle is within LINEAR_TOL of
+    its exact one, `angle` (J,): θ(q) relative to init_angle, unwrapped as the step reports
+    it, i.e. the linearised torque is within LINEAR_TOL of the implicit damper's own;
+    `floor` [rad]: the smallest turn the share is taken of."""
+    joints, parent, child, init = m.damping_joints, m.joint_parent, m.joint_child, m.joint_init_angle
+    for k in range(joints.size):
+        j = joints[k]
+        exact = angle[j] - init[j] - ref[k, TARGET]
+        miss = _excess(q, ref, k, parent[j], child[j]) - exact
+        if not abs(miss) <= LINEAR_TOL * max(abs(exact), floor):
+            return False
+    return True
 
 
 @njit(cache=True, error_model='numpy', inline='always')
