@@ -59,17 +59,16 @@ def _ctx(q_tilde=None, on=True, angle_start=None):
     start = np.zeros(J) if angle_start is None else np.asarray(angle_start, float)
     return StepContext(0.01, 9.0 / 4.0, q_tilde, start, np.full(len(MODEL.drive_joints), 0.9),
                        np.full(len(MODEL.drive_joints), on), np.empty(angles.ANGLE_WORK_SHAPE),
-                       _limit_ref(start), _damping_ref(start, True))
+                       _angle_ref(start, True))
 
 
-def _limit_ref(start):
-    return limit.references(DATA, np.asarray(start, float), np.empty((len(MODEL.limit_joints), 3)))
-
-
-def _damping_ref(start, bdf2=False):
-    return damping.references(DATA, Q_START, Q_PREV, np.asarray(start, float), 0.01, bdf2,
-                              np.empty(angles.ANGLE_WORK_SHAPE),
-                              np.empty((len(MODEL.damping_joints), damping.ROW)))
+def _angle_ref(start, bdf2=False):
+    """StepContext.angle_ref: the limits' rows (limit.references) and the dampers' (damping.
+    references, linearised at Q_START)."""
+    start = np.asarray(start, float)
+    ref = np.empty(damping.reference_shape(MODEL))
+    damping.references(DATA, Q_START, Q_PREV, start, 0.01, bdf2, np.empty(angles.ANGLE_WORK_SHAPE), ref)
+    return limit.references(DATA, start, ref)
 
 
 def _oracle_energy(name, q, ctx):
@@ -338,7 +337,7 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
     theta = angles.unwrap(angles.theta(q, DATA, j), 0.0)
     for offset, gauss_newton in ((0.5, True), (0.02, False)):
         ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
-                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start), _damping_ref(start))
+                             np.empty(angles.ANGLE_WORK_SHAPE), _angle_ref(start))
         _, g, Hp = dense(driving, q, ctx, project=True)
         _, g_raw, _ = dense(driving, q, ctx, project=False)
         np.testing.assert_array_equal(g, g_raw)
@@ -550,7 +549,7 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
             # drives: target beside the angle; limits: the step-start branch and init shift x
             start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
             ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
-                             np.empty(angles.ANGLE_WORK_SHAPE), _limit_ref(start), _damping_ref(start))
+                             np.empty(angles.ANGLE_WORK_SHAPE), _angle_ref(start))
             joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
             if n == 0:
                 continue
@@ -692,7 +691,7 @@ def test_limit_inside_answers_only_where_the_angle_is_inside_and_saves_most_angl
         else:               # the pose half a turn from the start
             x0 = x_here + np.pi * rng.choice([-1, 1]) + rng.normal(scale=1e-3)
         start = np.array([x0, 0.0])
-        ref = _limit_ref(start)
+        ref = _angle_ref(start)
         x = angles.unwrap(angles.theta(q, DATA, j), x0)
         said = limit.inside(*angles.cos_sin_at(q, DATA.joint_parent, DATA.joint_child, DATA.joint_nbar,
                                                DATA.joint_bbar, j), ref, k)
@@ -715,7 +714,7 @@ def test_damping_is_the_implicit_torque_with_the_angle_linearised_at_newtons_sta
     away from q0 the energy leaves the unlinearised one by O(|q − q0|²), the curvature of θ
     the linearisation drops."""
     start = np.array([0.1, -0.2])
-    ctx = _ctx(angle_start=start)._replace(damping=_damping_ref(start, bdf2))
+    ctx = _ctx(angle_start=start)._replace(angle_ref=_angle_ref(start, bdf2))
     h = ctx.h
     B, J = MODEL.body_count, MODEL.joint_count
     grad = np.zeros((B, 12))

@@ -161,10 +161,15 @@ class Solver:
                            np.ascontiguousarray(target, dtype=float),
                            np.ascontiguousarray(control.drive_enabled, dtype=bool),
                            np.empty(angles.ANGLE_WORK_SHAPE),
-                           limit.references(self.data, start, np.empty((len(m.limit_joints), 3))),
-                           damping.references(self.data, state.q, state.q_prev, start, float(h),
-                                              False, np.empty(angles.ANGLE_WORK_SHAPE),
-                                              np.empty((len(m.damping_joints), damping.ROW))))
+                           self._angle_ref(state, start, h))
+
+    def _angle_ref(self, state: State, start, h):
+        """StepContext.angle_ref of a BDF1 step from `state` (the dampers linearised there)."""
+        ref = np.empty(damping.reference_shape(self.model))
+        if len(self.model.damping_joints):
+            damping.references(self.data, state.q, state.q_prev, start, float(h), False,
+                               np.empty(angles.ANGLE_WORK_SHAPE), ref)
+        return limit.references(self.data, start, ref)
 
     # -- one step, with recovery ---------------------------------------------------------
     def step(self, state: State, control: Control) -> tuple[State, StepReport]:

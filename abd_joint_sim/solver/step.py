@@ -182,16 +182,14 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
                 else:
                     w = 2.0 * w - warm_start_prev[b, r]
             q_new[b, r] = q_tilde[b, r] + cw * w
+    if m.damping_joints.size:
+        damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
     ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled, ws.angle_work,
-                      limit.references(m, angle_start, ws.limit_ref),
-                      damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work,
-                                         ws.damping))
-    iterations = halvings = 0
+                      limit.references(m, angle_start, ws.angle_ref))
+    status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
     v_new = new_qvw[1]
-    for repeat in range(damping.RELINEARISE_MAX + 1):
-        status, its, halved = newton.minimize(m, ctx, q_new, ws, extrapolate and repeat == 0)
-        iterations += its
-        halvings += halved
+    repeat = 0
+    while True:
         outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
         if status == newton.NONFINITE or not newton.all_finite(q_new):
             outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
@@ -206,10 +204,14 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
             return
         # the dampers' angle, linearised at Newton's start, checked against the answer's own:
         # where it missed, linearised again at the answer, from which Newton goes on
-        if m.damping_joints.size == 0 or damping.linearisation_holds(
-                m, q_new, new_angles[0], ws.damping, m.transrate_tol * h):
+        if m.damping_joints.size == 0 or repeat == damping.RELINEARISE_MAX or \
+                damping.linearisation_holds(m, q_new, new_angles[0], ws.angle_ref, m.transrate_tol * h):
             break
-        damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.damping)
+        damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
+        status, its, halved = newton.minimize(m, ctx, q_new, ws, False)
+        iterations += its
+        halvings += halved
+        repeat += 1
     outcome[OUT_ROTATION] = rotation
     separation, overloaded, apart = revolute.check_separations(q_new, m)
     outcome[OUT_SEPARATION] = separation

@@ -8,8 +8,9 @@ from collections import namedtuple
 #: start of the step; drive_target [rad] (D,) UID 19 target relative to init_angle (the
 #: aim, or angle_start when passive); drive_on (D,) bool; angle_work: scratch of
 #: angles.ANGLE_WORK_SHAPE the drives and limits work in (no allocation in the step);
-#: limit_ref (L,3) what limit.inside reads, made by limit.references from angle_start;
-#: damping (P,21) the dampers' stiffness and angle linearised at Newton's start
-#: (damping.references).
+#: angle_ref (L + P, ≥ 3) the angle terms' references for the step: row k < L what
+#: limit.inside reads for limit k (limit.references, from angle_start), row L + k damper k's
+#: stiffness and angle linearised at Newton's start (damping.references). One array, not
+#: two: every term call takes the context, and each array in it costs every such call.
 StepContext = namedtuple('StepContext', ['h', 'scale', 'q_tilde', 'angle_start', 'drive_target', 'drive_on',
-                                         'angle_work', 'limit_ref', 'damping'])
+                                         'angle_work', 'angle_ref'])

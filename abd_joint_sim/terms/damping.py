@@ -36,7 +36,8 @@ from numba import njit
 from .. import angles
 
 BDF2_RATE = 2.0 / 3.0       # c of BDF2: θ̇ = (3θ − 4θⁿ + θⁿ⁻¹)/(2h) = (θ − θ*)/(c h)
-#: a row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, ∇θ₀ over [vec A_parent, vec A_child], θ*
+#: a damper's row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, ∇θ₀ over [vec A_parent, vec A_child],
+#: θ*; damper k's is row L + k of StepContext.angle_ref, after the L limits' rows
 ROW = 3 + 18 + 1
 TARGET = ROW - 1
 #: how far the linearised angle may miss the answer's own, as a share of the damper's turn in
@@ -47,13 +48,20 @@ LINEAR_TOL = 1e-3
 RELINEARISE_MAX = 3
 
 
+def reference_shape(model):
+    """Shape of StepContext.angle_ref for a Model: a row per limit (3 columns) and per damper."""
+    L, P = len(model.limit_joints), len(model.damping_joints)
+    return (L + P, ROW if P else 3)
+
+
 @njit(cache=True, error_model='numpy')
 def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
-    """out (P, ROW): per damped joint K = h d / c, θ₀ − θ*, ∇θ₀·q₀ and ∇θ₀ for a step of size
-    h whose Newton starts at q0, from the angles at the start of the step, angle_start (θⁿ,
-    relative to init_angle), and, with bdf2, the bodies one step back, q_prev (for θⁿ⁻¹).
-    `work`: an angles.ANGLE_WORK_SHAPE array. Returns out."""
+    """Rows L + k of out (angle_ref, L limits): per damped joint k, K = h d / c, θ₀ − θ*,
+    ∇θ₀·q₀, ∇θ₀ and θ* for a step of size h whose Newton starts at q0, from the angles at the
+    start of the step, angle_start (θⁿ, relative to init_angle), and, with bdf2, the bodies
+    one step back, q_prev (for θⁿ⁻¹). `work`: an angles.ANGLE_WORK_SHAPE array. Returns out."""
     joints, d = m.damping_joints, m.damping_coeff
+    L = m.limit_joints.size
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     G = work[8]
     for k in range(joints.size):
@@ -70,12 +78,13 @@ def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
         dot = 0.0
         for a in range(9):
             dot += G[a] * q0[i_body, 3 + a] + G[9 + a] * q0[j_body, 3 + a]
+        row = L + k
         for a in range(18):
-            out[k, 3 + a] = G[a]
-        out[k, 0] = h * d[k] / rate
-        out[k, 1] = angles.unwrap(theta0, now) - target
-        out[k, 2] = dot
-        out[k, TARGET] = target
+            out[row, 3 + a] = G[a]
+        out[row, 0] = h * d[k] / rate
+        out[row, 1] = angles.unwrap(theta0, now) - target
+        out[row, 2] = dot
+        out[row, TARGET] = target
     return out
 
 
@@ -86,10 +95,11 @@ def linearisation_holds(m, q, angle, ref, floor):
     it, i.e. the linearised torque is within LINEAR_TOL of the implicit damper's own;
     `floor` [rad]: the smallest turn the share is taken of."""
     joints, parent, child, init = m.damping_joints, m.joint_parent, m.joint_child, m.joint_init_angle
+    L = m.limit_joints.size
     for k in range(joints.size):
         j = joints[k]
-        exact = angle[j] - init[j] - ref[k, TARGET]
-        miss = _excess(q, ref, k, parent[j], child[j]) - exact
+        exact = angle[j] - init[j] - ref[L + k, TARGET]
+        miss = _excess(q, ref, L + k, parent[j], child[j]) - exact
         if not abs(miss) <= LINEAR_TOL * max(abs(exact), floor):
             return False
     return True
@@ -97,7 +107,7 @@ def linearisation_holds(m, q, angle, ref, floor):
 
 @njit(cache=True, error_model='numpy', inline='always')
 def _excess(q, ref, k, i_body, j_body):
-    """e = θ₀ − θ* + ∇θ₀·(q − q₀) of damped joint k (row k of ref)."""
+    """e = θ₀ − θ* + ∇θ₀·(q − q₀) of the damper whose row of ref is k."""
     dot = 0.0
     for a in range(9):
         dot += ref[k, 3 + a] * q[i_body, 3 + a] + ref[k, 12 + a] * q[j_body, 3 + a]
@@ -106,21 +116,24 @@ def _excess(q, ref, k, i_body, j_body):
 
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
-    joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.damping
+    joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.angle_ref
+    L = m.limit_joints.size
     E = 0.0
     for k in range(joints.size):
         j = joints[k]
-        e = _excess(q, ref, k, parent[j], child[j])
-        E += 0.5 * ref[k, 0] * e * e
+        e = _excess(q, ref, L + k, parent[j], child[j])
+        E += 0.5 * ref[L + k, 0] * e * e
     return E
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and ∇²E (exact, PSD: `project` changes nothing)."""
-    joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.damping
-    for k in range(joints.size):
-        j = joints[k]
+    joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.angle_ref
+    L = m.limit_joints.size
+    for kk in range(joints.size):
+        j = joints[kk]
+        k = L + kk                          # the damper's row
         i_body, j_body = parent[j], child[j]
         K = ref[k, 0]
         f = K * _excess(q, ref, k, i_body, j_body)

@@ -64,7 +64,7 @@ INSIDE_SAFETY = 1e-9
 
 @njit(cache=True, error_model='numpy')
 def references(m, angle_start, ref):
-    """ref (L,3) for `inside`, per limit k: cos x₀, sin x₀ of its joint's angle at the step's
+    """ref (≥ L, ≥ 3) for `inside`, per limit k (row k): cos x₀, sin x₀ of its joint's angle at the step's
     start x₀ = angle_start[j], and an upper bound T of cos μ, μ = min(x₀ − l, u − x₀) −
     INSIDE_SAFETY the start's margin inside [l, u]: T = 1 − μ²/2 + μ⁴/24 (≥ cos μ for every
     μ, so no third trigonometric call), 2 where there is no margin (the start outside or on a
@@ -109,7 +109,7 @@ def inside(c, s, ref, k):
 def energy(q, m, ctx):
     lower, upper, strength = m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    ref, start = ctx.limit_ref, ctx.angle_start
+    ref, start = ctx.angle_ref, ctx.angle_start
     E = 0.0
     for k in range(lower.size):
         j = m.limit_joints[k]
@@ -149,7 +149,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget
-    work, ref, start = ctx.angle_work, ctx.limit_ref, ctx.angle_start
+    work, ref, start = ctx.angle_work, ctx.angle_ref, ctx.angle_start
     for k in range(limit_joints.size):
         j = limit_joints[k]
         c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
