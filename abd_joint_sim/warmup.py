@@ -34,7 +34,7 @@ def _tiny_scene():
                      driving=dict(aim_angle=0.5, enabled=True),
                      limit=dict(lower=-0.1, upper=0.1)),
                 dict(name='j2', parent='a', child='b', p0=[0.3, 0, -0.05], p1=[0.3, 0, 0.05],
-                     external_torque=dict(torque=-1.0, enabled=True))]))
+                     external_torque=dict(torque=-1.0, enabled=True), damping=0.1)]))
 
 
 def _loop_scene():
@@ -60,6 +60,7 @@ def _run_kernels():
         model = compile_scene(scene)
         solver = Solver(model)
         state, control = State.initial(model), Control.initial(model)
+        solver.joint_rates(state)                             # World.reset of moving bodies
         state, _ = solver.step(state, control)                # BDF1 start
         resident = Resident(model.body_count, model.joint_count)
         resident.set(state)

@@ -174,7 +174,10 @@ class World:
 
     def reset(self) -> None:
         """Back to the initial state and the scene's initial commands; time 0."""
-        self.state = State.initial(self.model)
+        state = State.initial(self.model)
+        if np.any(state.v):                 # bodies given velocities: their joints' rates at t = 0
+            state.joint_velocity = self.solver.joint_rates(state)
+        self.state = state
         self.control = Control.initial(self.model)
         self.last_step = StepReport(max_joint_separation=self.max_joint_separation())
         #: body states after each step of the last `step_clean` batch, (count, B, 12)

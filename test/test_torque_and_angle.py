@@ -189,6 +189,24 @@ def test_joint_velocity_is_the_derivative_of_the_angle():
     assert w.joint_velocities()[0] == pytest.approx(backward, abs=h * 40.4)
 
 
+@pytest.mark.parametrize('spinning', ['arm', 'base'])
+def test_a_body_given_a_velocity_reports_its_joint_rate_from_the_start(spinning):
+    """A scene body set turning about the hinge at 2 rad/s: the joint velocity reads +2 (the
+    arm) or −2 (the parent) at t = 0 and again after reset, as ∇θ·v of the initial bodies
+    (it read 0 until the first step); bodies at rest read exactly 0."""
+    d = hinge_dict()
+    k, x = (1, 0.6) if spinning == 'arm' else (0, -0.6)
+    d['bodies'][0]['fixed'] = False
+    d['bodies'][k].update(angular_velocity=[0.0, 0.0, 2.0], velocity=[0.0, 2.0 * x, 0.0])
+    w = world_from(d)
+    expect = 2.0 if spinning == 'arm' else -2.0
+    assert w.joint_velocities()[0] == pytest.approx(expect, rel=1e-12)
+    w.step(3)
+    w.reset()
+    assert w.joint_velocities()[0] == pytest.approx(expect, rel=1e-12)
+    assert world_from(hinge_dict()).joint_velocities()[0] == 0.0
+
+
 def test_control_rejects_unknown_unactuated_and_non_finite():
     d = hinge_dict()
     d['bodies'].append(box('extra', (2.0, 0, 0)))

@@ -294,6 +294,15 @@ class Solver:
                 f'{limit:.3g} rad in one step: a drive reaches its aim within a step or two, so move '
                 'the aim in smaller increments over several steps')
 
+    def joint_rates(self, state: State) -> np.ndarray:
+        """[rad/s] (J,) θ̇ = ∇θ(q)·v of a state's bodies, as a step reports it for its answer
+        (step.joint_rates): the joint velocities of an initial state whose bodies move."""
+        m = self.model
+        out = np.empty((2, m.joint_count))
+        kernel.joint_rates(self.data, state.q, state.v, self.work.zero,
+                           state.joint_angle - m.joint_init_angle, m.dt, out)
+        return out[1].copy()
+
     def axis_inertia(self, j: int) -> float:
         """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's
         axis (model.axis_inertia)."""
