@@ -56,9 +56,9 @@ def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
     the joint blocks: `pair`, or m.constant_pair itself in a model without angle terms (drives,
     limits, dampers: then only UID 18 has joint blocks, and copying them would be a pass over
-    memory for nothing). The constant Hessians, UID 18's and the inertia term's s·M, are summed once per
-    model (model_data: constant_diag_inertia, one per BDF scale s); their terms add only
-    their gradients here."""
+    memory for nothing). The constant Hessians, UID 18's and the inertia term's s·M, are
+    summed once per model (model_data: constant_diag_inertia, one per BDF scale s); their
+    terms add only their gradients here."""
     flat.fill(grad, 0.0)
     scales = m.inertia_scales
     k = 0 if ctx.scale == scales[0] else (1 if ctx.scale == scales[1] else -1)
