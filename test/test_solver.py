@@ -1084,15 +1084,22 @@ def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
         d = np.empty(12)
         assert linsolve.factor_block(W[None], 0, d[None], 0)     # (in place: views of W, d)
         X0 = rng.standard_normal((12, 12)) * 10.0 ** rng.integers(-3, 4)
+        X0[rng.random((12, 12)) < 0.1] = -0.0       # (a −0.0 of U becomes +0.0, as a copy)
         outs = []
         for forward in (linsolve.forward_block12, plain_forward):
-            X = X0.copy()
-            forward(W[None], 0, d[None], X[None], 0)
+            X = np.full((12, 12), np.nan)
+            forward(W[None], 0, d[None], X[None], 0, X0[None], 0, False)       # U = X0
             outs.append(X)
-        X = X0.copy()
+            X = np.full((12, 12), np.nan)
+            forward(W[None], 0, d[None], X[None], 0, X0.T.copy()[None], 0, True)   # U = (X0ᵀ)ᵀ
+            outs.append(X)
+            X = X0.copy()
+            forward(W[None], 0, d[None], X[None], 0, X[None], 0, False)      # in place
+            outs.append(X)
+        X = 0.0 + X0
         linsolve.forward_block(W, d, X, 12)
-        outs.append(X)
-        assert np.array_equal(outs[0], outs[1]) and np.array_equal(outs[0], outs[2])
+        for out in outs:
+            assert np.array_equal(out, X) and not np.signbit(out[out == 0.0]).any()
         y0 = X0[:, 0].copy()
         y1, y2 = y0.copy(), y0.copy()
         linsolve.forward_vector12(W[None], 0, d[None], y1[None], 0)

@@ -273,16 +273,25 @@ def forward_vector12(blocks, b, inv_ds, ys, slot):
 
 @slp_vectorized
 @njit(cache=True, error_model='numpy')
-def forward_block12(blocks, b, inv_ds, Xs, slot):
-    """X = L⁻¹ X for X = Xs[slot], L = blocks[b] and inv_d = inv_ds[slot] (factor_block):
-    forward_block(L, inv_d, X, 12), written out over the 12 columns: row i is held in 12
-    locals while the rows above are subtracted, so the SLP vectoriser (vectorize.py) makes
-    each run of 4 columns one vector operation. The same operations in the same order as
-    forward_block: the same bits (test_solver.py checks)."""
-    L, inv_d, X = blocks[b], inv_ds[slot], Xs[slot]
+def forward_block12(blocks, b, inv_ds, Xs, slot, src, j, transposed):
+    """X = L⁻¹ U into X = Xs[slot], for U = src[j] (or its transpose), L = blocks[b] and
+    inv_d = inv_ds[slot] (factor_block): U copied into X, then forward_block(L, inv_d, X, 12),
+    in one pass (row i of U is read as the row is solved: the joint's block goes into the
+    solve without a copy of its own; src may be Xs itself, j = slot, transposed False).
+    Written out over the 12 columns: row i is held in 12 locals while the rows above are
+    subtracted, so the SLP vectoriser (vectorize.py) makes each run of 4 columns one vector
+    operation. The same operations in the same order as the copy (0.0 + U: a −0.0 becomes
+    +0.0) and forward_block: the same bits (test_solver.py checks)."""
+    L, inv_d, X, U = blocks[b], inv_ds[slot], Xs[slot], src[j]
     for i in range(12):
-        x0, x1, x2, x3, x4, x5 = X[i, 0], X[i, 1], X[i, 2], X[i, 3], X[i, 4], X[i, 5]
-        x6, x7, x8, x9, x10, x11 = X[i, 6], X[i, 7], X[i, 8], X[i, 9], X[i, 10], X[i, 11]
+        if transposed:
+            x0, x1, x2, x3 = 0.0 + U[0, i], 0.0 + U[1, i], 0.0 + U[2, i], 0.0 + U[3, i]
+            x4, x5, x6, x7 = 0.0 + U[4, i], 0.0 + U[5, i], 0.0 + U[6, i], 0.0 + U[7, i]
+            x8, x9, x10, x11 = 0.0 + U[8, i], 0.0 + U[9, i], 0.0 + U[10, i], 0.0 + U[11, i]
+        else:
+            x0, x1, x2, x3 = 0.0 + U[i, 0], 0.0 + U[i, 1], 0.0 + U[i, 2], 0.0 + U[i, 3]
+            x4, x5, x6, x7 = 0.0 + U[i, 4], 0.0 + U[i, 5], 0.0 + U[i, 6], 0.0 + U[i, 7]
+            x8, x9, x10, x11 = 0.0 + U[i, 8], 0.0 + U[i, 9], 0.0 + U[i, 10], 0.0 + U[i, 11]
         for k in range(i):
             lik = L[i, k]
             x0 -= lik * X[k, 0]
@@ -315,15 +324,46 @@ def forward_block12(blocks, b, inv_ds, Xs, slot):
 @slp_vectorized
 @njit(cache=True, error_model='numpy')
 def schur_update12(Xs, ys, slot, blocks, bp, p):
-    """W −= XᵀX and b −= Xᵀy for the 12x12 X = Xs[slot], y = ys[slot], W = blocks[bp],
-    b = ys[p] (the elimination of a child block into its parent): each row r of W held in 12
-    locals while the rows k of X are subtracted (X[k, r] times row k), then stored once, so
-    the SLP vectoriser (vectorize.py) makes each run of 4 columns one vector operation and W
-    is written 12 times instead of 144. Every entry gets its subtractions in the order of k,
-    as a loop over it: the same bits. The lower half is the only half the factorisation
-    reads; the upper half, never read, is updated alike from its own values."""
+    """W −= XᵀX (its lower half) and b −= Xᵀy for the 12x12 X = Xs[slot], y = ys[slot],
+    W = blocks[bp], b = ys[p] (the elimination of a child block into its parent). Only the
+    lower half is updated, the only half the factorisation and the solves read: rows 0–3
+    over columns 0–3, rows 4–7 over 0–7, rows 8–11 over all 12, runs of 4 columns that the
+    SLP vectoriser (vectorize.py) makes one vector operation each (a third of the work of
+    the full square). Each row's entries are held in locals while the rows k of X are
+    subtracted (X[k, r] times row k), then stored once. Every entry gets its subtractions in
+    the order of k, as a loop over it: the same bits. The upper half keeps stale values."""
     X, y, W, b = Xs[slot], ys[slot], blocks[bp], ys[p]
-    for r in range(12):
+    for r in range(4):
+        w0, w1, w2, w3 = W[r, 0], W[r, 1], W[r, 2], W[r, 3]
+        br = b[r]
+        for k in range(12):
+            xkr = X[k, r]
+            w0 -= xkr * X[k, 0]
+            w1 -= xkr * X[k, 1]
+            w2 -= xkr * X[k, 2]
+            w3 -= xkr * X[k, 3]
+            br -= xkr * y[k]
+        W[r, 0], W[r, 1], W[r, 2], W[r, 3] = w0, w1, w2, w3
+        b[r] = br
+    for r in range(4, 8):
+        w0, w1, w2, w3 = W[r, 0], W[r, 1], W[r, 2], W[r, 3]
+        w4, w5, w6, w7 = W[r, 4], W[r, 5], W[r, 6], W[r, 7]
+        br = b[r]
+        for k in range(12):
+            xkr = X[k, r]
+            w0 -= xkr * X[k, 0]
+            w1 -= xkr * X[k, 1]
+            w2 -= xkr * X[k, 2]
+            w3 -= xkr * X[k, 3]
+            w4 -= xkr * X[k, 4]
+            w5 -= xkr * X[k, 5]
+            w6 -= xkr * X[k, 6]
+            w7 -= xkr * X[k, 7]
+            br -= xkr * y[k]
+        W[r, 0], W[r, 1], W[r, 2], W[r, 3] = w0, w1, w2, w3
+        W[r, 4], W[r, 5], W[r, 6], W[r, 7] = w4, w5, w6, w7
+        b[r] = br
+    for r in range(8, 12):
         w0, w1, w2, w3, w4, w5 = W[r, 0], W[r, 1], W[r, 2], W[r, 3], W[r, 4], W[r, 5]
         w6, w7, w8, w9, w10, w11 = W[r, 6], W[r, 7], W[r, 8], W[r, 9], W[r, 10], W[r, 11]
         br = b[r]
@@ -380,28 +420,18 @@ def solve_tree(m, diag, pair, grad, dq, ws):
         p = eparent[s]
         if p < 0:
             continue
-        for e in range(edge_ptr[s], edge_ptr[s + 1]):       # U = H[s, p] = Σ pair or pairᵀ
-            j = edge_joint[e]
-            # the first block is written as 0.0 + it (the sum's first term: -0.0 becomes
-            # +0.0 as when adding to a zeroed X) instead of zeroing X first: one pass, not two
-            if jp[j] == bs:
-                if e == edge_ptr[s]:
-                    for r in range(12):
-                        for c in range(12):
-                            X[s, r, c] = 0.0 + pair[j, r, c]
-                else:
-                    for r in range(12):
-                        for c in range(12):
-                            X[s, r, c] += pair[j, r, c]
-            elif e == edge_ptr[s]:
+        e0 = edge_ptr[s]
+        j = edge_joint[e0]
+        if edge_ptr[s + 1] == e0 + 1:       # U = H[s, p]: the joint's block, or its transpose
+            forward_block12(diag, bs, inv_d, X, s, pair, j, jp[j] != bs)
+        else:                               # several joints: U = Σ pair or pairᵀ, summed in X
+            for e in range(e0, edge_ptr[s + 1]):
+                j = edge_joint[e]
                 for r in range(12):
                     for c in range(12):
-                        X[s, r, c] = 0.0 + pair[j, c, r]
-            else:
-                for r in range(12):
-                    for c in range(12):
-                        X[s, r, c] += pair[j, c, r]
-        forward_block12(diag, bs, inv_d, X, s)
+                        u = pair[j, r, c] if jp[j] == bs else pair[j, c, r]
+                        X[s, r, c] = u if e == e0 else X[s, r, c] + u
+            forward_block12(diag, bs, inv_d, X, s, X, s, False)
         schur_update12(X, y, s, diag, free_idx[p], p)      # D_p −= XᵀX, b_p −= Xᵀy
     if not ok:
         for s in range(nf):
@@ -419,8 +449,11 @@ def solve_tree(m, diag, pair, grad, dq, ws):
                     acc += X[s, r, c] * y[p, c]
                 y[s, r] -= acc
         for i in range(11, -1, -1):                         # Lᵀ x = y
+            # (k downwards: the entry just solved, y[k = i + 1], is subtracted last, so the
+            # rest of the sum runs while it is being solved; upwards, each row's whole sum
+            # waited for it, a chain of 66 dependent subtractions per block)
             acc = y[s, i]
-            for k in range(i + 1, 12):
+            for k in range(11, i, -1):
                 acc -= diag[b, k, i] * y[s, k]
             y[s, i] = acc * inv_d[s, i]
     for s in range(nf):
