@@ -341,7 +341,22 @@ def _star(n_arms, arm_len):
     return d
 
 
-@pytest.mark.parametrize('scene', [chain_dict(10, torque=0.1), _star(8, 2)])
+def _doubled_joints(n):
+    """A chain whose second and last joints (both between free links) are each doubled (a
+    second hinge on the same axis, anchors moved along it): edges of two joints, eliminated
+    towards the chain's middle from the joints' parent at one end and from their child at the
+    other (linsolve's several-joint path: U summed, as is and transposed)."""
+    d = chain_dict(n, torque=0.1)
+    for src in (d['joints'][1], d['joints'][-1]):
+        p0, p1 = np.array(src['p0']), np.array(src['p1'])
+        extra = dict(src, name=src['name'] + '_twin', p0=list(p0 + 0.3 * (p1 - p0)),
+                     p1=list(p1 + 0.3 * (p1 - p0)))
+        extra.pop('external_torque', None)
+        d['joints'].append(extra)
+    return d
+
+
+@pytest.mark.parametrize('scene', [chain_dict(10, torque=0.1), _star(8, 2), _doubled_joints(5)])
 def test_tree_solve_agrees_with_dense(scene):
     fast = world_from(scene)
     assert fast.solver.data.solve_kind == linsolve.TREE
@@ -352,6 +367,8 @@ def test_tree_solve_agrees_with_dense(scene):
     dense.step(20)
     assert np.abs(dense.state.q - fast.state.q).max() < 1e-10
     assert np.abs(fast.state.q - fast.model.body_q0).max() > 1e-6      # it did move
+    twins = sum(j['name'].endswith('_twin') for j in scene['joints'])
+    assert (np.diff(fast.solver.data.tree_edge_ptr) == 2).sum() == twins   # edges of two joints
 
 
 @pytest.mark.parametrize('case', ['kappa_1e12', 'strength_1e6', 'mass_ratio_1e6', 'mass_ratio_inv_1e6'])
