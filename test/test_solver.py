@@ -6,6 +6,7 @@ import layering."""
 from __future__ import annotations
 
 import ast
+import math
 import os
 import subprocess
 import sys
@@ -93,9 +94,8 @@ def test_a_large_loop_is_refused_with_a_message_and_a_small_one_runs_dense():
 
 def _check_elimination(nf, sp, sc):
     """linsolve's order over the forest with edges (sp, sc): children first along graph
-    edges, one root per component; returns (order, parent, roles, depth of the deepest body)."""
+    edges, one root per component; returns (order, parent, depth of the deepest body)."""
     order, parent = linsolve._forest(nf, np.asarray(sp, dtype=np.int64), np.asarray(sc, dtype=np.int64))
-    roles = linsolve.pair_roles(order, parent)
     assert sorted(order.tolist()) == list(range(nf))
     position = {int(s): t for t, s in enumerate(order)}
     edges = {frozenset((int(a), int(b))) for a, b in zip(sp, sc)}
@@ -104,34 +104,21 @@ def _check_elimination(nf, sp, sc):
             assert position[p] > position[s_] and frozenset((s_, p)) in edges
     components = nf - len(edges)                 # a forest: one root per component
     assert int((parent < 0).sum()) == components
-    t = 0
-    while t < nf:                                # pairs: independent, children done before
-        if roles[t] == 1:
-            a, b = int(order[t]), int(order[t + 1])
-            assert roles[t + 1] == 2 and parent[a] != b and parent[b] != a
-            assert all(position[c] < t for c in np.flatnonzero(parent == b).tolist())
-            t += 2
-        else:
-            assert roles[t] == 0
-            t += 1
     depth = 0
     for s_ in range(nf):
         d, x = 0, s_
         while parent[x] >= 0:
             x, d = int(parent[x]), d + 1
         depth = max(depth, d)
-    return order, parent, roles, depth
+    return order, parent, depth
 
 
-def test_the_tree_solve_order_roots_each_tree_at_its_centre_and_pairs_independent_blocks():
-    """A chain is eliminated from both ends towards its middle, so that all but one or two of
-    its blocks are factored two at a time (linsolve.pair_roles); random forests keep the
-    order's rules: children first along edges, one root per tree, a pair never holding a
-    block and its parent or a block whose children are not all eliminated."""
+def test_the_tree_solve_order_roots_each_tree_at_its_centre():
+    """A chain is eliminated from both ends towards its middle; random forests keep the
+    order's rules: children first along edges, one root per tree."""
     for n in (1, 2, 3, 4, 7, 10, 31):
-        _, _, roles, depth = _check_elimination(n, range(n - 1), range(1, n))
+        _, _, depth = _check_elimination(n, range(n - 1), range(1, n))
         assert depth == n // 2                  # rooted at the middle
-        assert int((roles == 0).sum()) <= 2
     rng = np.random.default_rng(5)
     for trial in range(200):
         n = int(rng.integers(1, 40))
@@ -144,21 +131,59 @@ def test_the_tree_solve_order_roots_each_tree_at_its_centre_and_pairs_independen
         _check_elimination(n, perm[sp].tolist(), perm[sc].tolist())
 
 
-def test_a_pair_of_factorisations_gives_the_bits_of_two_single_ones():
+def _textbook_cholesky(W):
+    """The row-by-row lower Cholesky factor in plain Python floats (IEEE doubles, each
+    operation rounded as compiled code rounds it): (L with W's upper half, 1/diag(L)), or
+    None at a pivot that is not positive."""
+    W = [[float(x) for x in row] for row in W]
+    inv_d = [0.0] * 12
+    for i in range(12):
+        for j in range(i + 1):
+            s = W[i][j]
+            for k in range(j):
+                s -= W[i][k] * W[j][k]
+            if j < i:
+                W[i][j] = s * inv_d[j]
+            elif not s > 0.0:
+                return None
+            else:
+                W[i][i] = math.sqrt(s)
+                inv_d[i] = 1.0 / W[i][i]
+    return np.array(W), np.array(inv_d)
+
+
+def test_the_block_factor_gives_the_bits_of_the_textbook_loop():
+    """factor_block runs in three passes that the compiler unrolls (its docstring): the same
+    sum for every entry as the one row-by-row loop, so the same bits, signed zeros included
+    (a body's own block has exact zeros where its translation rows do not couple); and
+    False at a pivot that is not positive, in either pass."""
     rng = np.random.default_rng(3)
-    for trial in range(20):
-        blocks = []
-        for _ in range(2):
-            a = rng.standard_normal((12, 12)) * 10.0 ** rng.integers(-3, 4)
-            blocks.append(a @ a.T + 1e-3 * np.eye(12))
-        single, paired = np.stack(blocks), np.stack(blocks)
-        d1, d2 = np.zeros((2, 12)), np.zeros((2, 12))
-        assert linsolve.factor_block(single, 0, d1, 0) and linsolve.factor_block(single, 1, d1, 1)
-        assert linsolve.factor_pair(paired, 1, 0, d2, 1, 0)
-        assert np.array_equal(np.tril(single), np.tril(paired)) and np.array_equal(d1, d2)
-        indefinite = np.stack([blocks[0], -blocks[1]])
-        assert not linsolve.factor_pair(indefinite, 0, 1, np.zeros((2, 12)), 0, 1)
-        assert not linsolve.factor_pair(indefinite[::-1].copy(), 0, 1, np.zeros((2, 12)), 0, 1)
+    cases = []
+    for trial in range(30):
+        a = rng.standard_normal((12, 12)) * 10.0 ** rng.integers(-3, 4)
+        cases.append(a @ a.T + 1e-3 * np.eye(12))
+    leaf = cases[0].copy()                      # the translation rows of a body's own block
+    for r in range(3):
+        for c in range(12):
+            if c != r and (c < 3 or (c - 3) // 3 != r):
+                leaf[r, c] = leaf[c, r] = -0.0 if (r + c) % 2 else 0.0
+    leaf[:3, :3] += 50.0 * np.eye(3)
+    cases.append(leaf)
+    for W in cases:
+        expected = _textbook_cholesky(W)
+        blocks, inv_d = W[None].copy(), np.zeros((1, 12))
+        assert linsolve.factor_block(blocks, 0, inv_d, 0)
+        L, d = expected
+        assert np.array_equal(np.signbit(np.tril(blocks[0])), np.signbit(np.tril(L)))
+        assert np.array_equal(np.tril(blocks[0]), np.tril(L)) and np.array_equal(inv_d[0], d)
+    for pivot in (1, 7):                        # not PD in the first pass, and in the last
+        bad = cases[1].copy()
+        bad[pivot, pivot] = -1.0
+        assert _textbook_cholesky(bad) is None
+        assert not linsolve.factor_block(bad[None].copy(), 0, np.zeros((1, 12)), 0)
+    nan = cases[2].copy()
+    nan[11, 11] = np.nan
+    assert not linsolve.factor_block(nan[None].copy(), 0, np.zeros((1, 12)), 0)
 
 
 def test_svd3_matches_lapack():

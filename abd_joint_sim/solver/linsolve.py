@@ -6,8 +6,7 @@ once per model by `structure`:
 - TREE: when the free bodies and the joints between them form a forest (chains, trees: every
   robot arm without a closed loop), a block Cholesky along the forest, leaves first: no
   fill-in, cost linear in the number of bodies. Each tree is rooted at its centre (a chain at
-  its middle, eliminated from both ends), so that most diagonal blocks can be factored two
-  at a time (`pair_roles`);
+  its middle, eliminated from both ends: docs/decisions.md);
 - DENSE: otherwise (closed loops), a dense Cholesky of all free unknowns, up to
   DENSE_MAX_DOF unknowns (larger loops are refused with a message).
 A matrix that is not positive definite gives a NaN step (Newton reports it non-finite).
@@ -37,15 +36,13 @@ class Structure:
     edge_joints: np.ndarray     #: joints between a slot and its parent
     slot: np.ndarray            #: (B,) slot of each free body, -1 if fixed
     between_free: np.ndarray    #: (J,) bool: both bodies free
-    pair_role: np.ndarray       #: (F,) per order position: 1/2 factored with the next/previous, 0 alone
 
 
 def _forest(nf, sp, sc):
     """(order, parent) of an elimination order children-first over the free-body graph with
     edges (sp, sc) in slot numbers, or None if the graph has a cycle (several joints between
     the same two bodies are one edge). The leaves are peeled off in rounds, so each tree's
-    root is its centre (the middle of a chain) and a round's bodies do not depend on each
-    other: the solve factors two of them at once (`pair_roles`)."""
+    root is its centre (the middle of a chain; docs/decisions.md)."""
     adj = [set() for _ in range(nf)]
     root = list(range(nf))
 
@@ -87,30 +84,6 @@ def _forest(nf, sp, sc):
     return np.array(order, dtype=np.int64), parent
 
 
-def pair_roles(order, parent):
-    """(F,) per position t of the elimination order: 1 where order[t] and order[t + 1] are
-    factored together (every child of order[t + 1] is eliminated before t, so order[t] is
-    not one of them), 2 at that t + 1, 0 for a block factored alone. Two independent 12x12
-    factorisations in one loop run in about 1.2x the time of one: a factorisation is a
-    chain of dependent operations, and the processor fills the waits with the other's."""
-    n = len(order)
-    roles = np.zeros(n, dtype=np.int64)
-    left = np.zeros(n, dtype=np.int64)          # children not yet eliminated
-    for p in parent.tolist():
-        if p >= 0:
-            left[p] += 1
-    t = 0
-    while t < n:
-        pair = t + 1 < n and left[order[t + 1]] == 0
-        if pair:
-            roles[t], roles[t + 1] = 1, 2
-        for x in order[t:t + 2 if pair else t + 1].tolist():
-            if parent[x] >= 0:
-                left[parent[x]] -= 1
-        t += 2 if pair else 1
-    return roles
-
-
 def structure(model, force_dense: bool = False) -> Structure:
     """How Newton's system of this model is solved; ValueError for a closed loop of more
     than DENSE_MAX_DOF / 12 free bodies. `force_dense`: the dense solve whatever the
@@ -132,7 +105,7 @@ def structure(model, force_dense: bool = False) -> Structure:
                              'with a loop (chains and trees of any size are)')
         z = np.zeros(nf, dtype=np.int64)
         return Structure(DENSE, z, z - 1, np.zeros(nf + 1, dtype=np.int64),
-                         np.zeros(0, dtype=np.int64), slot, between, z.copy())
+                         np.zeros(0, dtype=np.int64), slot, between)
     order, parent = forest
     edge_ptr = np.zeros(nf + 1, dtype=np.int64)
     edge_joints = []
@@ -141,8 +114,7 @@ def structure(model, force_dense: bool = False) -> Structure:
             ends = {s, int(parent[s])}
             edge_joints += [int(j) for j, a, b in zip(joints, sp, sc) if {int(a), int(b)} == ends]
         edge_ptr[s + 1] = len(edge_joints)
-    return Structure(TREE, order, parent, edge_ptr, np.array(edge_joints, dtype=np.int64), slot, between,
-                     pair_roles(order, parent))
+    return Structure(TREE, order, parent, edge_ptr, np.array(edge_joints, dtype=np.int64), slot, between)
 
 
 @njit(cache=True, error_model='numpy')
@@ -192,13 +164,19 @@ def solve_dense(m, diag, pair, grad, dq, ws):
 
 @njit(cache=True, error_model='numpy')
 def factor_block(blocks, b, inv_ds, slot):
-    """Lower Cholesky factor of the 12x12 W = blocks[b] in place, row by row (the inner loops
-    run along rows, which the compiler vectorises), with inv_d = inv_ds[slot] = 1/diag(L) so the
-    triangular solves multiply instead of divide. False if W is not PD. (The block kernels
-    take an array and an index, not a view made by the caller: a view made in a loop costs
-    two atomic reference-count operations that numba cannot remove, docs/speed.md.)"""
+    """Lower Cholesky factor of the 12x12 W = blocks[b] in place, with inv_d = inv_ds[slot] =
+    1/diag(L) so the triangular solves multiply instead of divide. False if W is not PD.
+
+    Three passes: rows 0–2; the first three columns of rows 3–11; the rest of rows 3–11.
+    Each entry is the same sum in the same order as in the one row-by-row pass of the
+    textbook (every entry it reads is done before it), so the bits are that loop's
+    (test_solver.py); but the compiler unrolls these three small loop nests completely,
+    into straight-line code with constant indices, where it kept the single nest as loops:
+    twice as fast (docs/speed.md, the seventeenth round). (The block kernels take an array
+    and an index, not a view made by the caller: a view made in a loop costs two atomic
+    reference-count operations that numba cannot remove, docs/speed.md.)"""
     W, inv_d = blocks[b], inv_ds[slot]
-    for i in range(12):
+    for i in range(3):
         for j in range(i + 1):
             s = W[i, j]
             for k in range(j):
@@ -211,35 +189,25 @@ def factor_block(blocks, b, inv_ds, slot):
                 d = math.sqrt(s)
                 W[i, i] = d
                 inv_d[i] = 1.0 / d
-    return True
-
-
-@njit(cache=True, error_model='numpy')
-def factor_pair(blocks, a, b, inv_ds, slot_a, slot_b):
-    """factor_block of blocks[a] and of blocks[b], two blocks that do not depend on each other
-    (pair_roles), in one loop: the same operations on each as factor_block (the same bits),
-    interleaved. A factorisation is a chain of dependent operations (a square root and a
-    division per row, each entry waiting on the one before), so alone it leaves the processor
-    waiting; two interleaved fill each other's waits. False if either is not PD."""
-    W, V, inv_w, inv_v = blocks[a], blocks[b], inv_ds[slot_a], inv_ds[slot_b]
-    for i in range(12):
-        for j in range(i + 1):
+    for i in range(3, 12):
+        for j in range(3):
             s = W[i, j]
-            t = V[i, j]
             for k in range(j):
                 s -= W[i, k] * W[j, k]
-                t -= V[i, k] * V[j, k]
+            W[i, j] = s * inv_d[j]
+    for i in range(3, 12):
+        for j in range(3, i + 1):
+            s = W[i, j]
+            for k in range(j):
+                s -= W[i, k] * W[j, k]
             if j < i:
-                W[i, j] = s * inv_w[j]
-                V[i, j] = t * inv_v[j]
-            elif not (s > 0.0 and t > 0.0):
+                W[i, j] = s * inv_d[j]
+            elif not s > 0.0:
                 return False
             else:
-                d, e = math.sqrt(s), math.sqrt(t)
+                d = math.sqrt(s)
                 W[i, i] = d
-                V[i, i] = e
-                inv_w[i] = 1.0 / d
-                inv_v[i] = 1.0 / e
+                inv_d[i] = 1.0 / d
     return True
 
 
@@ -389,8 +357,7 @@ def schur_update12(Xs, ys, slot, blocks, bp, p):
 
 @njit(cache=True, error_model='numpy')
 def solve_tree(m, diag, pair, grad, dq, ws):
-    """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost),
-    two independent diagonal blocks factored at once where the order allows (pair_roles).
+    """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
     D_p −= XᵀX; forward y_k = L_kk⁻¹ b_k, b_p −= Xᵀ y_k; backward x_k = L_kk⁻ᵀ (y_k − X x_p).
     NaN if not PD. The diagonal blocks are factored in place: `diag` is overwritten (Newton
@@ -404,16 +371,11 @@ def solve_tree(m, diag, pair, grad, dq, ws):
         b = free_idx[s]
         for r in range(12):
             y[s, r] = -grad[b, r]
-    roles = m.tree_pair_role
     ok = True
     for t in range(nf):
         s = order[t]
         bs = free_idx[s]
-        if roles[t] == 1:                   # this block and the next, factored together
-            if not factor_pair(diag, bs, free_idx[order[t + 1]], inv_d, s, order[t + 1]):
-                ok = False
-                break
-        elif roles[t] == 0 and not factor_block(diag, bs, inv_d, s):   # (2: done with t − 1)
+        if not factor_block(diag, bs, inv_d, s):
             ok = False
             break
         forward_vector12(diag, bs, inv_d, y, s)
