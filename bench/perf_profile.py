@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -69,19 +68,19 @@ def _functions():
 
 
 def short(name: str) -> str:
-    """numba's mangled _ZN<len><part>...B<digits>v<n>B<hash>... as module.function."""
-    m = re.match(r'_ZN((?:\d+[^\d]\w*?)+?)B\d+v\d+', name)
-    if not m:
+    """numba's mangled _ZN<len><part><len><part>...B<digits>v<n>B<hash>... as module.function.
+    Read by the lengths, with no regular expression over the whole name: the earlier pattern
+    backtracked exponentially on some names and hung the script after the compile."""
+    if not name.startswith('_ZN'):
         return name[:80]
-    parts, s = [], m.group(1)
-    while s:
-        n = re.match(r'\d+', s)
-        if not n:
-            break
-        k = int(n.group())
-        s = s[n.end():]
-        parts.append(s[:k])
-        s = s[k:]
+    parts, i = [], 3
+    while i < len(name) and name[i].isdigit():
+        j = i
+        while j < len(name) and name[j].isdigit():
+            j += 1
+        k = int(name[i:j])
+        parts.append(name[j:j + k])
+        i = j + k
     return '.'.join(p for p in parts if p != 'abd_joint_sim') or name[:80]
 
 
