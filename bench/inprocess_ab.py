@@ -72,13 +72,31 @@ def solve_loop(mod):
     assemble, solve, enter, leave = newton.assemble, linsolve.solve, subnormals.enter, subnormals.leave
 
     @njit
+    def blocks_only(q, m, ctx, ws):         # (since stop 33 assemble returns (blocks, Π))
+        return assemble(q, m, ctx, ws.grad, ws.diag, ws.pair)[0]
+
+    @njit
+    def blocks_itself(q, m, ctx, ws):       # (before it, the blocks)
+        return assemble(q, m, ctx, ws.grad, ws.diag, ws.pair)
+
+    def make_loop(blocks_of):
+        @njit
+        def loop(with_solve, m, ctx, q, ws, n):
+            saved = enter()
+            for _ in range(n):
+                blocks = blocks_of(q, m, ctx, ws)
+                if with_solve:
+                    solve(m, ws.diag, blocks, ws.grad, ws.dq, ws)
+            leave(saved)
+        return loop
+
+    chosen = []
+
     def run(with_solve, m, ctx, q, ws, n):
-        saved = enter()
-        for _ in range(n):
-            blocks = assemble(q, m, ctx, ws.grad, ws.diag, ws.pair)
-            if with_solve:
-                solve(m, ws.diag, blocks, ws.grad, ws.dq, ws)
-        leave(saved)
+        if not chosen:
+            returns_energy = isinstance(assemble(q, m, ctx, ws.grad, ws.diag, ws.pair), tuple)
+            chosen.append(make_loop(blocks_only if returns_energy else blocks_itself))
+        return chosen[0](with_solve, m, ctx, q, ws, n)
     return run
 
 

@@ -57,7 +57,7 @@ def _run(which, m, ctx, q, ws, c_tv, c_te, skipped, n):
         elif which == 4:
             inertia.accumulate(q, m, ctx, ws.grad, ws.diag, ws.pair, True)
         elif which == 5:
-            joint_blocks = newton.assemble(q, m, ctx, ws.grad, ws.diag, ws.pair)
+            joint_blocks = newton.assemble(q, m, ctx, ws.grad, ws.diag, ws.pair)[0]
             linsolve.solve(m, ws.diag, joint_blocks, ws.grad, ws.dq, ws)
         elif which == 6:
             retract(q, ws.dq, 1.0, m, ws, ws.trial)

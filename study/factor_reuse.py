@@ -38,7 +38,7 @@ def dense_hessian(w, q):
     B, J = m.body_count, m.joint_count
     ctx = w.solver.context(w.state, w.control, m.dt, q_tilde=q)
     g, D, P = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
-    P = newton.assemble(np.ascontiguousarray(q), d, ctx, g, D, P)
+    P = newton.assemble(np.ascontiguousarray(q), d, ctx, g, D, P)[0]
     H = np.zeros((12 * B, 12 * B))
     for b in range(B):
         H[12 * b:12 * b + 12, 12 * b:12 * b + 12] = D[b]

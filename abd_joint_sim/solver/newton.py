@@ -54,33 +54,35 @@ def potential(q, m, ctx):
 @njit(cache=True, error_model='numpy')
 def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
-    the joint blocks: `pair`, or m.constant_pair itself in a model without angle terms (drives,
-    limits, dampers: then only UID 18 has joint blocks, and copying them would be a pass over
-    memory for nothing). The constant Hessians, UID 18's and the inertia term's s·M, are
-    summed once per model (model_data: constant_diag_inertia, one per BDF scale s); their
-    terms add only their gradients here."""
+    (joint blocks, Π(q)). The joint blocks are `pair`, or m.constant_pair itself in a model
+    without angle terms (drives, limits, dampers: then only UID 18 has joint blocks, and
+    copying them would be a pass over memory for nothing). The constant Hessians, UID 18's
+    and the inertia term's s·M, are summed once per model (model_data: constant_diag_inertia,
+    one per BDF scale s); their terms add only their gradients here. Each term returns its
+    energy from the quantities its gradient needs, with the bits of its `energy`, summed in
+    `potential`'s order: Π(q) comes with the assembly for the price of a few flops."""
     flat.fill(grad, 0.0)
     scales = m.inertia_scales
     k = 0 if ctx.scale == scales[0] else (1 if ctx.scale == scales[1] else -1)
     if k >= 0:
         flat.copy(diag, m.constant_diag_inertia[k])
-        inertia.accumulate_gradient(q, m, ctx, grad)
+        E = inertia.accumulate_gradient(q, m, ctx, grad)
     else:                                   # another s (a caller's own context)
         flat.copy(diag, m.constant_diag)
-        inertia.accumulate(q, m, ctx, grad, diag, pair, True)
+        E = inertia.accumulate(q, m, ctx, grad, diag, pair, True)
     if m.drive_joints.size == 0 and m.limit_joints.size == 0 and m.damping_joints.size == 0:
         pair = m.constant_pair              # read only: no term below adds to it
     else:
         flat.copy(pair, m.constant_pair)
-    ortho.accumulate(q, m, ctx, grad, diag, pair, True)        # UID 1
-    revolute.accumulate_gradient(q, m, ctx, grad)              # UID 18 (Hessian: constant_*)
+    E += ortho.accumulate(q, m, ctx, grad, diag, pair, True)          # UID 1
+    E += revolute.accumulate_gradient(q, m, ctx, grad)                # UID 18 (Hessian: constant_*)
     if m.drive_joints.size:
-        driving.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 19
+        E += driving.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 19
     if m.limit_joints.size:
-        limit.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 670
+        E += limit.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 670
     if m.damping_joints.size:
-        damping.accumulate(q, m, ctx, grad, diag, pair, True)  # joint damping
-    return pair
+        E += damping.accumulate(q, m, ctx, grad, diag, pair, True)    # joint damping
+    return pair, E
 
 
 @njit(cache=True, error_model='numpy')
@@ -125,23 +127,28 @@ def minimize(m, ctx, q, ws, try_alt):
     overshot, at a jump of the input) Newton starts from the lowest of the three. Returns
     (status, iterations, line-search halvings)."""
     h, scale = ctx.h, ctx.scale
-    B, J = q.shape[0], m.joint_parent.size
-    E = potential(q, m, ctx)
+    grad, diag, pair, dq, trial = ws.grad, ws.diag, ws.pair, ws.dq, ws.trial
+    # Newton's first matrix is assembled at q before the start is chosen: Π(q) comes with it,
+    # and q is nearly always the start (it is assembled again where it is not)
+    joint_blocks, E = assemble(q, m, ctx, grad, diag, pair)
     E_tilde = potential(ctx.q_tilde, m, ctx)
+    moved = False
     if try_alt and E_tilde < E:
         E_alt = potential(ws.q_alt, m, ctx)
         if E_alt < E:
             flat.copy(q, ws.q_alt)
             E = E_alt
+            moved = True
     if E_tilde < E:
         flat.copy(q, ctx.q_tilde)
         E = E_tilde
+        moved = True
     energy_tol = 0.5 * m.free_mass * (m.velocity_tol * h) ** 2
-    grad, diag, pair, dq, trial = ws.grad, ws.diag, ws.pair, ws.dq, ws.trial
     flat.fill(dq, 0.0)                          # fixed bodies' rows are never solved for
     halvings = 0
     for it in range(1, m.max_iterations + 1):
-        joint_blocks = assemble(q, m, ctx, grad, diag, pair)
+        if it > 1 or moved:
+            joint_blocks = assemble(q, m, ctx, grad, diag, pair)[0]
         linsolve.solve(m, diag, joint_blocks, grad, dq, ws)
         if not all_finite(dq):
             return NONFINITE, it, halvings

@@ -114,6 +114,19 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     = bodies without torque. `order` (State.extrapolation_order): Newton starts from the warm
     start extrapolated over the last three steps (2), the last two (1), or from warm_start
     alone (0). Subnormal numbers are flushed to zero while it runs (subnormals.py)."""
+    saved = subnormals.enter()
+    step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
+                 torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
+                 may_split, ws, new_qvw, new_angles, skipped, outcome)
+    subnormals.leave(saved)
+
+
+@njit(cache=True, error_model='numpy')
+def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
+                 torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
+                 may_split, ws, new_qvw, new_angles, skipped, outcome):
+    """`step`, for a caller that has flushed subnormals already (subnormals.enter: `steps`
+    sets the flags once for all its steps, not once per step)."""
     # the caller keeps these alive: no reference counts below (borrowed.py)
     m, ws = borrowed.struct(m), borrowed.struct(ws)
     q, v, q_prev, v_prev = borrowed.array(q), borrowed.array(v), borrowed.array(q_prev), borrowed.array(v_prev)
@@ -123,7 +136,6 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     drive_aim, drive_enabled = borrowed.array(drive_aim), borrowed.array(drive_enabled)
     drive_passive, skipped = borrowed.array(drive_passive), borrowed.array(skipped)
     new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
-    saved = subnormals.enter()
     B, J = q.shape[0], m.joint_parent.size
     flat.fill(outcome, 0.0)
     outcome[OUT_APART_JOINT] = -1.0
@@ -136,7 +148,6 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
         predicted = predicted_rotation(m, q, q_tilde)
         if predicted > m.max_step_rotation:
             outcome[OUT_ROTATION], outcome[OUT_FAILURE] = predicted, FAIL_PREDICTED_ROTATION
-            subnormals.leave(saved)
             return
     # 3. Newton
     init_angle = m.joint_init_angle
@@ -193,14 +204,12 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
         outcome[OUT_STATUS], outcome[OUT_NEWTON], outcome[OUT_LINE_SEARCH] = status, iterations, halvings
         if status == newton.NONFINITE or not newton.all_finite(q_new):
             outcome[OUT_FAILURE] = FAIL_NEWTON_NONFINITE
-            subnormals.leave(saved)
             return
         # 4. velocities, joint angles, checks
         v_finite = bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
         rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles)
         if not finite or not v_finite:
             outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
-            subnormals.leave(saved)
             return
         # the dampers' angle, linearised at Newton's start, checked against the answer's own:
         # where it missed, linearised again at the answer, from which Newton goes on
@@ -219,7 +228,6 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     if apart >= 0:
         outcome[OUT_APART_JOINT], outcome[OUT_FAILURE] = apart, FAIL_JOINT_APART
     store(q_new, q_tilde, cw, new_qvw)
-    subnormals.leave(saved)
 
 
 @njit(cache=True, error_model='numpy')
@@ -317,9 +325,10 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
     warm_start, warm_start_prev = borrowed.array(warm_start), borrowed.array(warm_start_prev)
     new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
     done = 0
+    saved = subnormals.enter()              # once for all n steps (subnormals.py)
     for k in range(n):
         if k == 0:
-            step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
+            step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
                  order_first, may_split, ws, new_qvw[0], new_angles[0], skipped, outcome[0])
         elif k == 1:
@@ -328,18 +337,18 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
             prev = warm_start if uniform_first else new_qvw[0, 2]
             prev2 = warm_start_prev if uniform_first and order_first > 0 else prev
             order = (2 if order_first > 0 else 1) if uniform_first else 0
-            step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], prev, prev2,
+            step_flushed(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], prev, prev2,
                  new_angles[0, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
                  drive_passive, h, bdf2_next, order, may_split, ws, new_qvw[1], new_angles[1],
                  skipped, outcome[1])
         elif k == 2:
             prev2 = warm_start if uniform_first else new_qvw[0, 2]
-            step(m, new_qvw[1, 0], new_qvw[1, 1], new_qvw[0, 0], new_qvw[0, 1], new_qvw[1, 2],
+            step_flushed(m, new_qvw[1, 0], new_qvw[1, 1], new_qvw[0, 0], new_qvw[0, 1], new_qvw[1, 2],
                  new_qvw[0, 2], prev2, new_angles[1, 0], torque_value, torque_enabled, drive_aim,
                  drive_enabled, drive_passive, h, bdf2_next, 2 if uniform_first else 1, may_split,
                  ws, new_qvw[2], new_angles[2], skipped, outcome[2])
         else:
-            step(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], new_qvw[k - 2, 0], new_qvw[k - 2, 1],
+            step_flushed(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], new_qvw[k - 2, 0], new_qvw[k - 2, 1],
                  new_qvw[k - 1, 2], new_qvw[k - 2, 2], new_qvw[k - 3, 2], new_angles[k - 1, 0],
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
                  bdf2_next, 2, may_split, ws, new_qvw[k], new_angles[k], skipped, outcome[k])
@@ -351,4 +360,5 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
                 break
         else:
             break
+    subnormals.leave(saved)
     return done

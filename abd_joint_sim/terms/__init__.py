@@ -3,7 +3,8 @@
 - energy terms of the incremental potential Π (`energy(q, m, ctx)` and
   `accumulate(q, m, ctx, grad, diag, pair, project)`): `inertia` (the kinetic part),
   `ortho` (UID 1), `revolute` (UID 18), `driving` (UID 19), `limit` (UID 670), `damping`
-  (joint damping, not a libuipc term);
+  (joint damping, not a libuipc term). `accumulate` returns E(q) with the bits of `energy`,
+  from the quantities its gradient needs: Newton's first assembly gives Π at its start;
 - forces without energy, which enter only the prediction q̃ (`add_acceleration`):
   `gravity`, `torque` (UID 668).
 

@@ -128,15 +128,18 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and ∇²E (exact, PSD: `project` changes nothing)."""
+    """∇E and ∇²E (exact, PSD: `project` changes nothing); returns E (the bits of `energy`)."""
     joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.angle_ref
     L = m.limit_joints.size
+    E = 0.0
     for kk in range(joints.size):
         j = joints[kk]
         k = L + kk                          # the damper's row
         i_body, j_body = parent[j], child[j]
         K = ref[k, 0]
-        f = K * _excess(q, ref, k, i_body, j_body)
+        e = _excess(q, ref, k, i_body, j_body)
+        E += 0.5 * K * e * e
+        f = K * e
         # ∇θ₀ of each body in locals and each row written out: vector operations (SLP)
         a0, a1, a2, a3, a4 = ref[k, 3], ref[k, 4], ref[k, 5], ref[k, 6], ref[k, 7]
         a5, a6, a7, a8 = ref[k, 8], ref[k, 9], ref[k, 10], ref[k, 11]
@@ -177,3 +180,4 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             pair[j, r, 9] += gi * b6
             pair[j, r, 10] += gi * b7
             pair[j, r, 11] += gi * b8
+    return E

@@ -57,15 +57,20 @@ def active_joints(q, m, ctx):
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and the (projected) Hessian of the enabled drives (active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work."""
+    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work.
+    Returns E (the bits of `energy`)."""
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget
     work = ctx.angle_work
+    E = 0.0
     for k in range(drive_joints.size):
         if on[k]:
             j = drive_joints[k]
             x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
-            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * (x - target[k]), K[k],
+            e = x - target[k]
+            E += 0.5 * K[k] * e * e
+            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * e, K[k],
                                           grad, diag, pair, project, work, ctx.scale * budget[j])
+    return E

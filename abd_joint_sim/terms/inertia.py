@@ -30,33 +30,39 @@ def _row_products(q, q_tilde, b, k, Mb):
     return d0, d1, d2, d3, m0, m1, m2, m3
 
 
+@njit(cache=True, error_model='numpy', inline='always')
+def _add_body_energy(E, r0, r1, r2):
+    """E + (M d)ᵀd of one body from its three spatial rows' `_row_products`, summed in q's
+    order r = 0..11 (the positions' rows, then A's: the same sum as the dense product)."""
+    E += r0[4] * r0[0]
+    E += r1[4] * r1[0]
+    E += r2[4] * r2[0]
+    for d0, d1, d2, d3, m0, m1, m2, m3 in (r0, r1, r2):
+        E += m1 * d1
+        E += m2 * d2
+        E += m3 * d3
+    return E
+
+
 @njit(cache=True, error_model='numpy')
 def energy(q, m, ctx):
     q_tilde, Mbar = ctx.q_tilde, m.body_Mbar
     E = 0.0
     for b in m.free_bodies:
         Mb = Mbar[b]
-        # Σ_r (Md)_r d_r in q's order r = 0..11: the positions' rows, then A's (same sum as dense)
-        for k in range(3):
-            d0 = q[b, k] - q_tilde[b, k]
-            d1 = q[b, 3 + 3 * k] - q_tilde[b, 3 + 3 * k]
-            d2 = q[b, 4 + 3 * k] - q_tilde[b, 4 + 3 * k]
-            d3 = q[b, 5 + 3 * k] - q_tilde[b, 5 + 3 * k]
-            E += (Mb[0, 0] * d0 + Mb[0, 1] * d1 + Mb[0, 2] * d2 + Mb[0, 3] * d3) * d0
-        for k in range(3):
-            d0, d1, d2, d3, m0, m1, m2, m3 = _row_products(q, q_tilde, b, k, Mb)
-            E += m1 * d1
-            E += m2 * d2
-            E += m3 * d3
+        E = _add_body_energy(E, _row_products(q, q_tilde, b, 0, Mb), _row_products(q, q_tilde, b, 1, Mb),
+                             _row_products(q, q_tilde, b, 2, Mb))
     return 0.5 * ctx.scale * E
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
+    """∇E and s·M; returns E (the bits of `energy`)."""
     q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
+    E = 0.0
     for b in m.free_bodies:
         Mb = Mbar[b]
-        _body_gradient(q, q_tilde, b, Mb, s, grad)
+        E = _body_gradient(q, q_tilde, b, Mb, s, grad, E)
         s00, s01, s02, s03 = s * Mb[0, 0], s * Mb[0, 1], s * Mb[0, 2], s * Mb[0, 3]
         s10, s11, s12, s13 = s * Mb[1, 0], s * Mb[1, 1], s * Mb[1, 2], s * Mb[1, 3]
         s20, s21, s22, s23 = s * Mb[2, 0], s * Mb[2, 1], s * Mb[2, 2], s * Mb[2, 3]
@@ -80,23 +86,29 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             D[a2, a0] += s31
             D[a2, a1] += s32
             D[a2, a2] += s33
+    return 0.5 * s * E
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate_gradient(q, m, ctx, grad):
     """∇E only: Newton's assembly starts from s·M summed into the constant blocks once per
-    model (model_data.constant_diag_inertia)."""
+    model (model_data.constant_diag_inertia). Returns E (the bits of `energy`)."""
     q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
+    E = 0.0
     for b in m.free_bodies:
-        _body_gradient(q, q_tilde, b, Mbar[b], s, grad)
+        E = _body_gradient(q, q_tilde, b, Mbar[b], s, grad, E)
+    return 0.5 * s * E
 
 
 @njit(cache=True, error_model='numpy')
-def _body_gradient(q, q_tilde, b, Mb, s, grad):
-    """grad[b] += s M (q − q̃)_b, row block by row block."""
-    for k in range(3):
-        d0, d1, d2, d3, m0, m1, m2, m3 = _row_products(q, q_tilde, b, k, Mb)
+def _body_gradient(q, q_tilde, b, Mb, s, grad, E):
+    """grad[b] += s M (q − q̃)_b, row block by row block; returns E plus the body's (M d)ᵀd."""
+    r0 = _row_products(q, q_tilde, b, 0, Mb)
+    r1 = _row_products(q, q_tilde, b, 1, Mb)
+    r2 = _row_products(q, q_tilde, b, 2, Mb)
+    for k, (d0, d1, d2, d3, m0, m1, m2, m3) in enumerate((r0, r1, r2)):
         grad[b, k] += s * m0
         grad[b, 3 + 3 * k] += s * m1
         grad[b, 4 + 3 * k] += s * m2
         grad[b, 5 + 3 * k] += s * m3
+    return _add_body_energy(E, r0, r1, r2)

@@ -145,11 +145,13 @@ def active_joints(q, m, ctx):
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and the (projected) Hessian of the active limits (active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work."""
+    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work.
+    Returns E (the bits of `energy`)."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget
     work, ref, start = ctx.angle_work, ctx.angle_ref, ctx.angle_start
+    E = 0.0
     for k in range(limit_joints.size):
         j = limit_joints[k]
         c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
@@ -157,6 +159,8 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             continue
         x = angle_of(c, s, start[j])
         if active(x, lower[k], upper[k]):
-            _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
+            e, d1, d2 = phi(x, lower[k], upper[k], strength[k])
+            E += e
             angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
                                           project, work, ctx.scale * budget[j])
+    return E

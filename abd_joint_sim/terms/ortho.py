@@ -60,10 +60,12 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E into grad; into diag the exact Hessian, or with `project` (Newton) a Hessian that
     keeps Newton's matrix positive definite: the exact one where the body's inertia
     outweighs its negative part (ORTHO_EXACT_SHARE, module docstring), else the PSD
-    projection. The exact path works on scalars and allocates nothing (docs/speed.md)."""
+    projection. The exact path works on scalars and allocates nothing (docs/speed.md).
+    Returns E, the bits of `energy` (‖C‖² is summed in its order)."""
     hh = ctx.h * ctx.h
     weight = m.ortho_weight
     exact_bound = m.ortho_exact_bound
+    E = 0.0
     for b in m.free_bodies:
         # C = AAᵀ − I (symmetric: (AAᵀ)_rc and (AAᵀ)_cr are the same products)
         C = (_aat(q, b, 0, 0) - 1.0, _aat(q, b, 0, 1), _aat(q, b, 0, 2),
@@ -77,6 +79,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         c2 = 0.0
         for r in range(9):
             c2 += C[r] * C[r]
+        E += weight[b] * c2
         if project and not hh * math.sqrt(c2) <= ctx.scale * exact_bound[b]:
             _add_projected_hessian(q, b, w, diag)
             continue
@@ -93,6 +96,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                         if k == l:
                             x += C[3 * i + j]
                         diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
+    return hh * E
 
 
 @njit(cache=True, error_model='numpy')

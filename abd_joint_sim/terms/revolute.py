@@ -103,7 +103,7 @@ def energy(q, m, ctx):
 
 @njit(cache=True, error_model='numpy')
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    accumulate_gradient(q, m, ctx, grad)
+    E = accumulate_gradient(q, m, ctx, grad)
     parent, child, H = m.joint_parent, m.joint_child, m.joint_hessian
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
@@ -112,21 +112,27 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                 diag[i_body, r, c] += H[j, r, c]
                 diag[j_body, r, c] += H[j, 12 + r, 12 + c]
                 pair[j, r, c] += H[j, r, 12 + c]
+    return E
 
 
 @njit(cache=True, error_model='numpy')
 def accumulate_gradient(q, m, ctx, grad):
     """∇E only: Newton's assembly starts from the constant Hessian blocks
-    (model_data.constant_hessian), so the step adds just this."""
+    (model_data.constant_hessian), so the step adds just this. Returns E (the bits of
+    `energy`)."""
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     if parent.size == 0:
-        return
+        return 0.0
+    E = 0.0
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         d0, d1, d2 = separation(q, i_body, j_body, x_bar, j, 0)
+        acc = d0 * d0 + d1 * d1 + d2 * d2
         Kd0 = (K[j] * d0, K[j] * d1, K[j] * d2)             # K d at anchor P0
         d0, d1, d2 = separation(q, i_body, j_body, x_bar, j, 1)
+        acc += d0 * d0 + d1 * d1 + d2 * d2
         Kd1 = (K[j] * d0, K[j] * d1, K[j] * d2)             # and at P1
+        E += K[j] * acc
         for side in range(2):
             b = i_body if side == 0 else j_body
             sign = 1.0 if side == 0 else -1.0
@@ -135,3 +141,4 @@ def accumulate_gradient(q, m, ctx, grad):
                 for c in range(3):
                     grad[b, 3 + 3 * r + c] += sign * (Kd0[r] * x_bar[j, side, 0, c]
                                                       + Kd1[r] * x_bar[j, side, 1, c])
+    return 0.5 * E
