@@ -638,6 +638,44 @@ def _dense_apply(Minv, F, acc):
             acc[b, r] += x
 
 
+def _textbook_ortho_hessian(q, b, w, diag):
+    """The shape term's exact Hessian added to diag[b] entry by entry, in plain Python floats:
+    w [A_il A_jk + δ_ij (AᵀA)_lk + δ_kl C_ij] at row 3i + k, column 3j + l of the A-block
+    (the loop nest ortho.accumulate ran before it was written out for the vectoriser)."""
+    A = [[float(q[b, 3 + 3 * r + c]) for c in range(3)] for r in range(3)]
+    AAt = [[A[r][0] * A[c][0] + A[r][1] * A[c][1] + A[r][2] * A[c][2] for c in range(3)] for r in range(3)]
+    AtA = [[A[0][l] * A[0][k] + A[1][l] * A[1][k] + A[2][l] * A[2][k] for k in range(3)] for l in range(3)]
+    for i in range(3):
+        for k in range(3):
+            for j in range(3):
+                for l in range(3):
+                    x = A[i][l] * A[j][k]
+                    if i == j:
+                        x += AtA[l][k]
+                    if k == l:
+                        x += AAt[i][j] - 1.0 if i == j else AAt[i][j]
+                    diag[b, 3 + 3 * i + k, 3 + 3 * j + l] += w * x
+
+
+@pytest.mark.parametrize('shear', [0.15, 1e-3])
+def test_the_shape_hessian_gives_the_bits_of_the_textbook_nest(shear):
+    """ortho.accumulate's exact Hessian, written as runs of 9 columns for the vectoriser, adds
+    the same bits as the entry-by-entry nest, onto blocks that already hold values."""
+    B, J = MODEL.body_count, MODEL.joint_count
+    rng = np.random.default_rng(7)
+    for seed in range(10):
+        q = _state(seed, shear)
+        ctx = _ctx(q_tilde=_state(seed + 10, shear))
+        start = rng.normal(size=(B, 12, 12))
+        got = start.copy()
+        ortho.accumulate(q, DATA, ctx, np.zeros((B, 12)), got, np.zeros((J, 12, 12)), False)
+        want = start.copy()
+        for b in DATA.free_bodies:
+            _textbook_ortho_hessian(q, b, 4.0 * ctx.h * ctx.h * DATA.ortho_weight[b], want)
+        assert not np.array_equal(got, start)
+        np.testing.assert_array_equal(got, want)
+
+
 @pytest.mark.parametrize('seed', [0, 1, 2, 3])
 def test_inertia_on_the_4x4_blocks_is_bit_identical_to_the_dense_mass_matrix(seed):
     q, q_tilde = _state(seed, 0.3), _state(seed + 20, 0.1)
