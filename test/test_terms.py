@@ -516,6 +516,60 @@ def test_angle_hessian_has_the_structure_the_projection_uses():
                 assert w.min() < 0
 
 
+def _textbook_exact_angle_hessian(work, c, s, r, o, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j, diag,
+                                  pair):
+    """angles._add_exact_angle_hessian as the loops it was before it was written for the
+    vectoriser, in plain Python floats: each body's block as its upper triangle, mirrored."""
+    f = [[float(x) for x in row] for row in work]
+    dc, ds, G = f[4], f[5], f[8]
+    Dr = [(c * dc[a] + s * ds[a]) / r for a in range(18)]
+    k1 = e1 / r
+    kx = e1 / (2.0 * r)
+    for a in range(9):
+        ga, ra, gj, rj = G[a], Dr[a], G[9 + a], Dr[9 + a]
+        for b in range(a, 9):
+            xi = e2 * (ga * G[b]) - k1 * (ga * Dr[b] + ra * G[b])
+            xj = e2 * (gj * G[9 + b]) - k1 * (gj * Dr[9 + b] + rj * G[9 + b])
+            diag[i_body, 3 + a, 3 + b] += xi
+            diag[j_body, 3 + a, 3 + b] += xj
+            if b != a:
+                diag[i_body, 3 + b, 3 + a] += xi
+                diag[j_body, 3 + b, 3 + a] += xj
+        ca = a % 3
+        for b in range(9):
+            x = e2 * (ga * G[9 + b]) - k1 * (ga * Dr[9 + b] + ra * G[9 + b])
+            if a // 3 == b // 3:
+                cb = b % 3
+                x += kx * (float(nbi[ca]) * (o[0] * float(nbj[cb]) + o[1] * float(bbj[cb]))
+                           + float(bbi[ca]) * (o[2] * float(nbj[cb]) + o[3] * float(bbj[cb])))
+            pair[j, 3 + a, 3 + b] += x
+
+
+def test_the_exact_angle_hessian_gives_the_bits_of_the_textbook_loops():
+    """The exact angle Hessian, written with whole rows for the vectoriser, adds the same bits
+    as its triangle-and-mirror loops, onto blocks that already hold values (random frames,
+    slopes and coefficients of both signs, 7 decades)."""
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        work = rng.normal(size=angles.ANGLE_WORK_SHAPE) * 10.0 ** rng.uniform(-3, 3)
+        c, s = rng.normal(size=2)
+        r = float(np.hypot(c, s))
+        o = rng.normal(size=4)
+        nbi, bbi, nbj, bbj = rng.normal(size=(4, 3))
+        e1, e2 = rng.normal(size=2) * 10.0 ** rng.uniform(-2, 2, size=2)
+        i_body, j_body, j = (0, 2, 1) if trial % 2 else (2, 1, 0)
+        diag, pair = rng.normal(size=(3, 12, 12)), rng.normal(size=(2, 12, 12))
+        want_d, want_p = diag.copy(), pair.copy()
+        before = diag.copy()
+        angles._add_exact_angle_hessian(work, c, s, r, *o, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j,
+                                        diag, pair)
+        _textbook_exact_angle_hessian(work, c, s, r, o, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j,
+                                      want_d, want_p)
+        assert not np.array_equal(diag, before)
+        np.testing.assert_array_equal(diag, want_d)
+        np.testing.assert_array_equal(pair, want_p)
+
+
 def test_angle_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite():
     """angles.accumulate_angle_joint takes E''∇θ∇θᵀ + E'∇²θ unprojected where its most
     negative eigenvalue is provably ≥ −exact_bound (Weyl's bound from its structure; the terms pass
