@@ -1,5 +1,5 @@
-"""Subnormal numbers flushed to zero for the duration of one step (docs/decisions.md
-"Subnormals flushed to zero inside the step").
+"""Subnormal numbers flushed to zero for the duration of a step, or of a batch of steps
+(step.steps) (docs/decisions.md "Subnormals flushed to zero inside the step").
 
 Why: a disturbance travels along a long chain through the linear solve decaying by ~10^0.7
 per link, so a few steps after a torque starts, the affine entries that were exactly 0 in the
