@@ -149,6 +149,35 @@ def test_term_energy_matches_the_oracle(name, seed):
     assert E == pytest.approx(ref, rel=1e-12)
 
 
+def test_step_context_takes_arrays_of_any_layout():
+    """StepContext is one numba type (C-contiguous writable arrays): arrays of another layout,
+    a read-only q̃, the references in Fortran order and drive switches as ints, are copied
+    into it, and the terms give what they give on the originals; the others are shared."""
+    q = _state(3)
+    ctx = _ctx(q_tilde=_state(13), angle_start=[0.1, -0.2])
+    frozen_q_tilde = ctx.q_tilde.copy()
+    frozen_q_tilde.flags.writeable = False
+    odd = StepContext(ctx.h, ctx.scale, frozen_q_tilde, ctx.angle_start, ctx.drive_target,
+                      ctx.drive_on.astype(int), ctx.angle_work, np.asfortranarray(ctx.angle_ref))
+    assert odd.angle_start is ctx.angle_start and odd.q_tilde is not frozen_q_tilde
+    for term in TERMS.values():
+        assert term.energy(q, DATA, odd) == term.energy(q, DATA, ctx)
+    changed = ctx.replace(scale=1.0)
+    assert changed.scale == 1.0 and changed.q_tilde is ctx.q_tilde
+    assert inertia.energy(q, DATA, changed) != inertia.energy(q, DATA, ctx)
+
+
+def test_the_step_context_is_the_workspaces_own():
+    """The step passes its Workspace's context (terms/context.py), whose arrays are the
+    Workspace's: what the step writes into q_tilde, angle_start, drive_target and angle_ref
+    is what the terms read."""
+    from abd_joint_sim.solver import workspace
+    ws = workspace.build(MODEL, DATA).__dict__
+    ctx = ws['ctx'].__dict__
+    for name in ('q_tilde', 'angle_start', 'drive_target', 'drive_on', 'angle_work', 'angle_ref'):
+        assert ctx[name] is ws[name], name
+
+
 @pytest.mark.parametrize('project', [False, True])
 @pytest.mark.parametrize('shear', [0.15, 1e-3])
 @pytest.mark.parametrize('name', list(TERMS))
@@ -182,7 +211,7 @@ def test_newton_assembly_returns_the_bits_of_the_potential(scale):
     B, J = MODEL.body_count, MODEL.joint_count
     for seed in range(8):
         q = _state(seed)
-        ctx = _ctx(q_tilde=_state(seed + 10), angle_start=[0.1, -0.2])._replace(scale=scale)
+        ctx = _ctx(q_tilde=_state(seed + 10), angle_start=[0.1, -0.2]).replace(scale=scale)
         grad, diag, pair = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
         blocks, E = newton.assemble(q, DATA, ctx, grad, diag, pair)
         terms = [TERMS[n].energy(q, DATA, ctx) for n in TERMS]
@@ -847,7 +876,7 @@ def test_damping_is_the_implicit_torque_with_the_angle_linearised_at_newtons_sta
     away from q0 the energy leaves the unlinearised one by O(|q − q0|²), the curvature of θ
     the linearisation drops."""
     start = np.array([0.1, -0.2])
-    ctx = _ctx(angle_start=start)._replace(angle_ref=_angle_ref(start, bdf2))
+    ctx = _ctx(angle_start=start).replace(angle_ref=_angle_ref(start, bdf2))
     h = ctx.h
     B, J = MODEL.body_count, MODEL.joint_count
     grad = np.zeros((B, 12))

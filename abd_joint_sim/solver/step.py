@@ -25,7 +25,6 @@ from numba import njit
 
 from .. import angles
 from ..terms import damping, gravity, limit, revolute, torque
-from ..terms.context import StepContext
 from . import bdf, borrowed, flat, newton, subnormals
 
 # columns of a step's outcome row
@@ -195,8 +194,14 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
             q_new[b, r] = q_tilde[b, r] + cw * w
     if m.damping_joints.size:
         damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
-    ctx = StepContext(h, scale, q_tilde, angle_start, drive_target, drive_enabled, ws.angle_work,
-                      limit.references(m, angle_start, ws.angle_ref))
+    limit.references(m, angle_start, ws.angle_ref)
+    # the Workspace's context (over q_tilde, angle_start, drive_target, angle_ref and its own
+    # drive_on): a reference where a context built here would be copied into every term call
+    ctx = borrowed.struct(ws.ctx)
+    ctx.h, ctx.scale = h, scale
+    drive_on = ctx.drive_on
+    for k in range(drive_joints.size):
+        drive_on[k] = drive_enabled[k]
     status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
     v_new = new_qvw[1]
     repeat = 0

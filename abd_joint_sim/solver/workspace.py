@@ -12,6 +12,7 @@ from numba.experimental import structref
 
 from .. import angles
 from ..terms import damping
+from ..terms.context import StepContext
 from . import borrowed, linsolve
 
 #: (name, meaning) of every field; the shapes come from `build`.
@@ -40,6 +41,9 @@ FIELDS = (
     ('retract_tmp', "(7,3,3) the screw retraction's 3x3 temporaries"),
     ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
     ('angle_work', '(25,18) angles.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
+    ('drive_on', '(D,) bool: which drives are on in this step (StepContext.drive_on)'),
+    ('ctx', "the step's StepContext over q_tilde, angle_start, drive_target, drive_on, angle_work "
+            'and angle_ref (the step sets h and scale in it)'),
 )
 
 
@@ -68,7 +72,10 @@ def build(model, data) -> Workspace:
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12),
                   torque_axes=(len(model.torque_joints) + 2, 3), retract_tmp=(7, 3, 3),
                   group_mean=(max(int(data.group_count), 1), 3), angle_work=angles.ANGLE_WORK_SHAPE)
-    values = {name: np.zeros(shapes[name]) for name, _ in FIELDS}
+    values = {name: np.zeros(shapes[name]) for name, _ in FIELDS if name in shapes}
+    values['drive_on'] = np.zeros(D, dtype=np.bool_)
+    values['ctx'] = borrowed.borrow(StepContext(0.0, 1.0, *(values[name] for name in (
+        'q_tilde', 'angle_start', 'drive_target', 'drive_on', 'angle_work', 'angle_ref'))))
     ws = Workspace(*(values[name] for name, _ in FIELDS))
     ws.__dict__.update(values)
     return borrowed.borrow(ws)
