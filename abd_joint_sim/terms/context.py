@@ -25,10 +25,6 @@ import numpy as np
 from numba import njit, types
 from numba.experimental import structref
 
-FIELDS = ('h', 'scale', 'q_tilde', 'angle_start', 'drive_target', 'drive_on', 'angle_work',
-          'angle_ref')
-
-
 @structref.register
 class StepContextType(types.StructRef):
     def preprocess_fields(self, fields):
@@ -42,6 +38,7 @@ CONTEXT_TYPE = StepContextType([
     ('q_tilde', types.float64[:, ::1]), ('angle_start', types.float64[::1]),
     ('drive_target', types.float64[::1]), ('drive_on', types.boolean[::1]),
     ('angle_work', types.float64[:, ::1]), ('angle_ref', types.float64[:, ::1])])
+FIELDS = tuple(CONTEXT_TYPE.field_dict)     #: the field names, in the constructor's order
 
 
 @njit(cache=True)
