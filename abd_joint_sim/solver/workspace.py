@@ -38,7 +38,6 @@ FIELDS = (
     ('dense_x', '(n,) dense solve: right-hand side / solution'),
     ('zero', '(B,12) zeros, never written (a direction d = d_plus − 0)'),
     ('torque_axes', '(T+2,3) UID 668 torque axes ê of the T torque joints, and 2 rows of scratch'),
-    ('retract_tmp', "(7,3,3) the screw retraction's 3x3 temporaries"),
     ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
     ('angle_work', '(25,18) angles.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
     ('drive_on', '(D,) bool: which drives are on in this step (StepContext.drive_on)'),
@@ -70,7 +69,7 @@ def build(model, data) -> Workspace:
                   drive_target=(D,), angle_ref=damping.reference_shape(model), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12),
-                  torque_axes=(len(model.torque_joints) + 2, 3), retract_tmp=(7, 3, 3),
+                  torque_axes=(len(model.torque_joints) + 2, 3),
                   group_mean=(max(int(data.group_count), 1), 3), angle_work=angles.ANGLE_WORK_SHAPE)
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS if name in shapes}
     values['drive_on'] = np.zeros(D, dtype=np.bool_)
