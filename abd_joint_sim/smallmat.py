@@ -204,22 +204,30 @@ def upper_solve(L, x, n):
         x[i] = s / L[i, i]
 
 
-@njit(cache=True, error_model='numpy')
-def det_inv3(A, inv):
-    """det A, and inv = A⁻¹ (adjugate / det)."""
-    det = (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
-           - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
-           + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
-    inv[0, 0] = (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) / det
-    inv[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) / det
-    inv[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) / det
-    inv[1, 0] = (A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]) / det
-    inv[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) / det
-    inv[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) / det
-    inv[2, 0] = (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]) / det
-    inv[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
-    inv[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
-    return det
+@njit(cache=True, error_model='numpy', inline='always')
+def adjugate3(a):
+    """adj(a) = A⁻¹ det A of a 3x3 matrix held as a row-major 9-tuple of scalars: entry (i, j)
+    is the cofactor a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1] (indices mod 3).
+    det A = a00 adj00 + a01 adj10 + a02 adj20. Scalars in, scalars out: the compiler keeps
+    them in registers (the retraction's and the torque's A⁻¹, docs/speed.md)."""
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
+    return (a11 * a22 - a12 * a21, a21 * a02 - a22 * a01, a01 * a12 - a02 * a11,
+            a12 * a20 - a10 * a22, a22 * a00 - a20 * a02, a02 * a10 - a00 * a12,
+            a10 * a21 - a11 * a20, a20 * a01 - a21 * a00, a00 * a11 - a01 * a10)
+
+
+@njit(cache=True, error_model='numpy', inline='always')
+def product3(a, b):
+    """a b of two 3x3 matrices held as row-major 9-tuples, each entry summed from 0.0 over
+    the inner index in order (the rounding of the loop `acc = 0.0; acc += a_ic b_cj`)."""
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = b
+    return (0.0 + a00 * b00 + a01 * b10 + a02 * b20, 0.0 + a00 * b01 + a01 * b11 + a02 * b21,
+            0.0 + a00 * b02 + a01 * b12 + a02 * b22,
+            0.0 + a10 * b00 + a11 * b10 + a12 * b20, 0.0 + a10 * b01 + a11 * b11 + a12 * b21,
+            0.0 + a10 * b02 + a11 * b12 + a12 * b22,
+            0.0 + a20 * b00 + a21 * b10 + a22 * b20, 0.0 + a20 * b01 + a21 * b11 + a22 * b21,
+            0.0 + a20 * b02 + a21 * b12 + a22 * b22)
 
 
 @njit(cache=True, error_model='numpy')

@@ -31,6 +31,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ..smallmat import adjugate3, product3
+
 SCREW_STRAIN = 1e-2   # max |A Aᵀ − I| up to which a body's step is applied as a screw
 # [rad] below: Taylor series of the screw coefficients to θ⁶ (truncation < 1e-21 relative);
 # above, the closed forms lose ~eps/θ² to cancellation (< 3e-12 relative)
@@ -83,37 +85,14 @@ def screw_coefficients(th):
     return math.sin(th) / th, (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / th
 
 
-@njit(cache=True, error_model='numpy', inline='always')
-def _product3(a, b):
-    """a b of two 3x3 matrices held as row-major 9-tuples, each entry summed from 0.0 over c
-    in order (the loop's rounding)."""
-    a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
-    b00, b01, b02, b10, b11, b12, b20, b21, b22 = b
-    return (0.0 + a00 * b00 + a01 * b10 + a02 * b20, 0.0 + a00 * b01 + a01 * b11 + a02 * b21,
-            0.0 + a00 * b02 + a01 * b12 + a02 * b22,
-            0.0 + a10 * b00 + a11 * b10 + a12 * b20, 0.0 + a10 * b01 + a11 * b11 + a12 * b21,
-            0.0 + a10 * b02 + a11 * b12 + a12 * b22,
-            0.0 + a20 * b00 + a21 * b10 + a22 * b20, 0.0 + a20 * b01 + a21 * b11 + a22 * b21,
-            0.0 + a20 * b02 + a21 * b12 + a22 * b22)
-
-
-@njit(cache=True, error_model='numpy', inline='always')
-def _adjugate3(a):
-    """adj(a) (A⁻¹ det A) of a row-major 9-tuple: entry (i, j) is the cofactor
-    a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1] (indices mod 3)."""
-    a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
-    return (a11 * a22 - a12 * a21, a21 * a02 - a22 * a01, a01 * a12 - a02 * a11,
-            a12 * a20 - a10 * a22, a22 * a00 - a20 * a02, a02 * a10 - a00 * a12,
-            a10 * a21 - a11 * a20, a20 * a01 - a21 * a00, a00 * a11 - a01 * a10)
-
-
 @njit(cache=True, error_model='numpy')
 def retract(q, dq, alpha, m, ws, out):
     """out = q ⊕ α·dq: each free body moved along the screw motion of its step, the floating
     groups' mean turn translation removed. Works in ws (workspace.Workspace, its group_mean).
-    Each body's 3x3 matrices are 9-tuples of locals (_product3, _adjugate3): the compiler
-    keeps them in registers, where planes of a work array went through memory (docs/speed.md,
-    the twentieth round); the same operations in the same order, the same bits."""
+    Each body's 3x3 matrices are 9-tuples of locals (smallmat.product3 and adjugate3): the
+    compiler keeps them in registers, where planes of a work array went through memory
+    (docs/speed.md, the twentieth round); the same operations in the same order, the same
+    bits."""
     free_idx, group, share, ngroups = m.free_bodies, m.body_group, m.group_share, m.group_count
     mean = ws.group_mean
     nf = len(free_idx)
@@ -136,9 +115,9 @@ def retract(q, dq, alpha, m, ws, out):
         # spin W = skew(ΔA A⁻¹) as the axial vector w; A⁻¹ = adj(A)/det A
         A = (q[b, 3], q[b, 4], q[b, 5], q[b, 6], q[b, 7], q[b, 8], q[b, 9], q[b, 10], q[b, 11])
         dA = (dq[b, 3], dq[b, 4], dq[b, 5], dq[b, 6], dq[b, 7], dq[b, 8], dq[b, 9], dq[b, 10], dq[b, 11])
-        adj = _adjugate3(A)
+        adj = adjugate3(A)
         det = A[0] * adj[0] + A[1] * adj[3] + A[2] * adj[6]
-        P = _product3(dA, adj)
+        P = product3(dA, adj)
         s01, s02, s10 = alpha * P[1] / det, alpha * P[2] / det, alpha * P[3] / det
         s12, s20, s21 = alpha * P[5] / det, alpha * P[6] / det, alpha * P[7] / det
         w0 = 0.5 * (s21 - s12)
@@ -150,14 +129,14 @@ def retract(q, dq, alpha, m, ws, out):
         cs, cc, cb = screw_coefficients(th)
         # exp(W)(A + D) − (A + ΔA) = −b W A + s W D + c W²(A + D), D = ΔA − W A: added to
         # q + αΔq (retraction.py: a tiny step rounds like the linear one)
-        WA = _product3(W, A)
+        WA = product3(W, A)
         D = (alpha * dA[0] - WA[0], alpha * dA[1] - WA[1], alpha * dA[2] - WA[2],
              alpha * dA[3] - WA[3], alpha * dA[4] - WA[4], alpha * dA[5] - WA[5],
              alpha * dA[6] - WA[6], alpha * dA[7] - WA[7], alpha * dA[8] - WA[8])
-        WD = _product3(W, D)
+        WD = product3(W, D)
         Y = (WA[0] + WD[0], WA[1] + WD[1], WA[2] + WD[2], WA[3] + WD[3], WA[4] + WD[4],
              WA[5] + WD[5], WA[6] + WD[6], WA[7] + WD[7], WA[8] + WD[8])
-        WY = _product3(W, Y)
+        WY = product3(W, Y)
         for e in range(9):
             out[b, 3 + e] += -cb * WA[e] + cs * WD[e] + cc * WY[e]
         t0, t1, t2 = alpha * dq[b, 0], alpha * dq[b, 1], alpha * dq[b, 2]

@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ..smallmat import adjugate3
+
 
 SINGULAR_RATIO = 1e-6
 AXIS_EPS = 1e-12
@@ -92,20 +94,18 @@ def _any_active(torque_value, torque_enabled):
 
 @njit(cache=True, error_model='numpy')
 def _inverse_if_regular(q, b):
-    """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.det_inv3's adjugate / det, on scalars
-    (it runs per body); regular is False (no torque on the body) if
-    |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
+    """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.adjugate3 / det, on scalars (it runs
+    per body); regular is False (no torque on the body) if |det A| ≤ SINGULAR_RATIO
+    |a1||a2||a3|."""
     a00, a01, a02 = q[b, 3], q[b, 4], q[b, 5]
     a10, a11, a12 = q[b, 6], q[b, 7], q[b, 8]
     a20, a21, a22 = q[b, 9], q[b, 10], q[b, 11]
-    c00 = a11 * a22 - a12 * a21
-    det = (a00 * c00 - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20))
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = adjugate3((a00, a01, a02, a10, a11, a12, a20, a21, a22))
+    det = a00 * c00 + a01 * c10 + a02 * c20
     scale = (math.sqrt(a00 * a00 + a01 * a01 + a02 * a02) * math.sqrt(a10 * a10 + a11 * a11 + a12 * a12)
              * math.sqrt(a20 * a20 + a21 * a21 + a22 * a22))
     return (abs(det) > SINGULAR_RATIO * scale,
-            c00 / det, (a02 * a21 - a01 * a22) / det, (a01 * a12 - a02 * a11) / det,
-            (a12 * a20 - a10 * a22) / det, (a00 * a22 - a02 * a20) / det, (a02 * a10 - a00 * a12) / det,
-            (a10 * a21 - a11 * a20) / det, (a01 * a20 - a00 * a21) / det, (a00 * a11 - a01 * a10) / det)
+            c00 / det, c01 / det, c02 / det, c10 / det, c11 / det, c12 / det, c20 / det, c21 / det, c22 / det)
 
 
 @njit(cache=True, error_model='numpy')
