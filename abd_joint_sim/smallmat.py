@@ -206,14 +206,16 @@ def upper_solve(L, x, n):
 
 @njit(cache=True, error_model='numpy', inline='always')
 def adjugate3(a):
-    """adj(a) = A⁻¹ det A of a 3x3 matrix held as a row-major 9-tuple of scalars: entry (i, j)
-    is the cofactor a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1] (indices mod 3).
-    det A = a00 adj00 + a01 adj10 + a02 adj20. Scalars in, scalars out: the compiler keeps
-    them in registers (the retraction's and the torque's A⁻¹, docs/speed.md)."""
+    """(adj a, det a) of a 3x3 matrix held as a row-major 9-tuple of scalars: adj a = A⁻¹ det A
+    as a 9-tuple, entry (i, j) the cofactor a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1]
+    (indices mod 3), and det a = a00 adj00 + a01 adj10 + a02 adj20. Scalars in, scalars out:
+    the compiler keeps them in registers (the retraction's and the torque's A⁻¹,
+    docs/speed.md)."""
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
-    return (a11 * a22 - a12 * a21, a21 * a02 - a22 * a01, a01 * a12 - a02 * a11,
-            a12 * a20 - a10 * a22, a22 * a00 - a20 * a02, a02 * a10 - a00 * a12,
-            a10 * a21 - a11 * a20, a20 * a01 - a21 * a00, a00 * a11 - a01 * a10)
+    adj = (a11 * a22 - a12 * a21, a21 * a02 - a22 * a01, a01 * a12 - a02 * a11,
+           a12 * a20 - a10 * a22, a22 * a00 - a20 * a02, a02 * a10 - a00 * a12,
+           a10 * a21 - a11 * a20, a20 * a01 - a21 * a00, a00 * a11 - a01 * a10)
+    return adj, a00 * adj[0] + a01 * adj[3] + a02 * adj[6]
 
 
 @njit(cache=True, error_model='numpy', inline='always')

@@ -115,8 +115,7 @@ def retract(q, dq, alpha, m, ws, out):
         # spin W = skew(ΔA A⁻¹) as the axial vector w; A⁻¹ = adj(A)/det A
         A = (q[b, 3], q[b, 4], q[b, 5], q[b, 6], q[b, 7], q[b, 8], q[b, 9], q[b, 10], q[b, 11])
         dA = (dq[b, 3], dq[b, 4], dq[b, 5], dq[b, 6], dq[b, 7], dq[b, 8], dq[b, 9], dq[b, 10], dq[b, 11])
-        adj = adjugate3(A)
-        det = A[0] * adj[0] + A[1] * adj[3] + A[2] * adj[6]
+        adj, det = adjugate3(A)
         P = product3(dA, adj)
         s01, s02, s10 = alpha * P[1] / det, alpha * P[2] / det, alpha * P[3] / det
         s12, s20, s21 = alpha * P[5] / det, alpha * P[6] / det, alpha * P[7] / det

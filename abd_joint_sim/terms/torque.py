@@ -100,8 +100,8 @@ def _inverse_if_regular(q, b):
     a00, a01, a02 = q[b, 3], q[b, 4], q[b, 5]
     a10, a11, a12 = q[b, 6], q[b, 7], q[b, 8]
     a20, a21, a22 = q[b, 9], q[b, 10], q[b, 11]
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = adjugate3((a00, a01, a02, a10, a11, a12, a20, a21, a22))
-    det = a00 * c00 + a01 * c10 + a02 * c20
+    adj, det = adjugate3((a00, a01, a02, a10, a11, a12, a20, a21, a22))
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = adj
     scale = (math.sqrt(a00 * a00 + a01 * a01 + a02 * a02) * math.sqrt(a10 * a10 + a11 * a11 + a12 * a12)
              * math.sqrt(a20 * a20 + a21 * a21 + a22 * a22))
     return (abs(det) > SINGULAR_RATIO * scale,
