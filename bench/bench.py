@@ -7,7 +7,11 @@ compared on a 3-link chain before anything is timed; a mismatch exits 1. A real 
 description (the KUKA iiwa URDF of pybullet_data) is timed in all three engines loading the
 same file, and in sim_node (bench/robot_bench.py), then more robots of pybullet_data against MuJoCo.
 
-    python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only] [--node-old DIR]
+    python bench/bench.py [--quick] [--no-peers] [--no-node | --node-only] [--node-old DIR] [--readme]
+
+`--readme` runs the comparisons with the peers twice and ends with the README's speed
+tables ("Results"): run 1's µs per step and both runs' ratios, so the table in the README
+is this output pasted, not figures gathered by hand.
 
 The node figures (default scene, demo_arm URDF, KUKA iiwa URDF) come two ways: the node's
 batched `_advance` against `World.step_clean` in one process (the node's per-step overhead,
@@ -37,6 +41,7 @@ sys.path.insert(0, os.environ.get('ABD_BENCH_TREE') or str(Path(__file__).resolv
 from abd_joint_sim import Scene, World                      # noqa: E402
 from abd_joint_sim.builders import chain_scene, tree_scene  # noqa: E402
 from peers import make_mujoco, make_pybullet                # noqa: E402
+import robot_bench                                          # noqa: E402
 
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
 
@@ -310,37 +315,11 @@ def _cpu_seconds(pid):
         return None
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
-    ap.add_argument('--no-peers', action='store_true', help='skip MuJoCo and PyBullet')
-    ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
-    ap.add_argument('--node-only', action='store_true',
-                    help='only the sim_node section (default scene, demo_arm, KUKA iiwa)')
-    ap.add_argument('--node-old', metavar='CHECKOUT',
-                    help="also time another checkout's node in one process, side by side")
-    ap.add_argument('--node-overhead', metavar='SCENE', help=argparse.SUPPRESS)
-    ap.add_argument('--steps', type=int, default=4000, help=argparse.SUPPRESS)
-    args = ap.parse_args(argv)
-    if args.node_overhead:                    # the child process of _node_overhead_process
-        import json
-        res = node_overhead(args.steps, args.node_overhead)
-        print(json.dumps(res))
-        return 0 if res else 1
-    if args.node_only:
-        import robot_bench
-        print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
-              f'Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}')
-        node_section(args.quick, robot_bench.robot_path(), args.node_old)
-        return 0
-
-    print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
-          f'Python {platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f}, '
-          'compiled physics step')
-    if not args.no_peers and not check_agreement():
-        print('ERROR: engines disagree on the 3-link chain; not timing.')
-        return 1
-
+def chains(args):
+    """The scenes without a URDF: the default scene, the reference hinge, chains of
+    1/10/100/1000 links (with the peers) and a tree; prints their tables and returns their
+    rows (dicts; s/step: `med` one step per call, `batched` n per call, `mujoco`,
+    `mujoco_n`, `pybullet` the peers', None where one did not run)."""
     from abd_joint_sim.scene import load_yaml
     cases = [('default scene', load_yaml((SCENES / 'default.yaml').read_text()), None),
              ('2-body hinge', load_yaml((SCENES / 'hinge.yaml').read_text()), None)]
@@ -412,12 +391,110 @@ def main(argv=None):
     if 'chain 100' in per_step and 'chain 1000' in per_step:
         a, b = per_step['chain 100'], per_step['chain 1000']
         print(f'\ncost growth 100 -> 1000 links: x{b / a:.1f} (exponent {np.log10(b / a):.2f}; 1 = linear)')
-    # URDF robot (issue 11): a real robot description in all three engines, and in sim_node.
-    import robot_bench
+    return rows
+
+
+def run_engines(args):
+    """One run of everything timed against the peers: `chains`, then the KUKA iiwa URDF in all
+    three engines (bench/robot_bench.py `run`) and more robots of pybullet_data against MuJoCo
+    (`robots`); returns {'chains': rows, 'robot': figures or None, 'robots': rows, 'load'}."""
+    load = os.getloadavg()[0]
+    rows = chains(args)
+    # URDF robot (issue 11): a real robot description in all three engines
     robot = robot_bench.run(args.quick, peers=not args.no_peers)
-    robot_bench.robots(args.quick, peers=not args.no_peers)
+    robots = robot_bench.robots(args.quick, peers=not args.no_peers)
+    return dict(chains=rows, robot=robot, robots=robots, load=load)
+
+
+def _us(x):
+    return '–' if x is None else (f'{x * 1e6:,.0f}'.replace(',', ' ') if x >= 1e-4 else f'{x * 1e6:.1f}')
+
+
+def _ratios(pairs):
+    """'**r1**, r2' of (ours, peer) per run; '–' where a peer did not run."""
+    cells = [f'{a / b:.2f}' if a is not None and b else '–' for a, b in pairs]
+    return ', '.join([f'**{cells[0]}**'] + cells[1:])
+
+
+def print_readme_tables(runs):
+    """The README's speed tables ("Results"), from the runs of `--readme`: the µs of run 1
+    and the ratios of every run, side by side."""
+    loads = ', '.join(f'{r["load"]:.2f}' for r in runs)
+    print(f'\n## README tables ({len(runs)} runs, loads {loads}; µs per step of run 1, '
+          'ours/peer of each run)\n')
+    print('| scene | ours, one step per call | MuJoCo | **ours/MuJoCo** | ours, n per call | MuJoCo, n '
+          'per call | **ours/MuJoCo**, n per call | PyBullet | ours/PyBullet |')
+    print('|' + '---|' * 9)
+    first = runs[0]
+    for k, r in enumerate(first['chains']):
+        if r['mujoco'] is None and r['pybullet'] is None:
+            continue
+        same = [run['chains'][k] for run in runs]
+        print(f'| {r["label"]} | {_us(r["med"])} | {_us(r["mujoco"])} | '
+              f'{_ratios([(x["med"], x["mujoco"]) for x in same])} | {_us(r["batched"])} | '
+              f'{_us(r["mujoco_n"])} | {_ratios([(x["batched"], x["mujoco_n"]) for x in same])} | '
+              f'{_us(r["pybullet"])} | {_ratios([(x["med"], x["pybullet"]) for x in same])} |')
+    if first['robot']:
+        k = first['robot']
+        robots = [run['robot'] for run in runs]
+        print(f'| KUKA iiwa URDF ¹ | {_us(k["one"])} | {_us(k["mj_one"])} | '
+              f'{_ratios([(x["one"], x["mj_one"]) for x in robots])} | {_us(k["n"])} | {_us(k["mj_n"])} | '
+              f'{_ratios([(x["n"], x["mj_n"]) for x in robots])} | {_us(k["pb_one"])} | '
+              f'{_ratios([(x["one"], x["pb_one"]) for x in robots])} |')
+        print(f'| KUKA iiwa, a Python PD controller ² | {_us(k["pd"])} | {_us(k["mj_pd"])} | '
+              f'{_ratios([(x["pd"], x["mj_pd"]) for x in robots])} | – | – | – | {_us(k["pb_pd"])} | '
+              f'{_ratios([(x["pd"], x["pb_pd"]) for x in robots])} |')
+    if first['robots']:
+        print('\n| robot | bodies | Newton it/step | ours µs/step | MuJoCo µs/step | **ours/MuJoCo** |')
+        print('|' + '---|' * 6)
+        for k, r in enumerate(first['robots']):
+            same = [run['robots'][k] for run in runs]
+            print(f'| {r["name"]} | {r["bodies"]} | {r["its"]:.2f} | {r["ours"] * 1e6:.1f} | '
+                  f'{r["mj_cell"]} | {_ratios([(x["ours"], x["mujoco"]) for x in same])} |')
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--quick', action='store_true', help='fewer steps and no 1000-link chain')
+    ap.add_argument('--no-peers', action='store_true', help='skip MuJoCo and PyBullet')
+    ap.add_argument('--no-node', action='store_true', help='skip the ROS node overhead')
+    ap.add_argument('--node-only', action='store_true',
+                    help='only the sim_node section (default scene, demo_arm, KUKA iiwa)')
+    ap.add_argument('--node-old', metavar='CHECKOUT',
+                    help="also time another checkout's node in one process, side by side")
+    ap.add_argument('--node-overhead', metavar='SCENE', help=argparse.SUPPRESS)
+    ap.add_argument('--steps', type=int, default=4000, help=argparse.SUPPRESS)
+    ap.add_argument('--readme', action='store_true',
+                    help='run the peer comparisons twice and print the README\'s speed tables')
+    args = ap.parse_args(argv)
+    if args.node_overhead:                    # the child process of _node_overhead_process
+        import json
+        res = node_overhead(args.steps, args.node_overhead)
+        print(json.dumps(res))
+        return 0 if res else 1
+    if args.node_only:
+        print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
+              f'Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}')
+        node_section(args.quick, robot_bench.robot_path(), args.node_old)
+        return 0
+
+    print(f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, '
+          f'Python {platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f}, '
+          'compiled physics step')
+    if not args.no_peers and not check_agreement():
+        print('ERROR: engines disagree on the 3-link chain; not timing.')
+        return 1
+
+    runs = []
+    for run in range(2 if args.readme else 1):
+        if args.readme:
+            print(f'\n## Run {run + 1} of 2 (load {os.getloadavg()[0]:.2f})')
+        runs.append(run_engines(args))
+    if args.readme:
+        print_readme_tables(runs)
     if not args.no_node:
-        node_section(args.quick, robot[0] if robot else robot_bench.robot_path(), args.node_old)
+        node_section(args.quick, runs[0]['robot']['path'] if runs[0]['robot'] else robot_bench.robot_path(),
+                     args.node_old)
     return 0
 
 

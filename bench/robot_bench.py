@@ -162,7 +162,10 @@ def pybullet_controller(path):
 
 
 def run(quick=False, peers=True):
-    """Print the robot's row; returns (path, ours s/step) or None without the file. The
+    """Print the robot's row; returns its figures (a dict: path; s/step of ours `one` step
+    per call and `n` per call, MuJoCo's `mj_one` and `mj_n`, PyBullet's `pb_one`; the PD
+    controller's `pd`, `mj_pd`, `pb_pd`; a peer's is None where it did not run), or None
+    without the file. The
     engines take turns round after round (a burst of load on this shared machine then falls
     on all of them); each engine's own rounds follow its own simulated time as before: ours
     5 × 500 one-step calls, then 5 calls of 500 steps."""
@@ -221,12 +224,14 @@ def run(quick=False, peers=True):
     c = statistics.median(loop['ours'])
     line = (f'a Python PD controller on every joint (read θ, θ̇; set the torques; one step): ours '
             f'{c * 1e6:.1f} µs/step')
+    pd = {}
     for name, key in (('MuJoCo', 'mujoco'), ('PyBullet', 'pybullet')):
-        if loop[key]:
-            x = statistics.median(loop[key])
-            line += f', {name} {x * 1e6:.1f}: ours/{name} {c / x:.1f}'
+        pd[key] = statistics.median(loop[key]) if loop[key] else None
+        if pd[key]:
+            line += f', {name} {pd[key] * 1e6:.1f}: ours/{name} {c / pd[key]:.1f}'
     print(line)
-    return path, t
+    return dict(path=path, one=t, n=t_n, mj_one=mj_t, mj_n=mj_n, pb_one=pb_t, pd=c,
+                mj_pd=pd['mujoco'], pb_pd=pd['pybullet'])
 
 
 #: robots of pybullet_data that Scene.from_urdf loads (revolute and continuous joints; the
@@ -327,7 +332,8 @@ def robots(quick=False, peers=True):
     """One row per robot of ROBOTS: bodies, Newton iterations per step (mean of 200 single
     steps), ours World.step(n) and MuJoCo mj_step(m, d, n) µs/step and their ratio (MuJoCo
     '–' where its URDF import refuses the file: package:// mesh paths, inertias it rejects).
-    Torques as `torques`; CPU time of this process."""
+    Torques as `torques`; CPU time of this process. Returns the rows as dicts (name, bodies,
+    its, ours and mujoco s/step, mj_cell: MuJoCo's cell as printed)."""
     import warnings
     try:
         import pybullet_data
@@ -356,7 +362,8 @@ def robots(quick=False, peers=True):
             mj_cell += f' ({note})'
         print(f'| {name} | {world.model.body_count} | {its:.2f} | {ours_t * 1e6:.1f} | '
               f'{mj_cell} | {ratio} |', flush=True)
-        rows.append((name, ours_t, mj_t))
+        rows.append(dict(name=name, bodies=world.model.body_count, its=its, ours=ours_t, mujoco=mj_t,
+                         mj_cell=mj_cell))
     return rows
 
 
