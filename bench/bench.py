@@ -416,6 +416,13 @@ def _ratios(pairs):
     return ', '.join([f'**{cells[0]}**'] + cells[1:])
 
 
+def _against(same, ours, peer, with_ours=True):
+    """Cells '[ours µs |] peer µs | ratios' of one scene's figures in every run (`same`, dicts;
+    the µs are run 1's)."""
+    cells = [_us(same[0][peer]), _ratios([(x[ours], x[peer]) for x in same])]
+    return ' | '.join(([_us(same[0][ours])] if with_ours else []) + cells)
+
+
 def print_readme_tables(runs):
     """The README's speed tables ("Results"), from the runs of `--readme`: the µs of run 1
     and the ratios of every run, side by side."""
@@ -425,29 +432,22 @@ def print_readme_tables(runs):
     print('| scene | ours, one step per call | MuJoCo | **ours/MuJoCo** | ours, n per call | MuJoCo, n '
           'per call | **ours/MuJoCo**, n per call | PyBullet | ours/PyBullet |')
     print('|' + '---|' * 9)
-    first = runs[0]
-    for k, r in enumerate(first['chains']):
+    for k, r in enumerate(runs[0]['chains']):
         if r['mujoco'] is None and r['pybullet'] is None:
             continue
         same = [run['chains'][k] for run in runs]
-        print(f'| {r["label"]} | {_us(r["med"])} | {_us(r["mujoco"])} | '
-              f'{_ratios([(x["med"], x["mujoco"]) for x in same])} | {_us(r["batched"])} | '
-              f'{_us(r["mujoco_n"])} | {_ratios([(x["batched"], x["mujoco_n"]) for x in same])} | '
-              f'{_us(r["pybullet"])} | {_ratios([(x["med"], x["pybullet"]) for x in same])} |')
-    if first['robot']:
-        k = first['robot']
-        robots = [run['robot'] for run in runs]
-        print(f'| KUKA iiwa URDF ¹ | {_us(k["one"])} | {_us(k["mj_one"])} | '
-              f'{_ratios([(x["one"], x["mj_one"]) for x in robots])} | {_us(k["n"])} | {_us(k["mj_n"])} | '
-              f'{_ratios([(x["n"], x["mj_n"]) for x in robots])} | {_us(k["pb_one"])} | '
-              f'{_ratios([(x["one"], x["pb_one"]) for x in robots])} |')
-        print(f'| KUKA iiwa, a Python PD controller ² | {_us(k["pd"])} | {_us(k["mj_pd"])} | '
-              f'{_ratios([(x["pd"], x["mj_pd"]) for x in robots])} | – | – | – | {_us(k["pb_pd"])} | '
-              f'{_ratios([(x["pd"], x["pb_pd"]) for x in robots])} |')
-    if first['robots']:
+        print(f'| {r["label"]} | {_against(same, "med", "mujoco")} | {_against(same, "batched", "mujoco_n")} '
+              f'| {_against(same, "med", "pybullet", False)} |')
+    if runs[0]['robot']:
+        same = [run['robot'] for run in runs]
+        print(f'| KUKA iiwa URDF ¹ | {_against(same, "one", "mj_one")} | {_against(same, "n", "mj_n")} | '
+              f'{_against(same, "one", "pb_one", False)} |')
+        print(f'| KUKA iiwa, a Python PD controller ² | {_against(same, "pd", "mj_pd")} | – | – | – | '
+              f'{_against(same, "pd", "pb_pd", False)} |')
+    if runs[0]['robots']:
         print('\n| robot | bodies | Newton it/step | ours µs/step | MuJoCo µs/step | **ours/MuJoCo** |')
         print('|' + '---|' * 6)
-        for k, r in enumerate(first['robots']):
+        for k, r in enumerate(runs[0]['robots']):
             same = [run['robots'][k] for run in runs]
             print(f'| {r["name"]} | {r["bodies"]} | {r["its"]:.2f} | {r["ours"] * 1e6:.1f} | '
                   f'{r["mj_cell"]} | {_ratios([(x["ours"], x["mujoco"]) for x in same])} |')
