@@ -11,6 +11,7 @@ one-step calls the state stays in the solver's ring buffers (solver/resident.py)
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
@@ -117,11 +118,15 @@ class World:
 
     def set_torque(self, joint: str, value: float) -> float:
         """Set the UID 668 torque of a joint, applied from the next step. Values beyond the
-        joint's effort_limit are clamped; the applied value is returned."""
+        joint's effort_limit are clamped; the applied value is returned. A value that is not
+        a number or not finite raises ValueError naming the joint, and changes nothing."""
         k = self._torque_slot.get(joint)
         if k is None:
             self._slot(self._torque_slot, joint, 'external_torque (not actuated)')   # raises
-        value = float(value)
+        try:
+            value = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f'joint {joint!r}: torque {value!r} is not a number; rejected') from None
         if not math.isfinite(value):
             raise ValueError(f'joint {joint!r}: torque {value} is not finite; rejected')
         value = torque.clamp_command(value, self._effort_limit[k])
@@ -153,24 +158,36 @@ class World:
         return out.copy()
 
     def set_torque_enabled(self, joint: str, enabled: bool) -> None:
+        """Switch a joint's UID 668 torque on or off from the next step. `enabled` must be True
+        or False (numpy's bool, 0 and 1 too): anything else raises ValueError."""
         k = self._slot(self._torque_slot, joint, 'external_torque (not actuated)')
-        self.control.torque_enabled[k] = bool(enabled)
+        self.control.torque_enabled[k] = _flag(enabled, joint, 'enabled')
 
     def torque_enabled(self, joint: str) -> bool:
         return bool(self.control.torque_enabled[self._slot(self._torque_slot, joint, 'external_torque')])
 
     def set_drive(self, joint: str, *, aim: float | None = None, enabled: bool | None = None,
                   passive: bool | None = None) -> None:
-        """Change a joint's driving (UID 19) aim angle [rad, absolute], enable or passive flag."""
+        """Change a joint's driving (UID 19) aim angle [rad, absolute], enable or passive flag.
+        All three are checked before any is applied: an aim that is not a finite number or a
+        flag that is not True or False raises ValueError naming the joint, and changes
+        nothing."""
         k = self._slot(self._drive_slot, joint, 'driving')
         if aim is not None:
+            try:
+                aim = float(aim)
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f'joint {joint!r}: aim angle {aim!r} is not a number; rejected') from None
             if not math.isfinite(aim):
                 raise ValueError(f'joint {joint!r}: aim angle {aim} is not finite; rejected')
+        enabled = None if enabled is None else _flag(enabled, joint, 'enabled')
+        passive = None if passive is None else _flag(passive, joint, 'passive')
+        if aim is not None:
             self.control.drive_aim[k] = aim
         if enabled is not None:
-            self.control.drive_enabled[k] = bool(enabled)
+            self.control.drive_enabled[k] = enabled
         if passive is not None:
-            self.control.drive_passive[k] = bool(passive)
+            self.control.drive_passive[k] = passive
 
     def reset(self) -> None:
         """Back to the initial state and the scene's initial commands; time 0."""
@@ -222,11 +239,12 @@ class World:
 
     # -- stepping -----------------------------------------------------------------------
     def step(self, n: int = 1) -> StepReport:
-        """Advance n steps of size dt; returns (and stores in `last_step`) the last report.
-        Raises SimulationError when a step cannot be finished even with sub-steps; the state
-        is then that of the last good step (time stays a multiple of dt)."""
+        """Advance n steps of size dt; returns (and stores in `last_step`) the last report
+        (n = 0: none, the last report again). Raises SimulationError when a step cannot be
+        finished even with sub-steps; the state is then that of the last good step (time
+        stays a multiple of dt). An n that is not a whole number ≥ 0 raises ValueError."""
         if n != 1:
-            n = int(n)
+            n = _step_count(n)
         if n == 1:                  # (a controller's loop: this call every step)
             self.last_step = report = self.solver.step_resident(self._resident, self.control)
             return report
@@ -252,3 +270,32 @@ class World:
             self.state, self.last_step = batch.state, batch.report
         self.last_clean_q = batch.q
         return batch.count, batch.times, batch.joint_angles, batch.joint_velocities
+
+
+def _step_count(n) -> int:
+    """World.step's n as an int: an integer (numpy's too) or a float with a whole value, ≥ 0;
+    ValueError naming n otherwise (1.5 steps, −1, '5' or NaN would otherwise be truncated,
+    skipped or converted without a word)."""
+    try:
+        k = operator.index(n)
+    except TypeError:
+        if not (isinstance(n, (float, np.floating)) and math.isfinite(n) and float(n).is_integer()):
+            raise ValueError(f'step: n must be a whole number of steps ≥ 0, got {n!r}') from None
+        k = int(n)
+    if k < 0:
+        raise ValueError(f'step: n must be a whole number of steps ≥ 0, got {n!r}')
+    return k
+
+
+def _flag(value, joint: str, what: str) -> bool:
+    """A command's on/off flag: True or False (numpy's bool and the integers 0 and 1 too);
+    ValueError naming the joint otherwise: bool('no') is True, a silent wrong answer."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    try:
+        k = operator.index(value)
+    except TypeError:
+        k = None
+    if k not in (0, 1):
+        raise ValueError(f'joint {joint!r}: {what} must be True or False, got {value!r}; rejected')
+    return bool(k)

@@ -280,3 +280,56 @@ def test_set_torques_refuses_bad_input_with_one_message_and_changes_nothing(valu
     with pytest.raises(ValueError, match=message):
         w.set_torques(values)
     assert np.array_equal(w.applied_torques(), before)
+
+
+def _driven_hinge():
+    d = hinge_dict()
+    d['joints'][0]['driving'] = dict(strength_ratio=100.0, aim_angle=0.0, passive=False, enabled=False)
+    return world_from(d)
+
+
+@pytest.mark.parametrize('call, message', [
+    (lambda w: w.set_torque('hinge', 10 ** 400), r"joint 'hinge': torque 1000.* is not a number; rejected"),
+    (lambda w: w.set_torque('hinge', 'x'), r"joint 'hinge': torque 'x' is not a number"),
+    (lambda w: w.set_torque('hinge', None), r"joint 'hinge': torque None is not a number"),
+    (lambda w: w.set_torque_enabled('hinge', 'no'), r"joint 'hinge': enabled must be True or False, got 'no'"),
+    (lambda w: w.set_torque_enabled('hinge', 2), r"enabled must be True or False, got 2"),
+    (lambda w: w.set_torque_enabled('hinge', None), r"enabled must be True or False, got None"),
+    (lambda w: w.set_drive('hinge', aim='up'), r"joint 'hinge': aim angle 'up' is not a number"),
+    (lambda w: w.set_drive('hinge', aim=0.3, enabled='yes'), r"enabled must be True or False, got 'yes'"),
+    (lambda w: w.set_drive('hinge', aim=0.3, passive=0.5), r"passive must be True or False, got 0.5"),
+    (lambda w: w.step(1.5), r'step: n must be a whole number of steps ≥ 0, got 1.5'),
+    (lambda w: w.step(-1), r'got -1'),
+    (lambda w: w.step('5'), r"got '5'"),
+    (lambda w: w.step(float('nan')), r'got nan'),
+    (lambda w: w.step(None), r'got None'),
+])
+def test_world_commands_refuse_what_is_not_a_number_or_flag_and_change_nothing(call, message):
+    """One ValueError naming the joint and the value, nothing changed: no OverflowError
+    traceback for an absurd integer, no bool('no') == True, no 1.5 steps truncated to one."""
+    w = _driven_hinge()
+    w.set_torque('hinge', 0.25)
+    w.step(2)
+    before = (w.applied_torques().copy(), w.control.torque_enabled.copy(), w.control.drive_aim.copy(),
+              w.control.drive_enabled.copy(), w.control.drive_passive.copy(), w.time)
+    with pytest.raises(ValueError, match=message):
+        call(w)
+    after = (w.applied_torques(), w.control.torque_enabled, w.control.drive_aim, w.control.drive_enabled,
+             w.control.drive_passive, w.time)
+    for a, b in zip(before, after):
+        assert np.array_equal(a, b)
+
+
+def test_world_commands_take_numpy_scalars_and_whole_floats():
+    w = _driven_hinge()
+    w.set_torque_enabled('hinge', np.bool_(False))
+    assert not w.torque_enabled('hinge')
+    w.set_torque_enabled('hinge', 1)
+    assert w.torque_enabled('hinge')
+    w.set_drive('hinge', aim=np.float32(0.5), enabled=np.bool_(True), passive=0)
+    assert w.control.drive_aim[0] == 0.5 and w.control.drive_enabled[0] and not w.control.drive_passive[0]
+    w.step(2.0)
+    w.step(np.int64(3))
+    w.step(True)
+    assert w.state.step_count == 6 and w.time == pytest.approx(6 * w.dt)
+    assert w.step(0) is w.last_step and w.state.step_count == 6
