@@ -676,7 +676,7 @@ class _Parser:
                           'torque (UID 668) requires a revolute joint (UID 18)')
             self.fail(f'{where}.type', f'unsupported joint type {jtype!r}; only revolute (UID 18)')
         for key in ('parent', 'child'):
-            if d[key] not in body_names:
+            if self.name(f'{where}.{key}', d[key]) not in body_names:
                 self.fail(f'{where}.{key}', f'unknown body {d[key]!r}; bodies: {", ".join(sorted(body_names))}')
         if d['parent'] == d['child']:
             self.fail(f'{where}.child', f'joint {name!r} connects body {d["child"]!r} to itself')

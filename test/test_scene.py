@@ -59,6 +59,8 @@ BAD = [
     ('duplicate_body', ('bodies', 1, 'name'), 'base', 'bodies[1].name', "duplicate name 'base'"),
     ('unknown_parent', ('joints', 0, 'parent'), 'ground', 'joints[0].parent', "unknown body 'ground'"),
     ('self_joint', ('joints', 0, 'parent'), 'arm', 'joints[0].child', 'to itself'),
+    ('parent_list', ('joints', 0, 'parent'), ['base'], 'joints[0].parent', "must be a non-empty string, got ['base']"),
+    ('child_mapping', ('joints', 0, 'child'), {'name': 'arm'}, 'joints[0].child', 'must be a non-empty string'),
     ('p0_equals_p1', ('joints', 0, 'p1'), [0.0, 0.0, -0.5], 'joints[0].p1', 'must differ from p0'),
     ('missing_p1', ('joints', 0, 'p1'), DELETE, 'joints[0]', "missing required key 'p1'"),
     ('zero_strength', ('joints', 0, 'strength_ratio'), 0.0, 'joints[0].strength_ratio', '> 0'),
