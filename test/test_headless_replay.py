@@ -295,6 +295,21 @@ def test_bad_input_cli_one_line_no_traceback(tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1 and 'Traceback' not in res.stderr
 
 
+def test_without_the_ros_environment_one_line_naming_it(tmp_path):
+    """Run outside `source scripts/env.sh`: the message definitions the bag stores cannot be
+    found; one line that says why and what to do, not ament_index's OSError traceback."""
+    import os
+    env = {k: v for k, v in os.environ.items() if k != 'AMENT_PREFIX_PATH'}
+    env['PYTHONPATH'] = str(REPO)
+    res = subprocess.run([sys.executable, '-m', 'abd_joint_sim.tools.run_headless', '--schedule',
+                          str(REPO / 'test' / 'data' / 'default_schedule.yaml'), '--out',
+                          str(tmp_path / 'o')], capture_output=True, text=True, env=env, timeout=120,
+                         cwd=str(REPO))
+    assert res.returncode == 2 and 'Traceback' not in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert 'AMENT_PREFIX_PATH is not set' in res.stderr and 'source scripts/env.sh' in res.stderr
+
+
 def test_bad_scene_out_and_arguments_exit_2(tmp_path, capsys):
     sched = tmp_path / 's.yaml'
     sched.write_text('- {t: 0.0, torque: {shoulder: 1.0}}\n')

@@ -58,6 +58,11 @@ def _share_file(msg_type: str, suffix: str) -> Path:
         raise MessageTypeError(
             f"message type '{msg_type}': package '{package}' is not in the ament index "
             f'(AMENT_PREFIX_PATH): {exc}') from None
+    except OSError:                         # ament_index_python's "AMENT_PREFIX_PATH is not set"
+        raise MessageTypeError(
+            f"message type '{msg_type}': AMENT_PREFIX_PATH is not set, so the installed message "
+            "definitions cannot be found; run `source scripts/env.sh` (or a ROS 2 setup file) "
+            'first') from None
     path = Path(share) / 'msg' / f'{name}{suffix}'
     if not path.is_file():
         raise MessageTypeError(f"message type '{msg_type}': {path} does not exist")
