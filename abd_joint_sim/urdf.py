@@ -393,8 +393,7 @@ class _Options:
         self.initial = self.mapping('initial_positions', opts.get('initial_positions') or {})
         for name, value in self.initial.items():
             self.known(f'initial_positions', name, joints)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value):
+            if not _finite_number(value):
                 self.fail(f'initial_positions.{name}', f'must be a finite number (rad), got {value!r}')
         self.lock = self.names('lock', opts.get('lock') or [], joints)
         actuated = opts.get('actuated')
@@ -438,13 +437,11 @@ class _Options:
         raise SceneError(f'{self.source}: {where}: {msg}')
 
     def positive(self, field, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not math.isfinite(value) or value <= 0:
+        if not _finite_number(value) or value <= 0:
             self.fail(field, f'must be a finite number > 0, got {value!r}')
 
     def nonnegative(self, field, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not math.isfinite(value) or value < 0:
+        if not _finite_number(value) or value < 0:
             self.fail(field, f'must be a finite number >= 0, got {value!r}')
 
     def mapping(self, field, value):
@@ -785,6 +782,17 @@ def resolve_package_uri(uri: str, base_dir: str) -> str:
     return path if os.path.isabs(path) else os.path.join(base_dir, path)
 
 
+def _finite_number(value) -> bool:
+    """An int or float (not a bool) that is finite as a float: an integer too large for a float
+    (10**400) is not, rather than an OverflowError out of math.isfinite."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def scene_data_from_urdf(source, options: dict) -> tuple[dict, str, str, list[str]]:
     """(full scene data, source name, URDF text, warnings) for ``Scene.from_urdf``."""
     text, name = read_urdf_source(source)
@@ -792,7 +800,9 @@ def scene_data_from_urdf(source, options: dict) -> tuple[dict, str, str, list[st
     scene_opts = {k: options.pop(k) for k in SCENE_OPTIONS if k in options}
     data, notes = robot_scene_dict(text, name, options)
     data['dt'] = scene_opts.pop('dt', DEFAULT_DT)
-    data['gravity'] = list(scene_opts.pop('gravity', DEFAULT_GRAVITY))
+    gravity = scene_opts.pop('gravity', DEFAULT_GRAVITY)
+    # a tuple or an array becomes the scene format's list; anything else goes to its check as it is
+    data['gravity'] = list(gravity) if isinstance(gravity, (list, tuple, np.ndarray)) else gravity
     if scene_opts.get('name'):
         data['name'] = scene_opts.pop('name')
     scene_opts.pop('name', None)

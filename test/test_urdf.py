@@ -204,6 +204,12 @@ def test_mimic_joint_refused_naming_it():
     ({'actuated': ['tool_mount']}, r"actuated: joint 'tool_mount' is fixed"),
     ({'joints': {'shoulder': {'stiffness': 1}}}, r"joints.shoulder: unknown key\(s\) 'stiffness'"),
     ({'fixed_base': 'yes'}, r'fixed_base: must be true or false'),
+    # absurd values that escaped as tracebacks before stop 36 (OverflowError, TypeError)
+    ({'strength_ratio': 10 ** 400}, r'strength_ratio: must be a finite number > 0, got 1000'),
+    ({'initial_positions': {'shoulder': 10 ** 400}}, r'initial_positions.shoulder: must be a finite number'),
+    ({'joints': {'shoulder': {'damping': 10 ** 400}}}, r'joints.shoulder.damping: must be a finite number >= 0'),
+    ({'gravity': 9.81}, r'gravity: must be a list of 3 numbers'),
+    ({'gravity': None}, r'gravity: must be a list of 3 numbers'),
 ])
 def test_bad_options_name_what_is_wrong(opts, match):
     with pytest.raises(SceneError, match=match):
