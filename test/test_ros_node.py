@@ -472,6 +472,27 @@ def test_absurd_start_parameter_is_one_line_exit_1(tmp_path, name, value):
     assert f"cannot start: parameter '{name}': {float(value)!r} is outside the supported range" in out, out
 
 
+@pytest.mark.parametrize('arg,expected', [
+    ('frame_id:=5', "cannot start: parameter 'frame_id': expected a string, got 5 (-p values are "
+                    "parsed as YAML: quote a string that looks like a number or a boolean, "
+                    "-p frame_id:=\"'5'\")"),
+    ('start_paused:=yes_please', "cannot start: parameter 'start_paused': expected true or false, "
+                                 "got 'yes_please'"),
+])
+def test_start_parameter_of_the_wrong_type_is_one_line_exit_1(tmp_path, arg, expected):
+    """A string or bool parameter given another YAML type (a bag named 2024, `yes` for a
+    bool) was rclpy's InvalidParameterTypeException traceback."""
+    node = _start(tmp_path, next_domain_id(), 'wrongtype', '-p', 'scene:=hinge', '-p', arg)
+    try:
+        node.proc.wait(60)
+    finally:
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    out = node.output()
+    assert node.proc.returncode == 1 and 'Traceback' not in out, out[-3000:]
+    assert expected in out, out
+
+
 def test_unknown_scene_name_lists_packaged_scenes(tmp_path):
     node = _start(tmp_path, next_domain_id(), 'hinj', '-p', 'scene:=hinj')
     try:

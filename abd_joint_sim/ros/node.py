@@ -32,6 +32,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 import rclpy
 from rclpy.clock import Clock as RclpyClock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
@@ -239,7 +240,17 @@ class SimNode(Node):
             descriptor = ParameterDescriptor(description=spec.description,
                                              read_only=spec.read_only,
                                              dynamic_typing=dynamic)
-            param = self.declare_parameter(spec.name, default, descriptor)
+            try:
+                param = self.declare_parameter(spec.name, default, descriptor)
+            except InvalidParameterTypeException:
+                # a string or bool parameter given a value of another YAML type: one line
+                # naming it, not rclpy's traceback
+                given = (getattr(self, '_parameter_overrides', None) or {}).get(spec.name)
+                given = getattr(given, 'value', given)
+                kind = 'true or false' if isinstance(default, bool) else 'a string'
+                hint = (f' (-p values are parsed as YAML: quote a string that looks like a number '
+                        f'or a boolean, -p {spec.name}:="\'{given}\'")' if kind == 'a string' else '')
+                raise ValueError(f'parameter {spec.name!r}: expected {kind}, got {given!r}{hint}') from None
             values[spec.name] = param.value
         return values
 
