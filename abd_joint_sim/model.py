@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SceneError
-from .scene import Scene
+from .scene import Scene, check_dt
 
 #: largest h d / I of a damped joint (I: the lighter body's moment about the axis): beyond it
 #: the damper outweighs the body's inertia by more than double precision resolves in Newton's
@@ -172,7 +172,8 @@ class Model:
 
 
 def compile_scene(scene: Scene, dt: float | None = None) -> Model:
-    """Turn a validated Scene into a Model; `dt` overrides the scene's step size."""
+    """Turn a validated Scene into a Model; `dt` overrides the scene's step size (checked as
+    the scene's own: SceneError outside 1e-6 to 1 s, or if not a finite number)."""
     B = len(scene.bodies)
     index = {b.name: k for k, b in enumerate(scene.bodies)}
     mass, com, M, Minv, vol, corners, q0, v0, R0 = [], [], [], [], [], [], [], [], []
@@ -225,7 +226,7 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
     jd = [scene.joints[k] for k in dj]
     jl = [scene.joints[k] for k in lj]
     model = Model(
-        dt=float(dt if dt else scene.dt), gravity=np.array(scene.gravity, float),
+        dt=scene.dt if dt is None else check_dt(dt, 'dt argument'), gravity=np.array(scene.gravity, float),
         integrator=scene.integrator, newton=scene.newton,
         body_names=scene.body_names, body_fixed=np.array([b.fixed for b in scene.bodies], bool),
         body_mass=np.array(mass), body_com=np.array(com), body_M=np.array(M),

@@ -383,6 +383,14 @@ class Scene:
         return tuple(j.name for j in self.joints)
 
 
+def check_dt(value, source: str = 'dt') -> float:
+    """A step size given outside a scene (World's `dt` argument) checked as a scene's `dt` is:
+    a finite number in the supported range, else SceneError naming `source` and the value."""
+    if getattr(value, 'shape', None) == () and hasattr(value, 'item'):
+        value = value.item()                # a numpy scalar: its Python number
+    return _Parser(source).number('', value, positive=True, bound='dt')
+
+
 def _with_robot(scene: 'Scene', urdf_text: str, notes) -> 'Scene':
     import dataclasses
     return dataclasses.replace(scene, robot_description=urdf_text, warnings=tuple(notes))

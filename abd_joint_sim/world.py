@@ -30,6 +30,12 @@ class World:
     """A running simulation of one scene. See README "Python API" for an example."""
 
     def __init__(self, scene: Scene | Model, dt: float | None = None):
+        """`dt` [s] overrides the scene's step size (checked as the scene's own dt is); a
+        compiled Model carries its own and takes no other."""
+        if isinstance(scene, Model) and dt is not None and dt != scene.dt:
+            raise ValueError(f'World: dt={dt!r} given with a compiled Model of dt {scene.dt}; '
+                             'compile the scene with that dt (model.compile_scene(scene, dt)) or '
+                             'pass the Scene')
         self.scene = scene if isinstance(scene, Scene) else None
         self.model = scene if isinstance(scene, Model) else compile_scene(scene, dt)
         m = self.model

@@ -338,3 +338,28 @@ def test_supported_range_corners_build_and_step():
                 for _ in range(2):
                     world.step()
                 assert np.all(np.isfinite(world.joint_angles()))
+
+
+@pytest.mark.parametrize('dt, words', [
+    (-1.0, 'must be > 0, got -1.0'), (0, 'must be > 0, got 0'), (float('nan'), 'must be finite, got nan'),
+    (1e-300, '1e-300 is outside the supported range 1e-06 to 1 s'), (1000.0, 'outside the supported range'),
+    (10 ** 400, 'an integer of 401 digits'), ('0.01', "must be a number, got '0.01'"), ([0.01], 'must be a number'),
+])
+def test_world_dt_argument_is_checked_as_the_scenes_dt(dt, words):
+    """World(scene, dt) overrides the scene's dt: before stop 36 it bypassed the scene's
+    checks (dt = -1 ran backwards in time, 1e3 s ran, 0 fell back to the scene's dt)."""
+    from abd_joint_sim import World
+    with pytest.raises(SceneError) as err:
+        World(Scene.from_dict(hinge_dict()), dt=dt)
+    assert str(err.value).startswith('dt argument: ') and words in str(err.value), str(err.value)
+
+
+def test_world_dt_argument_takes_numbers_and_a_model_keeps_its_own():
+    from abd_joint_sim import World
+    scene = Scene.from_dict(hinge_dict())
+    assert World(scene, dt=0.002).dt == 0.002 and World(scene, dt=np.float32(0.5)).dt == 0.5
+    assert World(scene).dt == scene.dt
+    model = compile_scene(scene, 0.004)
+    assert World(model).dt == 0.004 and World(model, dt=0.004).dt == 0.004
+    with pytest.raises(ValueError, match=r'dt=0.002 given with a compiled Model of dt 0.004'):
+        World(model, dt=0.002)
