@@ -129,13 +129,7 @@ class World:
         k = self._torque_slot.get(joint)
         if k is None:
             self._slot(self._torque_slot, joint, 'external_torque (not actuated)')   # raises
-        try:
-            value = float(value)
-        except (TypeError, ValueError, OverflowError):
-            raise ValueError(f'joint {joint!r}: torque {value!r} is not a number; rejected') from None
-        if not math.isfinite(value):
-            raise ValueError(f'joint {joint!r}: torque {value} is not finite; rejected')
-        value = torque.clamp_command(value, self._effort_limit[k])
+        value = torque.clamp_command(_number(value, joint, 'torque'), self._effort_limit[k])
         self.control.torque_value[k] = value
         return value
 
@@ -179,13 +173,7 @@ class World:
         flag that is not True or False raises ValueError naming the joint, and changes
         nothing."""
         k = self._slot(self._drive_slot, joint, 'driving')
-        if aim is not None:
-            try:
-                aim = float(aim)
-            except (TypeError, ValueError, OverflowError):
-                raise ValueError(f'joint {joint!r}: aim angle {aim!r} is not a number; rejected') from None
-            if not math.isfinite(aim):
-                raise ValueError(f'joint {joint!r}: aim angle {aim} is not finite; rejected')
+        aim = None if aim is None else _number(aim, joint, 'aim angle')
         enabled = None if enabled is None else _flag(enabled, joint, 'enabled')
         passive = None if passive is None else _flag(passive, joint, 'passive')
         if aim is not None:
@@ -291,6 +279,18 @@ def _step_count(n) -> int:
     if k < 0:
         raise ValueError(f'step: n must be a whole number of steps ≥ 0, got {n!r}')
     return k
+
+
+def _number(value, joint: str, what: str) -> float:
+    """A command's value as a finite float; ValueError naming the joint otherwise (None, a
+    string, an integer beyond a float's range, NaN, inf)."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f'joint {joint!r}: {what} {value!r} is not a number; rejected') from None
+    if not math.isfinite(value):
+        raise ValueError(f'joint {joint!r}: {what} {value} is not finite; rejected')
+    return value
 
 
 def _flag(value, joint: str, what: str) -> bool:
