@@ -116,9 +116,9 @@ class World:
 
     # -- control ------------------------------------------------------------------------
     def _slot(self, table, joint, what):
-        if joint in table:
+        if isinstance(joint, str) and joint in table:
             return table[joint]
-        if joint not in self._joint_index:
+        if not isinstance(joint, str) or joint not in self._joint_index:     # (a list: unhashable)
             raise KeyError(f'unknown joint {joint!r}; joints: {", ".join(self.model.joint_names)}')
         raise ValueError(f'joint {joint!r} has no {what}')
 
@@ -126,7 +126,7 @@ class World:
         """Set the UID 668 torque of a joint, applied from the next step. Values beyond the
         joint's effort_limit are clamped; the applied value is returned. A value that is not
         a number or not finite raises ValueError naming the joint, and changes nothing."""
-        k = self._torque_slot.get(joint)
+        k = self._torque_slot.get(joint) if type(joint) is str else None
         if k is None:
             self._slot(self._torque_slot, joint, 'external_torque (not actuated)')   # raises
         value = torque.clamp_command(_number(value, joint, 'torque'), self._effort_limit[k])
@@ -142,7 +142,7 @@ class World:
         names = self._actuated
         try:
             v = np.asarray(values, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f'set_torques: values must be {len(names)} numbers (one per actuated '
                              f'joint: {", ".join(names)}), got {values!r}') from None
         if v.shape != (len(names),):
@@ -276,7 +276,7 @@ def _step_count(n) -> int:
         if not (isinstance(n, (float, np.floating)) and math.isfinite(n) and float(n).is_integer()):
             raise ValueError(f'step: n must be a whole number of steps ≥ 0, got {n!r}') from None
         k = int(n)
-    if k < 0:
+    if not 0 <= k < 2 ** 63:                # (the compiled batch counts steps in int64)
         raise ValueError(f'step: n must be a whole number of steps ≥ 0, got {n!r}')
     return k
 
