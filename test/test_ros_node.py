@@ -458,10 +458,9 @@ def test_misspelt_and_overridden_parameters_are_reported(tmp_path):
             node.stop(signal.SIGKILL)
 
 
-@pytest.mark.parametrize('name,value', [('publish_rate', '1e-300'), ('time_step', '1e-300'),
-                                        ('real_time_factor', '1e300')])
-def test_absurd_start_parameter_is_one_line_exit_1(tmp_path, name, value):
-    node = _start(tmp_path, next_domain_id(), 'absurd', '-p', 'scene:=hinge', '-p', f'{name}:={value}')
+def _refused_at_start(tmp_path, name, *args) -> str:
+    """Start sim_node with `args`, which it must refuse: exit 1, no traceback; its output."""
+    node = _start(tmp_path, next_domain_id(), name, *args)
     try:
         node.proc.wait(60)
     finally:
@@ -469,6 +468,13 @@ def test_absurd_start_parameter_is_one_line_exit_1(tmp_path, name, value):
             node.stop(signal.SIGKILL)
     out = node.output()
     assert node.proc.returncode == 1 and 'Traceback' not in out, out[-3000:]
+    return out
+
+
+@pytest.mark.parametrize('name,value', [('publish_rate', '1e-300'), ('time_step', '1e-300'),
+                                        ('real_time_factor', '1e300')])
+def test_absurd_start_parameter_is_one_line_exit_1(tmp_path, name, value):
+    out = _refused_at_start(tmp_path, 'absurd', '-p', 'scene:=hinge', '-p', f'{name}:={value}')
     assert f"cannot start: parameter '{name}': {float(value)!r} is outside the supported range" in out, out
 
 
@@ -482,26 +488,12 @@ def test_absurd_start_parameter_is_one_line_exit_1(tmp_path, name, value):
 def test_start_parameter_of_the_wrong_type_is_one_line_exit_1(tmp_path, arg, expected):
     """A string or bool parameter given another YAML type (a bag named 2024, `yes` for a
     bool) was rclpy's InvalidParameterTypeException traceback."""
-    node = _start(tmp_path, next_domain_id(), 'wrongtype', '-p', 'scene:=hinge', '-p', arg)
-    try:
-        node.proc.wait(60)
-    finally:
-        if node.alive():
-            node.stop(signal.SIGKILL)
-    out = node.output()
-    assert node.proc.returncode == 1 and 'Traceback' not in out, out[-3000:]
+    out = _refused_at_start(tmp_path, 'wrongtype', '-p', 'scene:=hinge', '-p', arg)
     assert expected in out, out
 
 
 def test_unknown_scene_name_lists_packaged_scenes(tmp_path):
-    node = _start(tmp_path, next_domain_id(), 'hinj', '-p', 'scene:=hinj')
-    try:
-        node.proc.wait(60)
-    finally:
-        if node.alive():
-            node.stop(signal.SIGKILL)
-    out = node.output()
-    assert node.proc.returncode == 1 and 'Traceback' not in out, out[-3000:]
+    out = _refused_at_start(tmp_path, 'hinj', '-p', 'scene:=hinj')
     assert ("cannot start: parameter 'scene': 'hinj' is no packaged scene (did you mean "
             "'hinge'? packaged: default, free_pair, hinge") in out, out
 
