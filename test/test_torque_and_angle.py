@@ -296,6 +296,7 @@ def _driven_hinge():
     (lambda w: w.set_torque_enabled('hinge', 2), r"enabled must be True or False, got 2"),
     (lambda w: w.set_torque_enabled('hinge', None), r"enabled must be True or False, got None"),
     (lambda w: w.set_drive('hinge', aim='up'), r"joint 'hinge': aim angle 'up' is not a number"),
+    (lambda w: w.set_drive('hinge', aim=1e300), r"joint 'hinge': aim angle 1e\+300 rad is outside the supported range \|aim\| <= 10000 rad"),
     (lambda w: w.set_drive('hinge', aim=0.3, enabled='yes'), r"enabled must be True or False, got 'yes'"),
     (lambda w: w.set_drive('hinge', aim=0.3, passive=0.5), r"passive must be True or False, got 0.5"),
     (lambda w: w.step(1.5), r'step: n must be a whole number of steps ≥ 0, got 1.5'),

@@ -23,8 +23,13 @@ from dataclasses import dataclass, field
 import math
 from typing import Iterable, Mapping, Optional, Protocol, Sequence
 
+from ..scene import RANGES
+
 MAX_ABS_TORQUE = 1e9
 """[N m] Largest torque magnitude accepted on a joint without an effort limit."""
+MAX_ABS_AIM = RANGES['angle'][1]
+"""[rad] Largest |aim angle| a position command may set: the scene format's angle range, which
+World.set_drive holds runtime aims to as well (beyond it (θ − aim)² loses θ to rounding)."""
 
 
 class CommandTarget(Protocol):
@@ -276,6 +281,9 @@ class CommandBuffer:
                     rejections.append(Rejection(joint, position[k], 'position: joint has no '
                                       f'driving (UID 19); joints with driving: '
                                       f'{self.driven or "none"}'))
+                elif abs(float(position[k])) > MAX_ABS_AIM:
+                    rejections.append(Rejection(joint, position[k], f'position: |aim| beyond '
+                                      f'{MAX_ABS_AIM:g} rad, the supported range'))
                 else:
                     self._pending_aim[joint] = float(position[k])
         return rejections, clamps
