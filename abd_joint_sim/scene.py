@@ -224,6 +224,11 @@ RANGES = {
 }
 """Sane ranges of the numbers a scene carries (SceneError beyond; docs/robustness.md)."""
 
+MAX_ABS_AIM = RANGES['angle'][1]
+"""[rad] Largest |aim angle| of a drive, in a scene and at run time (World.set_drive, the
+node's joint_commands): beyond it the drive's (θ − aim)² loses θ to rounding (an aim of 1e300
+held the joint still)."""
+
 MAX_SUBSTEP_DEPTH = 10
 """A failed step is retried as up to 2**depth sub-steps (1024 at the bound)."""
 

@@ -16,7 +16,7 @@ import operator
 import numpy as np
 
 from .model import Model, compile_scene
-from .scene import RANGES, Scene
+from .scene import MAX_ABS_AIM, Scene
 from .solver.report import Status, StepReport
 from .solver.resident import Resident
 from .solver.solver import Solver
@@ -24,10 +24,6 @@ from .state import Control, State
 from .terms import driving, limit, ortho, revolute, torque
 
 __all__ = ['World', 'StepReport', 'Status']
-
-#: [rad] largest |aim angle| set_drive takes: the scene format's own range for angles (beyond
-#: it the drive's (θ − aim)² loses θ to rounding: an aim of 1e300 held the joint still)
-_MAX_ABS_AIM = RANGES['angle'][1]
 
 
 class World:
@@ -178,9 +174,9 @@ class World:
         nothing."""
         k = self._slot(self._drive_slot, joint, 'driving')
         aim = None if aim is None else _number(aim, joint, 'aim angle')
-        if aim is not None and abs(aim) > _MAX_ABS_AIM:
+        if aim is not None and abs(aim) > MAX_ABS_AIM:
             raise ValueError(f'joint {joint!r}: aim angle {aim} rad is outside the supported range '
-                             f'|aim| <= {_MAX_ABS_AIM:g} rad; rejected')
+                             f'|aim| <= {MAX_ABS_AIM:g} rad; rejected')
         enabled = None if enabled is None else _flag(enabled, joint, 'enabled')
         passive = None if passive is None else _flag(passive, joint, 'passive')
         if aim is not None:

@@ -23,13 +23,10 @@ from dataclasses import dataclass, field
 import math
 from typing import Iterable, Mapping, Optional, Protocol, Sequence
 
-from ..scene import RANGES
+from ..scene import MAX_ABS_AIM
 
 MAX_ABS_TORQUE = 1e9
 """[N m] Largest torque magnitude accepted on a joint without an effort limit."""
-MAX_ABS_AIM = RANGES['angle'][1]
-"""[rad] Largest |aim angle| a position command may set: the scene format's angle range, which
-World.set_drive holds runtime aims to as well (beyond it (θ − aim)² loses θ to rounding)."""
 
 
 class CommandTarget(Protocol):
