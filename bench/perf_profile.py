@@ -8,7 +8,10 @@ name of every compiled function, sizes taken as the gap to the next one), sample
 `perf record -p <pid>` while it steps, and prints the functions by share of the samples,
 numba's mangled names shortened to module.function.
 
-    python bench/perf_profile.py [chain1|chain10|chain100|default|kuka] [--seconds 10] [--top 40]
+    python bench/perf_profile.py [chain1|chain10|chain100|default|kuka|<file>.urdf] [--seconds 10] [--top 40]
+
+A URDF is a path, or one relative to pybullet_data (a1/a1.urdf), run under
+bench/robot_bench.py's torques with the importer's options of that bench.
 
 The first minute is the compile. Needs `perf` on the PATH and perf_event_paranoid ≤ 2 (a
 process may sample itself); it says so otherwise.
@@ -34,6 +37,17 @@ def _world(name):
         import pybullet_data
         w = World(Scene.from_urdf(os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf'),
                                   dt=1e-3))
+    elif name.endswith('.urdf'):
+        import warnings
+        import pybullet_data
+        sys.path.insert(0, str(ROOT / 'bench'))
+        from robot_bench import ROBOT_OPTIONS, torques
+        path = name if os.path.exists(name) else os.path.join(pybullet_data.getDataPath(), name)
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')             # the importer's repairs (docs/urdf.md)
+            w = World(Scene.from_urdf(path, dt=1e-3, **ROBOT_OPTIONS.get(name, {})))
+        w.set_torques(torques(len(w.actuated_joint_names)))
+        return w
     elif name == 'default':
         w = World(Scene.from_yaml(str(ROOT / 'abd_joint_sim' / 'scenes' / 'default.yaml')))
     else:
