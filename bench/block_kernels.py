@@ -1,5 +1,5 @@
 """The tree solve's 12x12 block kernels timed alone, ns per call, in a compiled loop over
-fresh copies of random positive definite blocks (docs/speed.md, "The seventeenth round").
+fresh copies of random positive definite blocks (docs/speed-rounds.md, "The seventeenth round").
 
 `factor_block` is timed against the textbook row-by-row Cholesky loop it replaced (the same
 bits, compiled here from its one loop nest), alone and two blocks per call, to show what

@@ -1,4 +1,4 @@
-"""Where the µs of one `World.step()` call go (docs/speed.md, "The eighth round"): the same
+"""Where the µs of one `World.step()` call go (docs/speed-rounds.md, "The eighth round"): the same
 steps from the same state in `World.step(n)` (one compiled call), one `World.step()` call
 each (the state kept in the solver's ring, solver/resident.py) and one `Solver.step` call
 each on immutable States (what World.step() did before); World.step()'s excess over

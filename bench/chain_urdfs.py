@@ -3,7 +3,7 @@ links, boxes or cylinders of 10 or 40 cm along z, masses drawn at random (seeded
 density of ~1000 kg/m³, hinge axes y or x (alternating where the draw says), with and
 without joint limits (±2 rad), the COM at mid-link. 48 files. The sweep then loads each in
 ours and in MuJoCo (gravity, the bench's torques on every joint, dt 1 ms) and prints the
-ratio per step (docs/speed.md "The fifteenth round").
+ratio per step (docs/speed-rounds.md "The fifteenth round").
 
     python bench/chain_urdfs.py /tmp/chains && python bench/urdf_sweep.py /tmp/chains
 """

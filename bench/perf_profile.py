@@ -1,5 +1,5 @@
 """Where a scene's `World.step(n)` spends its time, per compiled function, sampled by Linux
-`perf` (docs/speed.md, "The thirteenth round").
+`perf` (docs/speed-rounds.md, "The thirteenth round").
 
 numba's JIT code has no symbols, so `perf report` shows bare addresses. This script compiles
 the kernels afresh into a temporary cache (a kernel loaded from the on-disk cache carries no

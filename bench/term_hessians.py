@@ -1,5 +1,5 @@
 """Two term Hessians timed alone against the loops they replaced at stop 33, ns per call, in
-compiled loops (docs/speed.md, "The eighteenth round"):
+compiled loops (docs/speed-rounds.md, "The eighteenth round"):
 
 - the shape term's (UID 1) `ortho.accumulate` on bodies near SO(3), where it adds the exact
   9x9 Hessian, against the same function with the Hessian's 4-deep loop nest;

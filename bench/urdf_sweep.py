@@ -1,5 +1,5 @@
 """Every URDF under a directory, loaded, stepped and timed against MuJoCo on the same file:
-the sweep of docs/speed.md "The fourteenth round" (stop 29), over robots this project's
+the sweep of docs/speed-rounds.md "The fourteenth round" (stop 29), over robots this project's
 tests and benches do not ship. One row per file: loaded and run (bodies, Newton iterations
 per step over 200 one-step calls, ours and MuJoCo µs per step in one call of 1000 steps,
 CPU time, the ratio), refused (the SceneError's message), or failed (the SimulationError).

@@ -1,4 +1,4 @@
-"""Would reusing Newton's factorised matrix across steps pay? (docs/speed.md "Reusing the
+"""Would reusing Newton's factorised matrix across steps pay? (docs/speed-rounds.md "Reusing the
 factorisation: measured, rejected")
 
 A Newton iteration on a matrix H₀ assembled some steps ago instead of the current H converges

@@ -567,7 +567,7 @@ def test_a_failed_one_step_call_keeps_the_last_good_state():
 
 @pytest.mark.parametrize('case', ['chain', 'drive_limit'])
 def test_the_compiled_step_allocates_nothing_per_step(case):
-    """The arrays a step works in live in the Solver's Workspace (docs/speed.md, "The tenth
+    """The arrays a step works in live in the Solver's Workspace (docs/speed-rounds.md, "The tenth
     round"): an allocation inside the step costs a malloc. Counted by numba's NRT
     statistics: a batch of 200 steps allocates what one of 20 does (the call's own
     arguments), on a chain under torque, with the screw retraction and the torque axes at

@@ -1,4 +1,4 @@
-"""The compiled step without numba's reference counts (docs/decisions.md, docs/speed.md
+"""The compiled step without numba's reference counts (docs/decisions.md, docs/speed-rounds.md
 "The eleventh round").
 
 numba counts a reference (an atomic add and subtract on a MemInfo, ~20 cycles each here) for

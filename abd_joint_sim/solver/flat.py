@@ -3,7 +3,7 @@
 numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through its n-d
 iterator, one index computation per element; a loop over the flat array is what the compiler
 turns into vector moves. On the 13 12x12 blocks of a robot's Newton matrix the flat copy
-took 0.18 µs against 0.66 (docs/speed.md, "The twelfth round"). Same values, bit for bit:
+took 0.18 µs against 0.66 (docs/speed-rounds.md, "The twelfth round"). Same values, bit for bit:
 a copy is a copy. `a.flat[i]` rather than a reshaped view: numba's reshape calls a C helper,
 ~20 ns a time, as much as copying a small robot's q.
 """

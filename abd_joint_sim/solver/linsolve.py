@@ -172,7 +172,7 @@ def factor_block(blocks, b, inv_ds, slot):
     textbook (every entry it reads is done before it), so the bits are that loop's
     (test_solver.py); but the compiler unrolls these three small loop nests completely,
     into straight-line code with constant indices, where it kept the single nest as loops:
-    twice as fast (docs/speed.md, the seventeenth round). (The block kernels take an array
+    twice as fast (docs/speed-rounds.md, the seventeenth round). (The block kernels take an array
     and an index, not a view made by the caller: a view made in a loop costs two atomic
     reference-count operations that numba cannot remove, docs/speed.md.)"""
     W, inv_d = blocks[b], inv_ds[slot]

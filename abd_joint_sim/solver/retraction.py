@@ -91,7 +91,7 @@ def retract(q, dq, alpha, m, ws, out):
     groups' mean turn translation removed. Works in ws (workspace.Workspace, its group_mean).
     Each body's 3x3 matrices are 9-tuples of locals (smallmat.product3 and adjugate3): the
     compiler keeps them in registers, where planes of a work array went through memory
-    (docs/speed.md, the twentieth round); the same operations in the same order, the same
+    (docs/speed-rounds.md, the twentieth round); the same operations in the same order, the same
     bits."""
     free_idx, group, share, ngroups = m.free_bodies, m.body_group, m.group_share, m.group_count
     mean = ws.group_mean

@@ -3,7 +3,7 @@
 A numba structref, passed by reference. Every term call of a step takes the context (a
 dozen calls per Newton iteration on a chain, more on an arm), and as a namedtuple of six
 arrays it was copied onto the stack at each of them: ~300 bytes per call, and stalls where
-the callee read back what had just been written (docs/speed.md, "The nineteenth round").
+the callee read back what had just been written (docs/speed-rounds.md, "The nineteenth round").
 The step itself does not build one: its Workspace holds a context over the workspace's own
 arrays, and the step sets h, scale and drive_on in place (solver/step.py).
 

@@ -90,7 +90,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         # j = i, + C_ij where l = k (the module docstring's sum, in that order), held in
         # locals and written out as one run of 9 columns, which the SLP vectoriser
         # (solver/vectorize.py) makes vector operations: half the time of the 4-deep loop
-        # nest, the same bits (docs/speed.md "The eighteenth round")
+        # nest, the same bits (docs/speed-rounds.md "The eighteenth round")
         for i in range(3):
             a0, a1, a2 = q[b, 3 + 3 * i], q[b, 4 + 3 * i], q[b, 5 + 3 * i]        # A_il
             c0, c1, c2 = C[3 * i], C[3 * i + 1], C[3 * i + 2]                      # C_ij
