@@ -108,10 +108,20 @@ def main(argv=None) -> int:
     if perf is None:
         print('perf is not installed: nothing to sample with (apt install linux-perf, or linux-tools)')
         return 1
+    if not (args.scene in ('default', 'kuka') or args.scene.endswith('.urdf')
+            or (args.scene.startswith('chain') and args.scene[5:].isdigit())):
+        print(f'perf_profile: unknown scene {args.scene!r}: chain<N>, default, kuka or a .urdf file')
+        return 2
     cache = tempfile.mkdtemp(prefix='abd_perf_cache_')
     os.environ['ABD_KERNEL_CACHE'] = cache      # before the package is imported
     sys.path.insert(0, str(ROOT))
-    w = _world(args.scene)
+    from abd_joint_sim.errors import SceneError
+    try:
+        w = _world(args.scene)
+    except (SceneError, OSError) as exc:
+        print(f'perf_profile: cannot load {args.scene!r}: {exc}')
+        shutil.rmtree(cache, ignore_errors=True)
+        return 2
     w.step(200)
     functions = _functions()
     addresses = sorted(functions)
