@@ -282,12 +282,13 @@ def mujoco_model(path, lock=(), repair=False):
         notes + ['without its meshes'])
 
 
-def ours_robot_steps(world, steps):
+def ours_robot_steps(world, steps, scale=1.0):
     """(Newton iterations per step over 200 one-step calls, s per step in one call of `steps`)
-    of a loaded robot World under `torques` on every actuated joint, after 3 steps; CPU time."""
+    of a loaded robot World under `scale` × `torques` on every actuated joint, after 3 steps;
+    CPU time."""
     names = world.actuated_joint_names
     for joint, tau in zip(names, torques(len(names))):
-        world.set_torque(joint, tau)
+        world.set_torque(joint, scale * tau)
     world.step(3)
     its = sum(world.step().newton_iterations for _ in range(200)) / 200
     t0 = time.process_time()
@@ -295,9 +296,9 @@ def ours_robot_steps(world, steps):
     return its, (time.process_time() - t0) / steps
 
 
-def mujoco_robot_steps(path, steps, lock=()):
-    """(s per step or None, note, why not) of MuJoCo on the URDF at `path` under `torques`,
-    contacts off, in one mj_step(m, d, steps) after 3 steps; CPU time. `note` says what
+def mujoco_robot_steps(path, steps, lock=(), scale=1.0):
+    """(s per step or None, note, why not) of MuJoCo on the URDF at `path` under `scale` ×
+    `torques`, contacts off, in one mj_step(m, d, steps) after 3 steps; CPU time. `note` says what
     mujoco_model changed and whether MuJoCo's integration diverged (it then resets its state);
     `why` is MuJoCo's refusal, '' if it ran or is not installed."""
     try:
@@ -314,7 +315,7 @@ def mujoco_robot_steps(path, steps, lock=()):
         m.opt.timestep = DT
         m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
         d = mj.MjData(m)
-        d.qfrc_applied[:] = torques(m.nv)
+        d.qfrc_applied[:] = [scale * tau for tau in torques(m.nv)]
         mj.mj_step(m, d, 3)
         t0 = time.process_time()
         mj.mj_step(m, d, steps)

@@ -6,10 +6,10 @@ CPU time, the ratio), refused (the SceneError's message), or failed (the Simulat
 
     pip download --no-deps example-robot-data==6.0.0 -d /tmp/erd      # not a dependency
     cd /tmp/erd && python -m zipfile -e example_robot_data-6.0.0-0-py3-none-any.whl x
-    python bench/urdf_sweep.py /tmp/erd/x [--match ur5 --match panda]
+    python bench/urdf_sweep.py /tmp/erd/x [--match ur5 --match panda] [--torque-scale 0]
 
 Conditions as `bench/robot_bench.py`'s robots: dt 1 ms, gravity, a fixed base, the bench's
-torques (`robot_bench.torques`) on every actuated joint, MuJoCo with contacts off, without
+torques (`robot_bench.torques`, times `--torque-scale`) on every actuated joint, MuJoCo with contacts off, without
 the meshes it cannot open and with its own inertia repairs where its compiler refuses the
 file (`robot_bench.mujoco_model`; the row says so, and where MuJoCo's integration diverged).
 """
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import math
 import os
 import sys
 import warnings
@@ -28,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from robot_bench import DT, mujoco_robot_steps, ours_robot_steps  # noqa: E402
 
 
-def ours(path):
+def ours(path, scale=1.0):
     """('ran', bodies, iterations, µs) or ('refused' / 'failed', message)."""
     from abd_joint_sim import Scene, SimulationError, World
     from abd_joint_sim.errors import SceneError
@@ -39,7 +40,7 @@ def ours(path):
         except SceneError as exc:
             return ('refused', str(exc))
     try:
-        its, t = ours_robot_steps(world, 1000)
+        its, t = ours_robot_steps(world, 1000, scale)
         return ('ran', world.model.body_count, its, t * 1e6)
     except SimulationError as exc:
         return ('failed', str(exc))
@@ -49,7 +50,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('root', help='a directory searched for *.urdf')
     ap.add_argument('--match', action='append', default=[], help='only files whose path has this')
+    ap.add_argument('--torque-scale', type=float, default=1.0,
+                    help="the bench's torques times this on both sides (0: gravity alone)")
     args = ap.parse_args(argv)
+    if not math.isfinite(args.torque_scale):
+        ap.error(f'--torque-scale must be a finite number, got {args.torque_scale}')
     files = sorted(glob.glob(os.path.join(args.root, '**', '*.urdf'), recursive=True))
     files = [f for f in files if not args.match or any(s in f for s in args.match)]
     if not files:
@@ -60,14 +65,14 @@ def main(argv=None) -> int:
     counts = {'ran': 0, 'refused': 0, 'failed': 0}
     for path in files:
         name = os.path.relpath(path, args.root)
-        result = ours(path)
+        result = ours(path, args.torque_scale)
         counts[result[0]] += 1
         if result[0] != 'ran':
             msg = result[1][len(path) + 2:] if result[1].startswith(path + ': ') else result[1]
             print(f'| {name} | {result[0]}: {msg} | | | | | |', flush=True)
             continue
         _, bodies, its, t = result
-        mj_t, note, why = mujoco_robot_steps(path, 1000)
+        mj_t, note, why = mujoco_robot_steps(path, 1000, scale=args.torque_scale)
         mj_t = mj_t * 1e6 if mj_t else None
         ratio = f'{t / mj_t:.1f}' if mj_t else '–'
         mj_cell = (f'{mj_t:.1f}' if mj_t else f'– {why}') + (f' ({note})' if note else '')
