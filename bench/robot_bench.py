@@ -29,8 +29,8 @@ def robot_path():
     return path if os.path.isfile(path) else None
 
 
-def torques(n):
-    return [((-1) ** k) * (2.0 - 0.2 * k) for k in range(n)]
+def torques(n, scale=1.0):
+    return [scale * ((-1) ** k) * (2.0 - 0.2 * k) for k in range(n)]
 
 
 def _time(step, steps, repeats):
@@ -287,8 +287,8 @@ def ours_robot_steps(world, steps, scale=1.0):
     of a loaded robot World under `scale` × `torques` on every actuated joint, after 3 steps;
     CPU time."""
     names = world.actuated_joint_names
-    for joint, tau in zip(names, torques(len(names))):
-        world.set_torque(joint, scale * tau)
+    for joint, tau in zip(names, torques(len(names), scale)):
+        world.set_torque(joint, tau)
     world.step(3)
     its = sum(world.step().newton_iterations for _ in range(200)) / 200
     t0 = time.process_time()
@@ -315,7 +315,7 @@ def mujoco_robot_steps(path, steps, lock=(), scale=1.0):
         m.opt.timestep = DT
         m.opt.disableflags |= mj.mjtDisableBit.mjDSBL_CONTACT
         d = mj.MjData(m)
-        d.qfrc_applied[:] = [scale * tau for tau in torques(m.nv)]
+        d.qfrc_applied[:] = torques(m.nv, scale)
         mj.mj_step(m, d, 3)
         t0 = time.process_time()
         mj.mj_step(m, d, steps)
