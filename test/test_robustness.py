@@ -1,4 +1,4 @@
-"""Robustness of sim_node (issue 7; docs/robustness.md): bad runtime commands, solver faults,
+"""Robustness of sim_node (docs/robustness.md): bad runtime commands, solver faults,
 a command flood, crash-safe recording, a short soak.
 
 Each test prints the inputs it tried and what came of them (``pytest -s`` shows it). Two
@@ -520,7 +520,7 @@ def test_soak_short():
     assert s['rejections'] >= 1 and s['clamps'] >= 1, s
 
 
-# ------------------------------------------------- issue 14: warnings that must not vanish ----
+# ---------------------------------------------------------- warnings that must not vanish ----
 def test_first_rejection_of_each_command_form_shows_at_once_and_disabled_warning_is_throttled():
     """A per-joint NaN and then, within the throttle window, an array NaN for the same joint:
     both warnings appear at once (keyed per command form). A sender toggling the enable
