@@ -433,7 +433,7 @@ def test_live_node_bag_replays(tmp_path):
         send(enable, Bool(data=False), ('enable', False))
         send(enable_all, Bool(data=True), ('enable', True))
         send(array, Float64MultiArray(data=[-500.0]), ('array', -500.0))
-        # ~/reset drops commands not applied yet (README): on a loaded machine the node may
+        # ~/reset drops commands not applied yet (docs/topics.md): on a loaded machine the node may
         # not have stepped since the array arrived, so wait until it is applied.
         probe.wait_for(lambda: [-500.0] in efforts, 20.0,
                        'the array command applied (effort -500 on /joint_states)', log=node)

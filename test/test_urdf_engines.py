@@ -5,8 +5,8 @@ From rest, gravity plus a torque on every joint, PyBullet's motors off, the join
 `<dynamics damping>` applied by both engines (the KUKA iiwa has 0.5 N m s/rad on every joint,
 pendulum5 1.0), no link damping, inertia from the file; after 40 ms the joint velocities and angle changes must agree within 1 %
 (relative, norm over the joints). PyBullet runs at dt = 1e-4 (semi-implicit Euler: its own
-angle error is ~h/T = 0.25 %), ours at 5e-4 with BDF2. Figures per robot: README "Robots
-from URDF"; the script at the bottom of docs/urdf.md reproduces them.
+angle error is ~h/T = 0.25 %), ours at 5e-4 with BDF2. Figures per robot: docs/urdf.md
+"Checked against PyBullet and MuJoCo"; the script at the bottom of docs/urdf.md reproduces them.
 """
 import os
 import sys
