@@ -167,7 +167,7 @@ def run(quick=False, peers=True):
     controller's `pd`, `mj_pd`, `pb_pd`; a peer's is None where it did not run), or None
     without the file. The
     engines take turns round after round (a burst of load on this shared machine then falls
-    on all of them); each engine's own rounds follow its own simulated time as before: ours
+    on all of them); each engine's own rounds follow its own simulated time: ours
     5 × 500 one-step calls, then 5 calls of 500 steps."""
     path = robot_path()
     if path is None:
