@@ -1,7 +1,7 @@
 """Scene dicts for generated mechanisms (chains, trees), shared by tests, benchmarks and
 users: `Scene.from_dict(chain_scene(100))`.
 
-Chain geometry (also built identically in bench/peers.py for MuJoCo and PyBullet): a fixed
+Chain geometry (also built identically in bench/lib/engines.py for MuJoCo and PyBullet): a fixed
 cube of side `link` at the origin, then `n` boxes (link, link/2, link/2) centred at
 (k·link, 0, 0), joined by hinges about +z through x = (k − ½)·link; every joint actuated.
 """

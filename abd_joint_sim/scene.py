@@ -3,7 +3,7 @@
 A `Scene` is what a user writes; `abd_joint_sim.model.compile_scene` turns it into the
 immutable arrays the solver uses (MuJoCo's spec/model split). Every validation error is a
 `SceneError` whose message reads ``<source>: <field path>: <what is wrong>``.
-The format is documented in README.md ("Scene format").
+The format: docs/scene-format.md (test/test_docs_tables.py checks it against this parser).
 """
 from __future__ import annotations
 

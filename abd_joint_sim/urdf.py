@@ -2,7 +2,7 @@
 
 ``Scene.from_urdf(source, **options)`` (and a scene YAML's ``robot:`` block) end here. The
 URDF is read with the standard library's ``xml.etree.ElementTree`` by our own small reader
-(README "Robots from URDF" says why), lowered to plain scene data (bodies with ``inertial:``
+(docs/urdf.md says why), lowered to plain scene data (bodies with ``inertial:``
 data, revolute joints with ``p0``/``p1`` on the axis) and validated by the scene parser like
 any scene. Every mapping rule and why: docs/urdf.md.
 
@@ -331,7 +331,7 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
         return sphere * np.eye(3), (f'principal moments {_fmt(eig)} are not all > 0: replaced '
                                     f'by a solid sphere of water density ({sphere:.4g} kg m^2 each)')
     # moments of ~1e-20 kg m^2 on a 0.7 kg link (iCub's ankle in example-robot-data): a point
-    # mass written with round-off, no affine inertia to speak of
+    # mass whose moments are rounding error, no affine inertia to speak of
     if eig[2] < POINT_MASS_RATIO * sphere:
         return sphere * np.eye(3), (f'principal moments {_fmt(eig)} are negligible for its mass '
                                     f'(under {POINT_MASS_RATIO:g} of a water-density sphere\'s): '

@@ -257,14 +257,11 @@ def _singular(eps):
     return prepare
 
 
-# Known, still open physics-core issues as {tag: description} (docs/studies.md section 3 has
-# the reproductions); none at present. Fixed by the core since the first run, and their tags
-# removed: the step-size-only Newton stop (decrement criterion), large per-step rotations that
-# never sub-stepped (predicted-rotation split + bdf1 damping warning), the light parent losing
-# torque silently (now warned), NaN on a degenerate torque axis, bdf2 losing fast rotation
-# silently (now warned for bdf2 too), and NEWTON_DRIFT: at kappa >= 1e11 the linear Newton
-# step stretched the turning body, the line search crawled and stopped biased, and the angle
-# drifted silently (fixed by the screw steps of abd_joint_sim/solver/retraction.py).
+# Open physics-core issues as {tag: description} (docs/studies.md section 3 has the
+# reproductions); none at present. The failure modes the matrix probes and the core handles
+# (docs/studies.md section 3): Newton's stop (decrement criterion), large per-step rotations
+# (predicted-rotation sub-stepping, damping warnings for bdf1 and bdf2), a light parent,
+# a degenerate torque axis, and stiff kappa (screw steps, abd_joint_sim/solver/retraction.py).
 KNOWN_ISSUES: dict[str, str] = {}
 
 

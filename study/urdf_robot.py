@@ -1,4 +1,4 @@
-"""Error against run time for a real robot description (issue 11): the KUKA iiwa URDF shipped
+"""Error against run time for a real robot description: the KUKA iiwa URDF shipped
 in the pybullet wheel (`pybullet_data/kuka_iiwa/model.urdf`, 7 revolute joints, never copied
 here), loaded with `Scene.from_urdf`, against a rigid-body reference: MuJoCo loading the same
 file (RK4 at dt = 1e-5; its <dynamics> damping, friction loss, armature and contacts off;

@@ -1,4 +1,4 @@
-"""scripts/env.sh (issue 14 items 1 and 14), against a stand-in venv whose `python` records
+"""scripts/env.sh, against a stand-in venv whose `python` records
 how it was called and exits as told: no real installation, so it runs in milliseconds."""
 from __future__ import annotations
 

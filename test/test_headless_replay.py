@@ -262,7 +262,7 @@ BAD_SCHEDULES = [
     ('events: [{t: 0, torque: {elbow: 1}}]\nduration: 0', 'duration: 0 must be > 0'),
     ('[unclosed', 'not valid YAML'),
     ('just text', 'expected a mapping with `events`'),
-    # issue 14 item 11: these ended in OverflowError/ValueError tracebacks (exit 1)
+    # absurd numbers: one line naming the field, not an OverflowError/ValueError traceback
     ('events: [{t: 0, torque: {elbow: 1}}]\nduration: 1e300', 'duration: 1e+300 must be > 0 and at most'),
     ('- {t: 1e300, torque: {shoulder: 1.0}}', 'events[0].t: 1e+300 is beyond the supported'),
     ('parameters: {publish_rate: 1e-300}\nevents: []', 'outside the supported range'),
@@ -340,9 +340,9 @@ def test_bad_scene_out_and_arguments_exit_2(tmp_path, capsys):
     assert not (tmp_path / 'o').exists()
 
 
-def test_scene_faults_from_issue_14_are_one_line_exit_2(tmp_path):
-    """Scenes that used to end in ~3000 lines of traceback and exit 1 (a 1e-200 m box, dt
-    1e-300, a 400-digit dt, non-UTF-8 bytes): one line naming file and field, exit 2."""
+def test_scene_faults_are_one_line_exit_2(tmp_path):
+    """Scenes that would otherwise end in ~3000 lines of traceback and exit 1 (a 1e-200 m
+    box, dt 1e-300, a 400-digit dt, non-UTF-8 bytes): one line naming file and field, exit 2."""
     sched = tmp_path / 's.yaml'
     sched.write_text('- {t: 0.0, torque: {hinge: 1.0}}\n')
     hinge = (REPO / 'abd_joint_sim' / 'scenes' / 'hinge.yaml').read_text()
@@ -433,7 +433,7 @@ def test_live_node_bag_replays(tmp_path):
         send(enable, Bool(data=False), ('enable', False))
         send(enable_all, Bool(data=True), ('enable', True))
         send(array, Float64MultiArray(data=[-500.0]), ('array', -500.0))
-        # ~/reset drops commands not applied yet (README): on a loaded machine the node may
+        # ~/reset drops commands not applied yet (docs/topics.md): on a loaded machine the node may
         # not have stepped since the array arrived, so wait until it is applied.
         probe.wait_for(lambda: [-500.0] in efforts, 20.0,
                        'the array command applied (effort -500 on /joint_states)', log=node)
@@ -502,7 +502,7 @@ def test_live_node_bag_replays(tmp_path):
 
 
 def test_parameter_change_just_before_reset_replays(tmp_path):
-    """Issue 14 item 7, as reported: node on hinge, paused, recording, publish_rate 0;
+    """A parameter change just before a reset: node on hinge, paused, recording, publish_rate 0;
     ~/step x5; command_timeout := 0.1; ~/reset; 50 N m; ~/step x30; SIGINT. The change is
     logged at the first segment's last time and stays in force after the reset (the
     torque times out 0.1 s after it took effect); replay_check must agree (exit 0)."""

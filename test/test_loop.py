@@ -7,13 +7,12 @@ and the one topic table (abd_joint_sim/ros/topics.py).
   timeout at the first boundary at or after it expires).
 * The diagnostics key set exists once: the node's and the headless recorder's /diagnostics
   carry exactly DIAGNOSTIC_KEYS.
-* The topic table is what the node creates (publishers, subscriptions, QoS), what the bag
-  registers, and what README's "Topics & services" table says.
+* The topic table is what the node creates (publishers, subscriptions, QoS) and what the bag
+  registers (docs/topics.md is checked against it by test_docs_tables.py).
 """
 from __future__ import annotations
 
 from pathlib import Path
-import re
 import time
 
 import pytest
@@ -22,7 +21,7 @@ from abd_joint_sim import Scene, World
 from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.loop import DIAGNOSTIC_KEYS, LoopOutput
 from abd_joint_sim.ros.params import config_from_values, resolve_scene
-from abd_joint_sim.ros.topics import BEST_EFFORT, RELIABLE, TOPICS, TOPICS_BY_NAME
+from abd_joint_sim.ros.topics import BEST_EFFORT, TOPICS
 from abd_joint_sim.tools.schedule import Command, Plan, Segment
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -175,38 +174,6 @@ def test_diagnostics_keys_once(tmp_path):
 
 
 # ------------------------------------------------------------------- topic table ----
-def _readme_topics() -> dict[str, tuple[str, str, int, str]]:
-    """README "Topics & services" table: name -> (type, reliability, depth, direction)."""
-    text = (ROOT / 'README.md').read_text()
-    section = text.split('## Topics & services', 1)[1].split('\n## ', 1)[0]
-    rows = {}
-    for line in section.splitlines():
-        cells = [c.strip() for c in line.strip().strip('|').split('|')]
-        if len(cells) < 4 or not cells[0].startswith('`'):
-            continue
-        if not cells[1].startswith('`'):
-            continue                      # the services table
-        name = cells[0].strip('`').replace('<joint>', '{joint}')
-        qos = cells[2]
-        reliability = BEST_EFFORT if 'best effort' in qos else RELIABLE
-        depth = int(re.search(r'depth (\d+)', qos).group(1))
-        direction = cells[3].split(' ')[0].rstrip(':,')
-        rows[name] = (cells[1].strip('`'), reliability, depth, direction)
-    return rows
-
-
-def test_readme_topic_table_matches_the_code():
-    readme = _readme_topics()
-    code = {t.name: (t.type, t.reliability, t.depth, t.direction) for t in TOPICS}
-    assert readme == code
-
-
-def test_readme_table_parser_can_fail():
-    rows = _readme_topics()
-    assert rows and TOPICS_BY_NAME['/clock'].reliability == BEST_EFFORT
-    assert rows['/clock'][1] == BEST_EFFORT and rows['joint_states'][1] == RELIABLE
-
-
 def test_bag_registers_the_table():
     from abd_joint_sim.ros.recording import add_node_topics, resolve_root
 

@@ -96,7 +96,7 @@ def test_bag_stores_no_absolute_paths(tmp_path):
 def test_stop_signal_mid_run_leaves_a_valid_bag(tmp_path, sig):
     """SIGINT or SIGTERM at an arbitrary moment of a fast recorded run (markers, joint
     states, /clock written all the time): exit 0 and a complete bag, which conftest's
-    @mcap/core check validates (a KeyboardInterrupt raised inside a bag write used to leave
+    @mcap/core check validates (a KeyboardInterrupt raised inside a bag write must not leave
     the MCAP statistics one message ahead of the chunks)."""
     import random
     import time

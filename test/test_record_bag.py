@@ -459,7 +459,7 @@ def test_sigkill_mid_run_is_recoverable(tmp_path):
     assert again.was_complete and again.messages == report.messages
 
 
-# -- issue 14 item 12: empty sequences, and every recorded topic in both readers -----------
+# -- empty sequences, and every recorded topic in both readers ----------------------------
 def _all_topics_in_both_readers(bag: Path) -> dict[str, list]:
     """Decode every message of every topic with rosbags and mcap_ros2; both must succeed,
     agree with metadata.yaml on the counts and with rclpy on the values. topic -> rclpy
@@ -562,8 +562,8 @@ def test_cdr_stream_length_matches_an_independent_encoder():
 
 
 def test_fast_message_path_writes_the_bytes_of_mcaps_add_message(tmp_path, monkeypatch):
-    """BagWriter adds messages without mcap's per-field record writer (bag._FastMessages,
-    issue 15): the same messages through it and through ``mcap.Writer.add_message`` give
+    """BagWriter adds messages without mcap's per-field record writer (bag._FastMessages):
+    the same messages through it and through ``mcap.Writer.add_message`` give
     byte-identical MCAP files (several chunks, interleaved topics, times out of order), the
     bag reads back in rosbags; and the once-per-process check can fail."""
     from abd_joint_sim.record import bag as bagmod

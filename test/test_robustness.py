@@ -1,4 +1,4 @@
-"""Robustness of sim_node (issue 7; docs/robustness.md): bad runtime commands, solver faults,
+"""Robustness of sim_node (docs/robustness.md): bad runtime commands, solver faults,
 a command flood, crash-safe recording, a short soak.
 
 Each test prints the inputs it tried and what came of them (``pytest -s`` shows it). Two
@@ -7,7 +7,7 @@ kinds of set-up:
 * in-process: ``SimNode`` and a probe node in one executor (one rclpy context, real DDS on
   localhost), so a test can break the world (monkeypatch ``World.step``) and look inside;
 * sim_node in its own process (conftest.NodeProcess) for signals, resource limits and the
-  flood (bench/flood.py, short version).
+  flood (`bench/node_load.py flood`, short version).
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ DATA = REPO / 'test' / 'data'
 
 
 def _load_bench(name: str):
-    spec = importlib.util.spec_from_file_location(f'bench_{name}', REPO / 'bench' / f'{name}.py')
+    spec = importlib.util.spec_from_file_location(f'bench_{name}', REPO / 'bench' / 'lib' / f'{name}.py')
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -371,7 +371,7 @@ def test_live_parameter_change_is_recorded_and_replayed(tmp_path):
 
 # ----------------------------------------------------------------------------- load ----
 def test_command_flood_short(tmp_path):
-    """Short bench/flood.py: 2 kHz of torque commands for 2 s from another process over
+    """Short `bench/node_load.py flood`: 2 kHz of torque commands for 2 s from another process over
     localhost DDS. The node keeps stepping near its real-time factor, its memory stays
     bounded, every published effort is a value sent and the applied command index never
     goes backwards (latest wins), within a bounded lag."""
@@ -379,11 +379,11 @@ def test_command_flood_short(tmp_path):
     r = flood.run(rate=2000.0, duration=2.0, before=1.0, after=0.5,
                   domain_id=next_domain_id(), workdir=str(tmp_path))
     print(f"\nflood: {r['rate_achieved']:.0f} Hz sent, node RTF during {r['rtf_during']:.2f}, "
-          f"lag p99 {r['lag_ms_p99']:.1f} ms (figures: python bench/flood.py)")
+          f"lag p99 {r['lag_ms_p99']:.1f} ms (figures: python bench/node_load.py flood)")
     assert r['node_alive'] and r['node_exit'] == 0, Path(r['node_log']).read_text()[-3000:]
     assert r['went_backwards'] == 0 and r['foreign_values'] == 0, r
     assert r['distinct_commands_applied'] >= 50, r
-    # Functional bounds only (timing targets belong to bench/flood.py, not to a test on a
+    # Functional bounds only (timing targets belong to `bench/node_load.py flood`, not to a test on a
     # shared machine): a real flood was sent, the node kept stepping, and no queue built up
     # (a backlog of 2 kHz commands would show as a lag of seconds; ~15 ms when unloaded).
     assert r['rate_achieved'] >= 500.0, r
@@ -508,7 +508,7 @@ def test_full_disk_stops_recording_not_simulation(tmp_path):
 
 # ----------------------------------------------------------------------------- soak ----
 def test_soak_short():
-    """bench/soak.py, short: default scene, changing commands through the CommandBuffer;
+    """`bench/node_load.py soak`, short: default scene, changing commands through the CommandBuffer;
     memory flat after the warm-up, joint separation and angles bounded, all finite."""
     soak = _load_bench('soak')
     s = soak.soak(steps=1500, every=250, verbose=True)['summary']
@@ -520,7 +520,7 @@ def test_soak_short():
     assert s['rejections'] >= 1 and s['clamps'] >= 1, s
 
 
-# ------------------------------------------------- issue 14: warnings that must not vanish ----
+# ---------------------------------------------------------- warnings that must not vanish ----
 def test_first_rejection_of_each_command_form_shows_at_once_and_disabled_warning_is_throttled():
     """A per-joint NaN and then, within the throttle window, an array NaN for the same joint:
     both warnings appear at once (keyed per command form). A sender toggling the enable

@@ -238,7 +238,7 @@ def test_publish_schedule_and_parameter_events():
     assert coerce('effort_limits', empty['effort_limits']) == []
 
 
-# -- issue 14: parameter ranges and scene names -------------------------------------------
+# -- parameter ranges and scene names -----------------------------------------------------
 @pytest.mark.parametrize('name,value', [
     ('publish_rate', 1e-300), ('publish_rate', 5e-300), ('publish_rate', 1e300),
     ('real_time_factor', 1e-300), ('real_time_factor', 1e300),

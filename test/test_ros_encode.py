@@ -1,4 +1,4 @@
-"""sim_node's messages as CDR bytes packed from a template (issue 15, item 3): the bytes the
+"""sim_node's messages as CDR bytes packed from a template: the bytes the
 node publishes and records for /joint_states and the body markers must be exactly what
 rclpy's serializer makes of the same message (alignment padding aside, which rclpy leaves
 unset), decode to the same values in rclpy and in rosbags (an independent CDR

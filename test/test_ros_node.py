@@ -399,7 +399,7 @@ def test_recording_failure_keeps_simulating(tmp_path):
     assert list(existing.iterdir()) == []
 
 
-# -- issue 14: start-up parameters and use_sim_time ---------------------------------------
+# -- start-up parameters and use_sim_time -------------------------------------------------
 def _node_cmd(*ros_args: str) -> list[str]:
     import sys
     return [sys.executable, '-m', 'abd_joint_sim.ros.node', '--ros-args', *ros_args]
@@ -509,7 +509,7 @@ def test_live_absurd_publish_rate_refused_node_lives(hinge):
 
 
 def test_recorded_bytes_are_what_dds_delivers_for_empty_sequences(tmp_path):
-    """Issue 14 item 12, who is right: a scene without joints publishes JointState with
+    """Who is right about empty sequences: a scene without joints publishes JointState with
     empty float64[] sequences. What DDS delivers (and so what `ros2 bag record` stores) is
     the CDR stream, 36 bytes here; rclpy's serialize_message returns 8 more. The node's bag
     must hold the DDS length, and rosbags must decode it."""

@@ -1,5 +1,5 @@
 """Scene loading: the packaged scenes load; malformed scenes fail with one clear error that
-names the source and the field (issue 7 item 1); mass properties match closed forms."""
+names the source and the field; mass properties match closed forms."""
 import copy
 import math
 import time
@@ -82,7 +82,7 @@ BAD = [
      'bodies[1].inertial.mass', 'must be > 0'),
     ('newton_iterations_zero', ('newton',), {'max_iterations': 0}, 'newton.max_iterations', '>= 1'),
     ('rotation_limit_pi', ('newton',), {'max_step_rotation': 3.2}, 'newton.max_step_rotation', '< pi'),
-    # Sane ranges (issue 14, item 11/13): each of these used to pass validation and then
+    # Sane ranges: without them each of these would pass validation and then
     # fail deep inside the solver (LinAlgError, ZeroDivisionError, overflow) or hang.
     ('dt_tiny', ('dt',), 1e-300, 'dt', 'outside the supported range 1e-06 to 1 s'),
     ('dt_huge_int', ('dt',), 10 ** 400, 'dt', 'integer of 401 digits'),
@@ -203,7 +203,7 @@ def test_scene_errors_are_clean_on_the_command_line(tmp_path):
     assert r.returncode == 1 and r.stderr.strip() == f'error: {p}: dt: must be > 0, got -1.0'
 
 
-# -- the YAML loader's limits (issue 14, items 10, 11, 14) --------------------------------
+# -- the YAML loader's limits -------------------------------------------------------------
 
 def _write(tmp_path, text, name='s.yaml'):
     p = tmp_path / name
@@ -346,8 +346,9 @@ def test_supported_range_corners_build_and_step():
     (10 ** 400, 'an integer of 401 digits'), ('0.01', "must be a number, got '0.01'"), ([0.01], 'must be a number'),
 ])
 def test_world_dt_argument_is_checked_as_the_scenes_dt(dt, words):
-    """World(scene, dt) overrides the scene's dt: before stop 36 it bypassed the scene's
-    checks (dt = -1 ran backwards in time, 1e3 s ran, 0 fell back to the scene's dt)."""
+    """World(scene, dt) overrides the scene's dt and gets the scene's checks
+    (unchecked, dt = -1 would run backwards in time, 1e3 s would run, 0 would fall back to
+    the scene's dt)."""
     from abd_joint_sim import World
     with pytest.raises(SceneError) as err:
         World(Scene.from_dict(hinge_dict()), dt=dt)

@@ -327,7 +327,7 @@ def test_resting_limit_does_not_amplify_roundoff():
 def test_no_line_search_wandering_at_the_roundoff_floor():
     """ring4's 2nd Newton iteration has a decrement ~1e-19 against a rounding slack
     ROUNDOFF·|Π| ~1e-19. Once the tolerances hold only the full step is tried, so a step
-    never wanders there (it used to take up to 10 Newton iterations and 215 halvings)."""
+    never wanders there (else it takes up to 10 Newton iterations and 215 halvings)."""
     scene = Scene.from_dict(_ring(4))
     a, b = World(scene), World(scene)
     b.state.q[1, 0] += 1e-15
@@ -567,8 +567,8 @@ def test_a_failed_one_step_call_keeps_the_last_good_state():
 
 @pytest.mark.parametrize('case', ['chain', 'drive_limit'])
 def test_the_compiled_step_allocates_nothing_per_step(case):
-    """The arrays a step works in live in the Solver's Workspace (docs/speed-rounds.md, "The tenth
-    round"): an allocation inside the step costs a malloc. Counted by numba's NRT
+    """The arrays a step works in live in the Solver's Workspace (docs/decisions.md):
+    an allocation inside the step costs a malloc. Counted by numba's NRT
     statistics: a batch of 200 steps allocates what one of 20 does (the call's own
     arguments), on a chain under torque, with the screw retraction and the torque axes at
     work, and with gravity; and on a hinge whose drive holds it in its limit (the angle
@@ -647,7 +647,7 @@ def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
 @pytest.mark.parametrize('distance', [1e16, 1e10])
 def test_a_joint_that_came_apart_is_a_fault_and_the_state_is_kept(distance):
     """Anchors > 1e3 x the bodies' size apart: no valid state, SimulationError naming the
-    joint, the World keeps the last good state (not only a warning, issue 14)."""
+    joint, the World keeps the last good state (not only a warning)."""
     w = _world(scene_dict('default'))
     w.step(2)
     w.state.q[2, :3] += distance                       # the forearm flies off
@@ -865,11 +865,11 @@ def _demo_arm_driven():
 
 def test_two_large_drive_aims_at_once_converge_to_the_aims():
     """A drive is K/2 (θ − target)², K = γ(m_i+m_j), no h²: a stiff pull that brings the
-    joint to its aim within a step. Two aims of 0.3 rad set at once used to send Newton
-    into singular A (SimulationError); now they converge, the bodies stay rigid and the
+    joint to its aim within a step. Two aims of 0.3 rad set at once, with the curvature
+    Hessian, send Newton into singular A (SimulationError); with Gauss-Newton they converge, the bodies stay rigid and the
     joints sit at their aims (the inertia against K makes the gap ~1e-4 rad). The bodies are
-    strained by a few % (the pull is stiff against κ at this dt; the code before issue 15 gave
-    the same strains, to 5 digits, for one such aim alone, which it could solve) but far from
+    strained by a few % (the pull is stiff against κ at this dt; the full curvature Hessian gives
+    the same strains, to 5 digits, for one such aim alone, which it can solve) but far from
     the singular A the failure went to."""
     w = _demo_arm_driven()
     w.set_drive('elbow', aim=0.3)

@@ -423,7 +423,7 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
             assert np.abs(Hp[np.ix_(idx, idx)] - gn).max() > 1e-3 * K
 
 
-# -- the angle terms' projection (issue 15) ---------------------------------------------------
+# -- the angle terms' projection -------------------------------------------------------------
 def _reference_angle_projection(q, joints, d1s, d2s):
     """The former projection, kept here as the reference: per joint H = E''∇θ∇θᵀ + E'∇²θ
     (E' → 0 beyond GAUSS_NEWTON_RANGE) on the 18 coordinates vec A_i, vec A_j, reduced to

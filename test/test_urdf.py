@@ -204,7 +204,7 @@ def test_mimic_joint_refused_naming_it():
     ({'actuated': ['tool_mount']}, r"actuated: joint 'tool_mount' is fixed"),
     ({'joints': {'shoulder': {'stiffness': 1}}}, r"joints.shoulder: unknown key\(s\) 'stiffness'"),
     ({'fixed_base': 'yes'}, r'fixed_base: must be true or false'),
-    # absurd values that escaped as tracebacks before stop 36 (OverflowError, TypeError)
+    # absurd values: one line, not a traceback (OverflowError, TypeError)
     ({'strength_ratio': 10 ** 400}, r'strength_ratio: must be a finite number > 0, got 1000'),
     ({'initial_positions': {'shoulder': 10 ** 400}}, r'initial_positions.shoulder: must be a finite number'),
     ({'joints': {'shoulder': {'damping': 10 ** 400}}}, r'joints.shoulder.damping: must be a finite number >= 0'),

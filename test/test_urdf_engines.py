@@ -5,8 +5,8 @@ From rest, gravity plus a torque on every joint, PyBullet's motors off, the join
 `<dynamics damping>` applied by both engines (the KUKA iiwa has 0.5 N m s/rad on every joint,
 pendulum5 1.0), no link damping, inertia from the file; after 40 ms the joint velocities and angle changes must agree within 1 %
 (relative, norm over the joints). PyBullet runs at dt = 1e-4 (semi-implicit Euler: its own
-angle error is ~h/T = 0.25 %), ours at 5e-4 with BDF2. Figures per robot: README "Robots
-from URDF"; the script at the bottom of docs/urdf.md reproduces them.
+angle error is ~h/T = 0.25 %), ours at 5e-4 with BDF2. Figures per robot: docs/urdf.md
+"Checked against PyBullet and MuJoCo"; the script at the bottom of docs/urdf.md reproduces them.
 """
 import os
 import sys
@@ -16,7 +16,7 @@ import pytest
 
 from abd_joint_sim import Scene, World
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'bench'))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'bench', 'lib'))
 
 pybullet = pytest.importorskip('pybullet', reason='pybullet not installed (requirements-test.txt)')
 pybullet_data = pytest.importorskip('pybullet_data', reason='pybullet_data not installed')
@@ -109,7 +109,7 @@ def run_mujoco(path, names, torques, q0, dt=1e-4, lock=()):
     """MuJoCo's own URDF import, RK4 at 1e-4, with the file's <dynamics> damping; friction
     loss, armature and contacts switched off (we simulate none of them); the joints in `lock`
     made fixed, and a file whose `package://` meshes MuJoCo cannot open loaded without its
-    geometry (bench/robot_bench.py `mujoco_model`: with contacts off it plays no part)."""
+    geometry (bench/lib/robot_bench.py `mujoco_model`: with contacts off it plays no part)."""
     mujoco = pytest.importorskip('mujoco', reason='mujoco not installed (requirements-test.txt)')
     from robot_bench import mujoco_model
     m = mujoco_model(path, lock)[0]

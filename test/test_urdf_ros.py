@@ -55,7 +55,7 @@ def test_joint_commands_effort_position_and_refusals():
     assert len(rej) == 1 and 'finite' in rej[0].reason
     assert not buf.apply(world)
     # an aim beyond the scene format's angle range (1e4 rad) is refused, not queued: World
-    # would refuse it at the step boundary, and 1e300 used to hold the joint still silently
+    # would refuse it at the step boundary, and 1e300 would hold the joint still silently
     rej, _ = buf.command_joint_state(['elbow'], [1e300], [], [])
     assert len(rej) == 1 and rej[0].joint == 'elbow' and '|aim| beyond 10000 rad' in rej[0].reason
     assert not buf.apply(world) and world.control.drive_aim[0] == 0.4

@@ -47,7 +47,7 @@ DIAGNOSTIC_KEYS = (
     'real_time_factor_achieved', 'newton_iterations', 'line_search_iterations', 'converged',
     'not_converged_steps_total', 'max_joint_separation', 'substeps', 'recording', 'fault',
     'recording_error')
-"""The values of the node's ``/diagnostics`` status, in order (README "Topics & services")."""
+"""The values of the node's ``/diagnostics`` status, in order (docs/topics.md)."""
 
 MAX_BATCH = 256
 """Most clean steps per ``World.step_clean`` call (bounds the arrays it returns)."""

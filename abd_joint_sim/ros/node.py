@@ -1,4 +1,4 @@
-"""sim_node: runs the simulation loop (:mod:`.loop`) and talks ROS 2 (README "Topics & services").
+"""sim_node: runs the simulation loop (:mod:`.loop`) and talks ROS 2 (docs/topics.md).
 
 The node is ROS plumbing only: parameters come from :mod:`.params`; subscription callbacks
 hand commands to the loop's :class:`~.commands.CommandBuffer` (validated, clamped, pending);
@@ -257,7 +257,7 @@ class SimNode(Node):
     def _warn_undeclared_parameters(self) -> None:
         """Warn about parameters given at start that this node does not have: a typo such
         as real_time_factr would otherwise be ignored without a word (a warning, not a
-        refusal: README "Parameters")."""
+        refusal: docs/parameters.md)."""
         overrides = getattr(self, '_parameter_overrides', None) or {}
         names = [n for n in undeclared_parameters(overrides) if not self.has_parameter(n)]
         declared = sorted(getattr(self, '_parameters', None) or PARAMS_BY_NAME)
@@ -266,7 +266,7 @@ class SimNode(Node):
             hint = f' (did you mean {close[0]!r}?)' if close else ''
             self.get_logger().warn(
                 f'parameter {name!r} is not a parameter of this node and is ignored{hint}; '
-                f'its parameters: {", ".join(PARAMS_BY_NAME)} (README "Parameters")')
+                f'its parameters: {", ".join(PARAMS_BY_NAME)} (docs/parameters.md)')
 
     def _check_parameter_sources(self, kwargs: dict) -> None:
         """Warn about a parameter given more than once with different values (e.g. `-p

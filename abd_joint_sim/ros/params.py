@@ -332,7 +332,7 @@ FOREIGN_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'
 def undeclared_parameters(overrides: Sequence[str]) -> list[str]:
     """Names among the start-up overrides (``-p``, ``--params-file``, launch) that are no
     parameter of the node: typos such as ``real_time_factr``, reported by the node with a
-    warning and otherwise ignored (README "Parameters": a shared params file may carry
+    warning and otherwise ignored (docs/parameters.md: a shared params file may carry
     parameters for other nodes, so this is not a refusal)."""
     return sorted(n for n in overrides if n not in PARAMS_BY_NAME
                   and n not in FOREIGN_PARAMETERS and not n.startswith('qos_overrides.'))

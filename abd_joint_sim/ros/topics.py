@@ -1,8 +1,8 @@
 """sim_node's topic table: the one place that names every topic, its type, QoS and direction.
 
 The node creates its publishers and subscriptions from it, the recorder registers the bag's
-topics from it (``recording.add_node_topics``), and a test compares README's "Topics &
-services" table with it. Plain Python (QoS as reliability + depth), so the headless tools
+topics from it (``recording.add_node_topics``), and test/test_docs_tables.py compares
+docs/topics.md with it. Plain Python (QoS as reliability + depth), so the headless tools
 read it without rclpy.
 
 Names are given as the node declares them: relative ones (``joint_states``) follow the

@@ -1,6 +1,6 @@
 """A recorded bag as what is needed to run it again: scene, parameters, commands, states.
 
-Messages are read in *file* order (the order sim_node wrote them, which is step order), not
+Messages are read in *file* order (the order sim_node wrote them: step order within each segment), not
 log-time order, so that a ``~/reset`` (time jumps back to 0) splits the run into segments
 instead of interleaving them. A segment starts at the first message and wherever
 ``/clock`` or ``/joint_states`` does not advance (the node writes both, with increasing

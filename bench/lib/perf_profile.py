@@ -1,5 +1,5 @@
 """Where a scene's `World.step(n)` spends its time, per compiled function, sampled by Linux
-`perf` (docs/speed-rounds.md, "The thirteenth round").
+`perf`.
 
 numba's JIT code has no symbols, so `perf report` shows bare addresses. This script compiles
 the kernels afresh into a temporary cache (a kernel loaded from the on-disk cache carries no
@@ -8,10 +8,10 @@ name of every compiled function, sizes taken as the gap to the next one), sample
 `perf record -p <pid>` while it steps, and prints the functions by share of the samples,
 numba's mangled names shortened to module.function.
 
-    python bench/perf_profile.py [chain1|chain10|chain100|default|kuka|<file>.urdf] [--seconds 10] [--top 40]
+    python bench/profiler.py perf [chain1|chain10|chain100|default|kuka|<file>.urdf] [--seconds 10] [--top 40]
 
 A URDF is a path, or one relative to pybullet_data (a1/a1.urdf), run under
-bench/robot_bench.py's torques with the importer's options of that bench.
+`bench/peers.py robots`' torques with the importer's options of that bench.
 
 The first minute is the compile. Needs `perf` on the PATH and perf_event_paranoid ≤ 2 (a
 process may sample itself); it says so otherwise.
@@ -27,7 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _world(name):
@@ -40,7 +40,7 @@ def _world(name):
     elif name.endswith('.urdf'):
         import warnings
         import pybullet_data
-        sys.path.insert(0, str(ROOT / 'bench'))
+        sys.path.insert(0, str(ROOT / 'bench' / 'lib'))
         from robot_bench import ROBOT_OPTIONS, torques
         path = name if os.path.exists(name) else os.path.join(pybullet_data.getDataPath(), name)
         with warnings.catch_warnings():
@@ -99,7 +99,7 @@ def short(name: str) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap = argparse.ArgumentParser(prog='bench/profiler.py perf', description=__doc__.split('\n\n')[0])
     ap.add_argument('scene', nargs='?', default='chain1')
     ap.add_argument('--seconds', type=float, default=10.0)
     ap.add_argument('--top', type=int, default=40)

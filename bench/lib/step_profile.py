@@ -3,7 +3,7 @@ loop from compiled code (no Python between calls), on chains of 1/10/100/1000 li
 KUKA iiwa URDF with gravity (dt 1 ms, torque 1 N m on every joint, state after 3 steps). For
 docs/speed.md.
 
-    python bench/step_profile.py [--links 1 10 100] [--no-kuka]
+    python bench/profiler.py step [--links 1 10 100] [--no-kuka]
 
 Columns are µs of CPU time per call, the fastest of 5 rounds. First table, Newton's parts:
 `solve` is assemble + solve minus assemble (the solve factors the assembled blocks in place);
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from abd_joint_sim import Scene, World                          # noqa: E402
 from abd_joint_sim.builders import chain_scene                  # noqa: E402
@@ -187,7 +187,7 @@ def profile(links):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap = argparse.ArgumentParser(prog='bench/profiler.py step', description=__doc__.split('\n\n')[0])
     ap.add_argument('--links', type=int, nargs='*', default=[1, 10, 100, 1000])
     ap.add_argument('--no-kuka', action='store_true', help='skip the KUKA iiwa rows')
     args = ap.parse_args(argv)

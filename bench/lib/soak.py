@@ -1,7 +1,7 @@
 """Soak: many steps of the default scene with changing commands; memory and drift figures.
 
-    python bench/soak.py [--steps 100000] [--every 5000] [--scene default] [--tracemalloc]
-    python bench/soak.py --node [--steps 100000]      # the same through sim_node over DDS
+    python bench/node_load.py soak [--steps 100000] [--every 5000] [--scene default] [--tracemalloc]
+    python bench/node_load.py soak --node [--steps 100000]      # the same through sim_node over DDS
 
 Headless mode (default): a ``World`` driven through sim_node's ``CommandBuffer`` (the same
 validation, clamping and step-boundary semantics). Every 50 steps a PD law towards a target
@@ -30,7 +30,7 @@ import sys
 import time
 from typing import Optional
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 
@@ -166,7 +166,7 @@ def soak_node(steps: int = 100_000, every_s: float = 10.0, scene: str = 'default
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
-    sys.path.insert(0, str(REPO / 'bench'))
+    sys.path.insert(0, str(REPO / 'bench' / 'lib'))
     from flood import ros_env
     domain = (os.getpid() * 11) % 100 + 101
     work = tempfile.mkdtemp(prefix='soak_node_')
@@ -241,7 +241,7 @@ def soak_node(steps: int = 100_000, every_s: float = 10.0, scene: str = 'default
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    p = argparse.ArgumentParser(prog='bench/node_load.py soak', description=__doc__.split('\n\n')[0])
     p.add_argument('--steps', type=int, default=100_000)
     p.add_argument('--every', type=int, default=5000, help='print every N steps')
     p.add_argument('--scene', default='default')

@@ -1,4 +1,4 @@
-"""bench/bench.py's URDF robot section (issue 11): one real robot description, the KUKA iiwa
+"""The URDF robots against MuJoCo and PyBullet: one real robot description, the KUKA iiwa
 shipped in the pybullet wheel (`pybullet_data/kuka_iiwa/model.urdf`, 7 revolute joints),
 loaded by `Scene.from_urdf`, MuJoCo (its URDF import) and PyBullet (`loadURDF`): per-step
 cost at dt = 1 ms with gravity and a torque on every joint, each engine's default
@@ -6,7 +6,7 @@ integrator (ours: bdf1; MuJoCo: Euler; PyBullet: its semi-implicit Euler), from 
 Then `robots`: more robots of pybullet_data (arms, legged robots with a fixed base), n steps
 per call on both sides, ours against MuJoCo where MuJoCo loads the file.
 
-    python bench/robot_bench.py [--quick]        # this section alone
+    python bench/peers.py robots [--quick]
 """
 from __future__ import annotations
 
@@ -167,7 +167,7 @@ def run(quick=False, peers=True):
     controller's `pd`, `mj_pd`, `pb_pd`; a peer's is None where it did not run), or None
     without the file. The
     engines take turns round after round (a burst of load on this shared machine then falls
-    on all of them); each engine's own rounds follow its own simulated time as before: ours
+    on all of them); each engine's own rounds follow its own simulated time: ours
     5 × 500 one-step calls, then 5 calls of 500 steps."""
     path = robot_path()
     if path is None:
@@ -368,10 +368,14 @@ def robots(quick=False, peers=True):
     return rows
 
 
-if __name__ == '__main__':
+def main(argv=None) -> int:
+    import argparse
     import sys
     from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))     # this checkout's package
-    quick = '--quick' in sys.argv[1:]
-    run(quick)
-    robots(quick)
+    ap = argparse.ArgumentParser(prog='bench/peers.py robots', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--quick', action='store_true', help='fewer steps and robots')
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))     # this checkout's package
+    run(args.quick)
+    robots(args.quick)
+    return 0

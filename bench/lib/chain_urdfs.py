@@ -1,11 +1,11 @@
-"""Writes URDF chains nobody tuned the simulator for, for `bench/urdf_sweep.py`: 2 to 50
+"""Writes URDF chains nobody tuned the simulator for, for `bench/peers.py sweep`: 2 to 50
 links, boxes or cylinders of 10 or 40 cm along z, masses drawn at random (seeded) around a
 density of ~1000 kg/m³, hinge axes y or x (alternating where the draw says), with and
 without joint limits (±2 rad), the COM at mid-link. 48 files. The sweep then loads each in
 ours and in MuJoCo (gravity, the bench's torques on every joint, dt 1 ms) and prints the
-ratio per step (docs/speed-rounds.md "The fifteenth round").
+ratio per step.
 
-    python bench/chain_urdfs.py /tmp/chains && python bench/urdf_sweep.py /tmp/chains
+    python bench/peers.py chain-urdfs /tmp/chains && python bench/peers.py sweep /tmp/chains
 """
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ def chain(name, shape, length, masses, axes, limits):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(prog='bench/peers.py chain-urdfs', description=__doc__.split('\n')[0])
     ap.add_argument('out', help='directory to write the URDFs to')
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)

@@ -1,6 +1,6 @@
 """Command flood against sim_node over real DDS (localhost only), with figures.
 
-    python bench/flood.py [--rate 5000] [--duration 10] [--scene hinge] [--rtf 1]
+    python bench/node_load.py flood [--rate 5000] [--duration 10] [--scene hinge] [--rtf 1]
 
 Three processes: sim_node (the scene, ``publish_rate: 0`` so every step is published), a
 flooder (this script with ``--flooder``) that publishes ``std_msgs/Float64`` torques on
@@ -32,7 +32,7 @@ import tempfile
 import time
 from typing import Optional
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 STEP = 1e-6            # N m per command index in the torque values
 
 
@@ -283,7 +283,7 @@ def report(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    p = argparse.ArgumentParser(prog='bench/node_load.py flood', description=__doc__.split('\n\n')[0])
     p.add_argument('--rate', type=float, default=5000.0, help='commands per second')
     p.add_argument('--duration', type=float, default=10.0, help='seconds of flood')
     p.add_argument('--scene', default='hinge')

@@ -3,9 +3,9 @@ several torques (dt 1 ms, bdf1, no gravity), ours one step per call against MuJo
 the same chain (`peers.make_mujoco`), CPU time. Light links under large torques turn more
 than ~0.1 rad per step (our bdf1 accuracy warning); there Newton takes several iterations
 per step, and MuJoCo's Euler at the same dt is where it reports the simulation unstable.
-For docs/speed.md and the README's speed section.
+For docs/speed.md.
 
-    python bench/regimes.py [--steps 1000] [--links 10]
+    python bench/peers.py regimes [--steps 1000] [--links 10]
 """
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import peers                                                     # noqa: E402
+import engines as peers                                          # noqa: E402
 from abd_joint_sim import Scene, World                          # noqa: E402
 from abd_joint_sim.builders import chain_scene                  # noqa: E402
 
@@ -66,7 +66,7 @@ def mujoco(links, link, tau, steps):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap = argparse.ArgumentParser(prog='bench/peers.py regimes', description=__doc__.split('\n\n')[0])
     ap.add_argument('--steps', type=int, default=1000)
     ap.add_argument('--links', type=int, default=10)
     args = ap.parse_args(argv)

@@ -1,14 +1,14 @@
-"""Where the µs of one `World.step()` call go (docs/speed-rounds.md, "The eighth round"): the same
+"""Where the µs of one `World.step()` call go: the same
 steps from the same state in `World.step(n)` (one compiled call), one `World.step()` call
 each (the state kept in the solver's ring, solver/resident.py) and one `Solver.step` call
-each on immutable States (what World.step() did before); World.step()'s excess over
+each on immutable States; World.step()'s excess over
 step(n) split into leaving and re-entering compiled code (the compiled `step_resident`
 called once from Python against the same call in a compiled loop), unboxing its
 argument (a compiled no-op with its signature) and the rest, the Python around (the
 binding check, the outcome row, the StepReport). Chains of 1 and 10 links and
 the KUKA iiwa URDF, dt 1 ms, torque on every joint; fastest of 9 rounds, wall time.
 
-    python bench/call_cost.py
+    python bench/profiler.py calls
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import robot_bench                                              # noqa: E402
 from abd_joint_sim import Scene, World                          # noqa: E402
@@ -111,7 +111,10 @@ def budget(name):
             single - batched - leave - unbox)
 
 
-def main():
+def main(argv=None) -> int:
+    import argparse
+    argparse.ArgumentParser(prog='bench/profiler.py calls',
+                            description=__doc__.split('\n\n')[0]).parse_args(argv)
     warnings.simplefilter('ignore')
     print(f'load {os.getloadavg()[0]:.2f}; µs per World.step() call')
     print('| scene | `World.step(n)` µs/step | `World.step()` µs/call | `Solver.step` on States µs/call '
@@ -123,7 +126,4 @@ def main():
             continue
         parts = budget(name)
         print(f'| {name} | ' + ' | '.join(f'{x:.2f}' for x in parts) + ' |', flush=True)
-
-
-if __name__ == '__main__':
-    main()
+    return 0

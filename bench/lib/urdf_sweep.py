@@ -1,14 +1,13 @@
 """Every URDF under a directory, loaded, stepped and timed against MuJoCo on the same file:
-the sweep of docs/speed-rounds.md "The fourteenth round" (stop 29), over robots this project's
-tests and benches do not ship. One row per file: loaded and run (bodies, Newton iterations
+robots this project's tests and benches do not ship. One row per file: loaded and run (bodies, Newton iterations
 per step over 200 one-step calls, ours and MuJoCo µs per step in one call of 1000 steps,
 CPU time, the ratio), refused (the SceneError's message), or failed (the SimulationError).
 
     pip download --no-deps example-robot-data==6.0.0 -d /tmp/erd      # not a dependency
     cd /tmp/erd && python -m zipfile -e example_robot_data-6.0.0-0-py3-none-any.whl x
-    python bench/urdf_sweep.py /tmp/erd/x [--match ur5 --match panda] [--torque-scale 0]
+    python bench/peers.py sweep /tmp/erd/x [--match ur5 --match panda] [--torque-scale 0]
 
-Conditions as `bench/robot_bench.py`'s robots: dt 1 ms, gravity, a fixed base, the bench's
+Conditions as `bench/peers.py robots`: dt 1 ms, gravity, a fixed base, the bench's
 torques (`robot_bench.torques`, times `--torque-scale`) on every actuated joint, MuJoCo with contacts off, without
 the meshes it cannot open and with its own inertia repairs where its compiler refuses the
 file (`robot_bench.mujoco_model`; the row says so, and where MuJoCo's integration diverged).
@@ -23,7 +22,7 @@ import sys
 import warnings
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))     # this checkout's package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))     # this checkout's package
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from robot_bench import DT, mujoco_robot_steps, ours_robot_steps  # noqa: E402
@@ -47,7 +46,7 @@ def ours(path, scale=1.0):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(prog='bench/peers.py sweep', description=__doc__.split('\n')[0])
     ap.add_argument('root', help='a directory searched for *.urdf')
     ap.add_argument('--match', action='append', default=[], help='only files whose path has this')
     ap.add_argument('--torque-scale', type=float, default=1.0,
