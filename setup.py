@@ -9,7 +9,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={package_name: ['scenes/*.yaml', 'robots/*.urdf']},
+    package_data={package_name: ['scenes/*.yaml', 'robots/*.urdf', 'live/web/*.html',
+                                'live/web/*.js', 'live/web/package*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         (os.path.join('share', package_name), ['package.xml']),
