@@ -63,7 +63,8 @@ STATUS = _object(
     'abd_joint_sim.Status', timestamp=_TIME, sim_time=_NUM, steps={'type': 'integer'},
     paused={'type': 'boolean'}, time_step=_NUM, real_time_factor=_NUM,
     newton_iterations={'type': 'integer'}, converged={'type': 'boolean'},
-    max_joint_separation=_NUM, fault=_STR, source=_STR)
+    max_joint_separation=_NUM, fault=_STR, source=_STR,
+    wall_time=_NUM)     # the publisher's clock [s since the epoch]: the page's latency
 
 TRIGGER_REQUEST = _object('std_srvs/Trigger_Request')
 TRIGGER_RESPONSE = _object('std_srvs/Trigger_Response', success={'type': 'boolean'},

@@ -262,7 +262,8 @@ class LiveServer:
                 'newton_iterations': int(getattr(last, 'newton_iterations', 0)),
                 'converged': bool(getattr(last, 'converged', True)),
                 'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
-                'fault': loop.fault or '', 'source': self.source}, log_time=t_ns)
+                'fault': loop.fault or '', 'source': self.source,
+                'wall_time': time.time()}, log_time=t_ns)
         if self._server is not None:
             self._server.broadcast_time(t_ns)
         self.published += 1
