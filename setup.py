@@ -35,6 +35,7 @@ setup(
             'replay_check = abd_joint_sim.tools.replay_check:main',
             'bag_recover = abd_joint_sim.ros.bag_recover:main',
             'plot_bag = abd_joint_sim.tools.plot_bag:main',
+            'replay_bag = abd_joint_sim.tools.replay_bag:main',
         ],
     },
 )

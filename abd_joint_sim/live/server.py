@@ -92,6 +92,10 @@ class _Listener:
         with self.owner._sub_lock:
             self.owner._subscriptions = max(0, self.owner._subscriptions - 1)
 
+    def on_playback_control_request(self, request):
+        playback = self.owner.playback
+        return None if playback is None else playback.on_playback_control_request(request)
+
 
 class LiveServer:
     """A live view of a simulation (module docstring).
@@ -103,13 +107,15 @@ class LiveServer:
     :param services: name (of :data:`SERVICES`) -> callable() -> (success, message).
     :param page: also serve the page on ``port + 1``.
     :param log: callable(level, text) for the owner's log ('info', 'warn', 'error').
+    :param playback: a replay's pacer (``live/headless.py``): Foxglove's playback control.
     """
 
     def __init__(self, scene: Any, joint_names, port: int, host: str = DEFAULT_HOST,
                  world_frame: str = 'world',
                  services: Optional[dict[str, Callable[[], tuple[bool, str]]]] = None,
                  name: str = 'abd_joint_sim', source: str = 'sim_node', page: bool = True,
-                 log: Optional[Callable[[str, str], None]] = None):
+                 log: Optional[Callable[[str, str], None]] = None, playback: Any = None,
+                 playback_end_ns: int = 0):
         self.port = check_port(port)
         self.host = (host or DEFAULT_HOST).strip()
         self.name = name
@@ -119,6 +125,10 @@ class LiveServer:
         self.frames = FrameBuilder(scene, world_frame)
         self.entities = scene_entities(scene)
         self.services = dict(services or {})
+        self.playback = playback
+        """Answers Foxglove's playback control (``on_playback_control_request``) over the
+        range 0..`playback_end_ns` of simulated time (a replay); None: a live run."""
+        self.playback_end_ns = int(playback_end_ns)
         self.page = page
         self.http_port: Optional[int] = None
         self.published = 0
@@ -174,7 +184,9 @@ class LiveServer:
                 name=self.name, host=self.host, port=self.port, context=self._context,
                 capabilities=[Capability.Time] + ([Capability.Services] if services else []),
                 server_listener=_Listener(self), supported_encodings=['json'],
-                services=services or None)
+                services=services or None,
+                playback_time_range=((0, self.playback_end_ns) if self.playback is not None
+                                     else None))
         except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError/OSError
             raise LiveError(f'live_port {self.port}: cannot listen on {self.host}:{self.port} '
                             f'({_first_line(exc)})') from None
