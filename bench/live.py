@@ -96,7 +96,8 @@ live.close()
 print(f'live view on {name} ({len(scene.bodies)} bodies), {args.steps} steps as fast as possible '
       '(the best of 3-5 runs), one publish check per step; shared machine: noisy')
 print(f'| step | {one[0] * 1e6:.1f} us |')
-print(f'| nobody connected: one publish check | {idle_ns:.0f} ns = {100 * idle_ns * 1e-9 / one[0]:.2f} % '
+share = 100 * idle_ns * 1e-9 / one[0]
+print(f'| nobody connected: one publish check | {idle_ns:.0f} ns = {share:.2f} % '
       f'of a step (sim_node checks once per batch of up to 16 steps) |')
 print(f'| one client, all channels: time in the live server / time stepping | {100 * one[1]:.2f} % '
       f'({published:.0f} publishes in {wall_run:.2f} s, '

@@ -5,17 +5,17 @@ from __future__ import annotations
 
 import json
 import socket
-import sys
 import time
+import urllib.error
 import urllib.request
 
 import numpy as np
 import pytest
 
-from conftest import NodeProcess, REPO
+from conftest import REPO
 from live_client import free_port_pair, LiveClient
 
-pytest.importorskip('foxglove', reason='foxglove-sdk (requirements-live.txt) not installed')
+import foxglove  # noqa: E402,F401 - requirements-live.txt (in requirements-test.txt): no skip
 
 from abd_joint_sim import Scene  # noqa: E402
 from abd_joint_sim.live import check_port, LiveError, LiveServer  # noqa: E402
@@ -92,7 +92,8 @@ def test_channels_messages_and_poses_in_process(served):
         assert set(frames) == set(loop.world.body_names) | {'tool_flange'}
         ((body, link, t, R),) = urdf_link_frames(scene)
         assert (body, link) == ('forearm', 'tool_flange')
-        assert [frames['tool_flange']['translation'][k] for k in 'xyz'] == pytest.approx(t, abs=1e-12)
+        tool = [frames['tool_flange']['translation'][k] for k in 'xyz']
+        assert tool == pytest.approx(t, abs=1e-12)
         js = got['/joint_states'][2]
         assert js['name'] == loop.joint_names
         assert js['position'] == loop.world.joint_angles().tolist()       # JSON: exact

@@ -16,7 +16,7 @@ import pytest
 from conftest import NodeProcess, Probe, REPO
 from live_client import free_port_pair
 
-pytest.importorskip('foxglove', reason='foxglove-sdk (requirements-live.txt) not installed')
+import foxglove  # noqa: E402,F401 - requirements-live.txt (in requirements-test.txt): no skip
 
 CHROMIUM = os.environ.get('ABD_CHROMIUM', '/usr/bin/chromium')
 CHROMIUM_FLAGS = ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic',

@@ -8,12 +8,10 @@ import subprocess
 import sys
 import time
 
-import pytest
-
 from conftest import REPO, ros_env
 from live_client import free_port_pair, LiveClient
 
-pytest.importorskip('foxglove', reason='foxglove-sdk (requirements-live.txt) not installed')
+import foxglove  # noqa: E402,F401 - requirements-live.txt (in requirements-test.txt): no skip
 
 SCHEDULE = REPO / 'test' / 'data' / 'default_schedule.yaml'
 

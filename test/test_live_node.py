@@ -11,7 +11,7 @@ import pytest
 from conftest import NodeProcess
 from live_client import free_port_pair, LiveClient
 
-pytest.importorskip('foxglove', reason='foxglove-sdk (requirements-live.txt) not installed')
+import foxglove  # noqa: E402,F401 - requirements-live.txt (in requirements-test.txt): no skip
 
 from abd_joint_sim import Scene  # noqa: E402
 from abd_joint_sim.ros.loop import SimLoop  # noqa: E402
