@@ -24,9 +24,9 @@ const scene = new THREE.Scene();
 scene.background = new THREE.Color(0xf4f4f2);
 const camera = new THREE.PerspectiveCamera(45, 1, 0.01, 200);
 camera.up.set(0, 0, 1);                       // z up, as in ROS and the scenes
-camera.position.set(1.6, -1.6, 1.2);
+camera.position.set(1.15, -1.25, 0.85);
 const controls = new OrbitControls(camera, renderer.domElement);
-controls.target.set(0, 0, 0.3);
+controls.target.set(0.1, 0, 0.3);
 controls.update();
 scene.add(new THREE.HemisphereLight(0xffffff, 0x777777, 1.6));
 const sun = new THREE.DirectionalLight(0xffffff, 1.6);
