@@ -9,7 +9,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={package_name: ['scenes/*.yaml', 'robots/*.urdf']},
+    package_data={package_name: ['scenes/*.yaml', 'robots/*.urdf', 'live/web/*.html',
+                                'live/web/*.js', 'live/web/package*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         (os.path.join('share', package_name), ['package.xml']),
@@ -34,6 +35,7 @@ setup(
             'replay_check = abd_joint_sim.tools.replay_check:main',
             'bag_recover = abd_joint_sim.ros.bag_recover:main',
             'plot_bag = abd_joint_sim.tools.plot_bag:main',
+            'replay_bag = abd_joint_sim.tools.replay_bag:main',
         ],
     },
 )

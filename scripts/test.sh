@@ -11,6 +11,15 @@ export PYTHONDONTWRITEBYTECODE=1
 # Compile the physics kernels once per machine (~1 min, announced before it starts; ~1 s from
 # the cache after), so no test pays for it. The cache is shared with the install space.
 python -m abd_joint_sim.warmup >&2 || { echo "[test] the physics kernels failed to compile" >&2; exit 1; }
+# The live page's browser test (test/test_live_browser.py) needs Debian's chromium: installed
+# here when missing and running as root (CI); otherwise that test fails saying how to install
+# it. Its three.js comes from abd_joint_sim/live/web/package-lock.json (npm ci, in the test).
+if ! command -v "${ABD_CHROMIUM:-/usr/bin/chromium}" >/dev/null 2>&1 && [ "$(id -u)" = 0 ] \
+        && command -v apt-get >/dev/null 2>&1; then
+    echo "[test] installing chromium (apt-get) for the live page's browser test" >&2
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; } >&2 \
+        || echo "[test] apt-get install chromium failed: the browser test will say so" >&2
+fi
 timeout --signal=INT --kill-after=30 "${ABD_TEST_TIMEOUT:-1200}" \
     python -m pytest -q -p no:cacheprovider test "$@" < /dev/null
 status=$?

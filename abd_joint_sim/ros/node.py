@@ -114,6 +114,7 @@ class SimNode(Node):
         self.joint_names = list(self.loop.joint_names)
         self.actuated = list(self.loop.actuated)
         self.markers = self.loop.markers
+        self.live = self._start_live()      # the live view (docs/live.md), live_port > 0
 
         self.recording_error: Optional[str] = None
         self._anchor_wall = time.monotonic()
@@ -336,6 +337,7 @@ class SimNode(Node):
         """The step timer while the thread steps: notice a SIGINT/SIGTERM (the lock held, so
         the context never shuts down in the middle of the thread's round)."""
         self._stop_requested()
+        self._live_refresh()
 
     def _stepper_main(self) -> None:
         try:
@@ -463,6 +465,8 @@ class SimNode(Node):
         """Up to n steps of the loop (batched; commands at their step boundaries)."""
         taken = self.loop.advance(n)
         self._stats_steps += taken
+        if self.live is not None:
+            self.live.publish_loop(self.loop)
         return taken
 
     def _step_once(self, force_publish: bool = False) -> bool:
@@ -470,6 +474,8 @@ class SimNode(Node):
         ok = self.loop.step_once(force_publish=force_publish)
         if ok:
             self._stats_steps += 1
+        if self.live is not None:
+            self.live.publish_loop(self.loop, force=force_publish)
         return ok
 
     def _step_batch(self, max_steps: int) -> int:
@@ -497,6 +503,7 @@ class SimNode(Node):
         self._publish_diagnostics()
         # A SIGKILL loses at most the chunk in progress: close it every DIAGNOSTICS_PERIOD.
         self._flush_recorder()
+        self._live_refresh()
 
     # ------------------------------------------------------------ subscriptions ----
     def _warn_throttled(self, key, text: str) -> None:
@@ -580,10 +587,45 @@ class SimNode(Node):
         self.loop.reset()
         self._reanchor()
         self._wake_stepper()
+        self._live_refresh(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
         response.success = True
         response.message = f'reset to t={self.world.time:.6f} s'
         return response
+
+    # ---------------------------------------------------------------- live view ----
+    def _start_live(self):
+        """The live view (abd_joint_sim/live, docs/live.md) when live_port is set, with
+        ~/pause, ~/unpause, ~/step, ~/reset as its services; if it cannot start (port taken,
+        no foxglove-sdk) one error line says why and the node runs without it."""
+        if not self.config.live_port:
+            return None
+        from abd_joint_sim.live import LiveError, LiveServer
+
+        def trigger(service):
+            def call():
+                response = service(Trigger.Request(), Trigger.Response())
+                return response.success, response.message
+            return call
+        try:
+            live = LiveServer(
+                self.scene, self.joint_names, self.config.live_port, self.config.live_host,
+                world_frame=self.config.marker_frame_id, name=self.get_fully_qualified_name(),
+                services={'pause': trigger(self._srv_pause),
+                          'unpause': trigger(self._srv_unpause),
+                          'step': trigger(self._srv_step), 'reset': trigger(self._srv_reset)},
+                log=lambda level, text: getattr(self.get_logger(), level)(text)).start()
+        except LiveError as exc:
+            self.get_logger().error(f'{exc}; the simulation runs without the live view')
+            return None
+        self.get_logger().info(live.describe())
+        return live
+
+    def _live_refresh(self, force: bool = False) -> None:
+        """Publish the current state to the live view after a reset (`force`) or for a
+        client that subscribed (also while paused); the lock is held."""
+        if self.live is not None and (force or self.live.refresh_due):
+            self.live.publish_loop(self.loop, force=True)
 
     # ---------------------------------------------------------------- recording ----
     def _open_recorder(self, path: str) -> None:
@@ -702,6 +744,8 @@ class SimNode(Node):
         with self._lock:
             self.paused = True
             self._close_recorder()
+        if self.live is not None:
+            self.live.close()
 
 
 class _NodeOutput(LoopOutput):

@@ -68,6 +68,13 @@ PARAMS: tuple[ParamSpec, ...] = (
               'header.frame_id of the markers: the fixed frame to set in RViz.', True),
     ParamSpec('marker_joint_axes', False,
               'Also draw each joint axis as an arrow marker (namespace joint_axes).', True),
+    ParamSpec('live_port', 0,
+              'Port of the live view (Foxglove WebSocket; the browser page on the next port; '
+              'docs/live.md), 1..65535. 0 = off. Needs foxglove-sdk (requirements-live.txt).',
+              True),
+    ParamSpec('live_host', '127.0.0.1',
+              'Address the live view binds. Anything but loopback lets whoever reaches it '
+              'watch and pause the run (a warning says so).', True),
 )
 
 PARAMS_BY_NAME = {p.name: p for p in PARAMS}
@@ -94,6 +101,8 @@ class SimConfig:
     marker_rate: float = 30.0
     marker_frame_id: str = 'world'
     marker_joint_axes: bool = False
+    live_port: int = 0
+    live_host: str = '127.0.0.1'
 
     def as_dict(self) -> dict[str, Any]:
         return {p.name: getattr(self, p.name) for p in PARAMS}
@@ -277,7 +286,19 @@ _COERCE = {
     'marker_rate': _as_nonneg,
     'marker_frame_id': lambda n, v: _as_frame(n, v),
     'marker_joint_axes': _as_bool,
+    'live_port': lambda n, v: _as_port(n, v),
+    'live_host': lambda n, v: _as_str(n, v).strip() or '127.0.0.1',
 }
+
+
+def _as_port(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        raise ValueError(f'parameter {name!r}: expected a whole number 1..65535 (0 = off), '
+                         f'got {value!r}')
+    if not 0 <= value <= 65535:
+        raise ValueError(f'parameter {name!r}: {int(value)} is outside the TCP ports 1..65535 '
+                         '(0 = off)')
+    return int(value)
 
 
 def _as_frame(name: str, value: Any) -> str:

@@ -55,6 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     rate.add_argument('--publish-rate', type=float, metavar='HZ',
                       help='record /joint_states at HZ of simulated time (0 = every step; '
                            'default 100, as sim_node)')
+    p.add_argument('--live', type=int, metavar='PORT',
+                   help='watch the run live (Foxglove WebSocket on PORT, the page on PORT+1; '
+                        'docs/live.md): the run is paced at real time and can be paused and '
+                        'stepped; its results are unchanged')
+    p.add_argument('--live-host', default='127.0.0.1', metavar='ADDR',
+                   help='address the live view binds (default 127.0.0.1)')
     p.add_argument('-q', '--quiet', action='store_true', help='no summary line')
     return p
 
@@ -117,6 +123,12 @@ def _run(args) -> int:
                               + (' (or 0)' if name == '--publish-rate' else ''))
     if args.duration is not None and args.duration > MAX_TIME:
         raise _InputError(f'--duration {args.duration:g}: beyond the supported {MAX_TIME:g} s')
+    if args.live is not None:
+        from abd_joint_sim.live import check_port
+        try:
+            check_port(args.live, '--live')
+        except ValueError as exc:
+            raise _InputError(str(exc)) from None
     if args.publish_every is not None and args.publish_every < 1:
         raise _InputError(f'--publish-every {args.publish_every}: must be >= 1')
     if args.dt is not None:
@@ -164,16 +176,21 @@ def _run(args) -> int:
               f'(t = {seg.end_ns / NS_PER_S:g} s), never takes effect', file=sys.stderr)
 
     # -- run and record --------------------------------------------------------------------
+    live = pace = None
+    if args.live is not None:
+        live, pace = _start_live(args, scene, sim)
     try:
         recorder = BagRecorder(args.out, sim, scene_path, scene_text, extra_custom={
             'abd_joint_sim.recorded_by': f'run_headless ({provenance})'},
             urdf_text=getattr(scene, 'robot_description', '') or urdf_text)
     except BagError as exc:
+        if live is not None:
+            live.close()
         raise _InputError(str(exc)) from None
     wall0 = time.monotonic()
     status = 0
     try:
-        sim.run(plan, recorder)
+        sim.run(plan, recorder, pace=pace)
     except (SimulationError, ArithmeticError, ValueError) as exc:
         # ArithmeticError/ValueError (LinAlgError is one): a solver failure the world did not
         # wrap; still one line, and the bag stays readable.
@@ -187,6 +204,8 @@ def _run(args) -> int:
         status = 130
     finally:
         recorder.close()
+        if live is not None:
+            live.close()
     wall = time.monotonic() - wall0
     for cmd, clamp in sim.clamps[:MAX_WARNINGS]:
         print(f'{PROG}: warning: {cmd.describe()}: {clamp}', file=sys.stderr)
@@ -202,6 +221,25 @@ def _run(args) -> int:
               f'commands -> {args.out}'
               + (f'; {sim.not_converged} steps not converged' if sim.not_converged else ''))
     return status
+
+
+def _start_live(args, scene, sim):
+    """The live server and its real-time pacer (abd_joint_sim/live/headless.py); a port in
+    use ends the run before it starts (exit 2: --live was asked for)."""
+    from abd_joint_sim.live import LiveError, LiveServer
+    from abd_joint_sim.live.headless import RealTimePacer
+    pace = RealTimePacer(sim.loop)
+    try:
+        live = LiveServer(scene, sim.loop.joint_names, args.live, args.live_host,
+                          world_frame=sim.config.marker_frame_id, services=pace.services(),
+                          name=PROG, source=PROG,
+                          log=lambda level, text: print(f'{PROG}: {level}: {text}',
+                                                        file=sys.stderr)).start()
+    except LiveError as exc:
+        raise _InputError(str(exc)) from None
+    pace.live = live
+    print(f'{PROG}: {live.describe()}', file=sys.stderr, flush=True)
+    return live, pace
 
 
 if __name__ == '__main__':

@@ -127,9 +127,11 @@ class HeadlessSim:
             raise ValueError(f'{cmd.describe()}: {rejections[0]}')
         self.clamps.extend((cmd, c) for c in clamps)
 
-    def run(self, plan: Plan, output: Any) -> None:
+    def run(self, plan: Plan, output: Any, pace: Any = None) -> None:
         """Simulate every segment of `plan` into `output` (a :class:`LoopOutput`, or a plain
-        :class:`Observer`); raises SimulationError if a step fails."""
+        :class:`Observer`); raises SimulationError if a step fails. `pace(n)`, if given, is
+        called before each advance of up to n steps and returns how many to take now (1..n;
+        ``live/headless.py``: real time, pause, the live view): when, never what."""
         self.loop.output = output if isinstance(output, LoopOutput) \
             else _ObserverOutput(self, output)
         loop = self.loop
@@ -145,7 +147,8 @@ class HeadlessSim:
                 while pending and pending[0].t_ns <= now:
                     self._queue(pending.popleft())
                 until = min(pending[0].t_ns, seg.end_ns) if pending else seg.end_ns
-                loop.advance(steps_until(until, now, self.world.dt))
+                n = steps_until(until, now, self.world.dt)
+                loop.advance(n if pace is None else pace(n))
             # A live parameter change logged at the segment's last time (set, then ~/reset
             # or the end before another step) took effect in the node at once and stays in
             # force across the reset: apply it here too. Commands cannot be in this

@@ -1,0 +1,154 @@
+"""What the live server sends, as plain JSON-ready dicts (Foxglove's JSON encoding of its
+``foxglove.SceneUpdate`` and ``foxglove.FrameTransforms`` schemas), built from a scene.
+
+Frames. Each body has a frame named as the body (for a URDF robot: its link), posed in the
+world frame (``world``, or ``marker_frame_id``) by the body's position p and the rotation
+nearest to its affine A (``ros/markers.py``: the orthogonal polar factor, det +1). A URDF
+link merged into a body (a fixed joint) gets a frame of its own named as the link, the child
+of its body's frame at the chain of joint origins between them (a joint held rigid by
+``lock`` counts at angle 0). So Foxglove's 3D panel shows the URDF's tf tree.
+
+Geometry. One ``SceneUpdate`` entity per body, in the body's frame (``frame_locked``: it
+moves with the frame): exactly the parts the markers draw (``MarkerBuilder``'s parts: URDF
+visuals, with their mesh URLs, else the scene's shape, else the box of equal inertia), with
+their origins in the body frame. A marker sits at A t + p, the entity's part at R t + p: the
+same point up to the body's strain (|A - R|, ~1e-6 here).
+"""
+from __future__ import annotations
+
+import json
+from typing import Any, Optional
+
+import numpy as np
+
+from abd_joint_sim.ros.markers import MarkerBuilder, quaternion
+
+NS_PER_S = 1_000_000_000
+
+
+def stamp(t_ns: int) -> dict:
+    sec, nsec = divmod(int(t_ns), NS_PER_S)
+    return {'sec': sec, 'nsec': nsec}
+
+
+def _vec(v) -> dict:
+    return {'x': float(v[0]), 'y': float(v[1]), 'z': float(v[2])}
+
+
+def _pose(t, R) -> dict:
+    x, y, z, w = quaternion(np.asarray(R, dtype=float))
+    return {'position': _vec(t), 'orientation': {'x': x, 'y': y, 'z': z, 'w': w}}
+
+
+def _colour(rgba) -> dict:
+    return {'r': rgba[0], 'g': rgba[1], 'b': rgba[2], 'a': rgba[3]}
+
+
+def scene_entities(scene: Any, builder: Optional[MarkerBuilder] = None) -> list[dict]:
+    """One ``foxglove.SceneEntity`` (JSON) per body of `scene`, in the body's frame, without
+    a timestamp (``scene_update`` adds it). Geometry from `builder` (a MarkerBuilder of the
+    scene: the markers' own parts)."""
+    M = __import__('visualization_msgs.msg', fromlist=['Marker']).Marker
+    builder = builder or MarkerBuilder(scene)
+    entities = {name: {'frame_id': name, 'id': f'bodies/{name}',
+                       'lifetime': {'sec': 0, 'nsec': 0}, 'frame_locked': True,
+                       'metadata': [{'key': 'body', 'value': name}], 'arrows': [],
+                       'cubes': [], 'spheres': [], 'cylinders': [], 'lines': [],
+                       'triangles': [], 'texts': [], 'models': []}
+                for name in builder.body_names}
+    for part in builder.parts:
+        e = entities[part.body]
+        pose = _pose(part.t, part.R)
+        colour = _colour(part.colour)
+        size = {'x': part.scale[0], 'y': part.scale[1], 'z': part.scale[2]}
+        if part.kind == M.CUBE:
+            e['cubes'].append({'pose': pose, 'size': size, 'color': colour})
+        elif part.kind == M.SPHERE:
+            e['spheres'].append({'pose': pose, 'size': size, 'color': colour})
+        elif part.kind == M.CYLINDER:
+            e['cylinders'].append({'pose': pose, 'size': size, 'bottom_scale': 1.0,
+                                   'top_scale': 1.0, 'color': colour})
+        elif part.kind == M.MESH_RESOURCE:
+            e['models'].append({'pose': pose, 'scale': size, 'color': colour,
+                                'override_color': False, 'url': part.mesh_uri,
+                                'media_type': '', 'data': ''})
+    return list(entities.values())
+
+
+def scene_update_bytes(entities: list[dict], t_ns: int) -> bytes:
+    """The ``SceneUpdate`` JSON of `entities` stamped `t_ns`."""
+    ts = stamp(t_ns)
+    return json.dumps({'deletions': [], 'entities': [dict(e, timestamp=ts) for e in entities]},
+                      separators=(',', ':')).encode()
+
+
+def urdf_link_frames(scene: Any) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(body, link, translation (3,), rotation (3,3)) of each URDF link that is no body of
+    `scene` (merged into one by a fixed or locked joint): its frame in its body's frame.
+    Empty for a scene without ``robot_description``."""
+    text = getattr(scene, 'robot_description', '') or ''
+    if not text:
+        return []
+    from abd_joint_sim.urdf import _Reader
+    _name, links, joints = _Reader('robot_description').parse(text)
+    bodies = {b.name for b in scene.bodies}
+    parent_joint = {j.child: j for j in joints.values()}
+    out = []
+    for link in links:
+        if link in bodies:
+            continue
+        T = np.eye(4)
+        name = link
+        while name not in bodies and name in parent_joint:
+            j = parent_joint[name]
+            T = j.origin @ T
+            name = j.parent
+        if name in bodies:
+            out.append((name, link, T[:3, 3].copy(), T[:3, :3].copy()))
+    return out
+
+
+class FrameBuilder:
+    """``FrameTransforms`` (JSON) of the body frames (in `world_frame`) and of the URDF links
+    merged into bodies (in their body's frame), from the bodies' states."""
+
+    def __init__(self, scene: Any, world_frame: str = 'world'):
+        self.world_frame = world_frame
+        self.body_names = [b.name for b in scene.bodies]
+        self.links = urdf_link_frames(scene)
+        self._static = [{'parent_frame_id': body, 'child_frame_id': link,
+                         'translation': _vec(t), 'rotation': _pose(t, R)['orientation']}
+                        for body, link, t, R in self.links]
+        B = len(self.body_names)
+        self._k = np.arange(B, dtype=np.intp)
+        self._t = np.zeros((B, 3))
+        self._Rv = np.repeat(np.eye(3)[None], B, axis=0)
+        self._none_i = np.zeros(0, dtype=np.intp)
+        self._none_p = np.zeros((0, 3))
+        self._poses = np.empty((B, 7))
+        self._points = np.empty((0, 3))
+
+    def body_poses(self, pose) -> Optional[np.ndarray]:
+        """(B, 7) = (x, y, z, qx, qy, qz, qw) of each body frame: p and the rotation nearest
+        A; `pose` is ``World.body_pose`` or the (B, 12) states [p, A]. None if not finite."""
+        from abd_joint_sim.smallmat import frame_poses
+        if isinstance(pose, np.ndarray):
+            P = np.ascontiguousarray(pose[:, :3], dtype=float)
+            A = np.ascontiguousarray(pose[:, 3:12], dtype=float).reshape(-1, 3, 3)
+        else:
+            pa = [pose(n) for n in self.body_names]
+            P = np.array([p for p, _ in pa], dtype=float)
+            A = np.array([a for _, a in pa], dtype=float)
+        if not frame_poses(P, A, self._k, self._t, self._Rv, self._none_i, self._none_p,
+                           self._poses, self._points):
+            return None
+        return self._poses
+
+    def transforms(self, t_ns: int, poses: np.ndarray) -> dict:
+        ts = stamp(t_ns)
+        out = [{'timestamp': ts, 'parent_frame_id': self.world_frame, 'child_frame_id': name,
+                'translation': {'x': x, 'y': y, 'z': z},
+                'rotation': {'x': qx, 'y': qy, 'z': qz, 'w': qw}}
+               for name, (x, y, z, qx, qy, qz, qw) in zip(self.body_names, poses.tolist())]
+        out.extend(dict(s, timestamp=ts) for s in self._static)
+        return {'transforms': out}

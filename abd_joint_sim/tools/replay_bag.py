@@ -1,0 +1,120 @@
+"""replay_bag: watch a recorded bag live, at real time, in the browser or Foxglove.
+
+    replay_bag BAG --live PORT [--speed 1] [--live-host 127.0.0.1]
+    ros2 run abd_joint_sim replay_bag BAG --live 8765
+
+The run is simulated again from the bag (its scene, parameters and commands, as
+``run_headless --from-bag`` does: the same results, docs/replay.md) and served by the live
+server (docs/live.md) at real time x `--speed`: the page on PORT+1, Foxglove on
+ws://127.0.0.1:PORT with its playback bar (play, pause, speed, seek). At the end the last
+state stays served until Ctrl-C; a seek or Reset plays it again. Nothing is recorded.
+Input errors (unreadable bag, port in use or out of range): one line on stderr, exit 2.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from typing import Optional, Sequence
+
+PROG = 'replay_bag'
+STORED = ('time_step', 'publish_rate', 'command_timeout', 'effort_limits', 'joints', 'frame_id')
+"""The bag's parameters the replay takes (as run_headless --from-bag)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description=(
+        'Replay a recorded abd_joint_sim bag at real time into the live view (a page in the '
+        'browser, or Foxglove with its playback bar). docs/live.md.'))
+    p.add_argument('bag', metavar='BAG', help='bag directory (or .mcap file) to replay')
+    p.add_argument('--live', type=int, required=True, metavar='PORT',
+                   help='Foxglove WebSocket port (the page is on PORT+1)')
+    p.add_argument('--live-host', default='127.0.0.1', metavar='ADDR',
+                   help='address to bind (default 127.0.0.1)')
+    p.add_argument('--speed', type=float, default=1.0, metavar='X',
+                   help='simulated seconds per wall second (default 1)')
+    return p
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if '--ros-args' in argv:
+        argv = argv[:argv.index('--ros-args')]
+    args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    except _InputError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+
+
+class _InputError(Exception):
+    pass
+
+
+def _run(args) -> int:
+    from abd_joint_sim.errors import SceneError, SimulationError
+    from abd_joint_sim.live import check_port, LiveError, LiveServer
+    from abd_joint_sim.live.headless import RealTimePacer, Restart
+    from abd_joint_sim.ros.loop import LoopOutput
+
+    from .bagrun import BagInputError, config_for, load_bag, scene_from_text
+    from .sim import HeadlessSim
+
+    try:
+        check_port(args.live, '--live')
+    except ValueError as exc:
+        raise _InputError(str(exc)) from None
+    if not (math.isfinite(args.speed) and 0.0 < args.speed <= 1e3):
+        raise _InputError(f'--speed {args.speed}: must be a number in (0, 1000]')
+    try:
+        run = load_bag(args.bag)
+        scene = scene_from_text(run.scene_text, f'{args.bag}: scene.yaml')
+        config = config_for({k: v for k, v in run.parameters.items() if k in STORED},
+                            scene_path=run.scene_path)
+        sim = HeadlessSim(scene, config, clamp=False)
+    except (BagInputError, SceneError, ValueError) as exc:
+        raise _InputError(str(exc)) from None
+    plan = run.plan
+    end_ns = max(seg.end_ns for seg in plan.segments)
+    pacer = RealTimePacer(sim.loop, speed=args.speed, end_ns=end_ns)
+    try:
+        live = LiveServer(scene, sim.loop.joint_names, args.live, args.live_host,
+                          world_frame=config.marker_frame_id, services=pacer.services(),
+                          name=PROG, source=f'{PROG} {args.bag}', playback=pacer,
+                          playback_end_ns=end_ns,
+                          log=lambda level, text: print(f'{PROG}: {level}: {text}',
+                                                        file=sys.stderr)).start()
+    except LiveError as exc:
+        raise _InputError(str(exc)) from None
+    pacer.live = live
+    print(f'{PROG}: {args.bag}: {end_ns / 1e9:g} s of simulated time; {live.describe()}; '
+          'Ctrl-C ends', file=sys.stderr, flush=True)
+    status = 0
+    try:
+        while True:
+            try:
+                sim.run(plan, LoopOutput(), pace=pacer)
+                pacer.wait_at_end()
+            except Restart:
+                pass
+            sim = HeadlessSim(scene, config, clamp=False)
+            pacer.replace_loop(sim.loop)
+    except KeyboardInterrupt:
+        pass
+    except (SimulationError, ArithmeticError) as exc:
+        print(f'{PROG}: error: step at t={sim.world.time:.6f} s failed: {exc}', file=sys.stderr)
+        status = 1
+    finally:
+        live.close()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())

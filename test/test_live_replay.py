@@ -1,0 +1,78 @@
+"""replay_bag BAG --live PORT: a recorded run simulated again at real time into the live view,
+pausable, resettable (a seek to 0), with Foxglove's playback control advertised."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from conftest import REPO, ros_env
+from live_client import free_port_pair, LiveClient
+
+import foxglove  # noqa: E402,F401 - requirements-live.txt (in requirements-test.txt): no skip
+
+SCHEDULE = REPO / 'test' / 'data' / 'default_schedule.yaml'
+
+
+def _tool(tmp_path, module, *args):
+    return subprocess.Popen([sys.executable, '-m', f'abd_joint_sim.tools.{module}', *args],
+                            env=ros_env(0, tmp_path), cwd=str(REPO), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
+
+
+def test_replay_bag_live(tmp_path):
+    from abd_joint_sim.tools.bagrun import load_bag
+    bag = tmp_path / 'run'
+    rec = _tool(tmp_path, 'run_headless', '--schedule', str(SCHEDULE), '--out', str(bag),
+                '--duration', '2')
+    assert rec.wait(120) == 0, rec.stderr.read()
+    recorded = load_bag(str(bag)).states[0]
+    port = free_port_pair()
+    proc = _tool(tmp_path, 'replay_bag', str(bag), '--live', str(port))
+    try:
+        client = LiveClient(port, timeout=60)
+        assert 'playbackControl' in client.server_info['capabilities']
+        client.subscribe()
+        msgs = client.messages_for(1.5)
+        status = [m for topic, _, m in msgs if topic == '/status']
+        assert status and status[-1]['source'].startswith('replay_bag')
+        # the replayed joint states are the recorded ones, where the stamps meet
+        matched = 0
+        for topic, t_ns, m in msgs:
+            if topic == '/joint_states' and t_ns in recorded:
+                assert m['position'] == recorded[t_ns][0].position
+                matched += 1
+        assert matched >= 1, 'no replayed state at a recorded stamp'
+        assert client.call('pause')['success']
+        client.messages_for(0.3)
+        assert client.messages_for(0.8) == []
+        answer = client.call('reset')
+        assert answer['success'], answer
+        assert client.call('unpause')['success']
+        after = [m for topic, _, m in client.messages_for(0.6) if topic == '/status']
+        assert after and after[0]['sim_time'] < 0.5, after[:1]
+        client.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err
+
+
+@pytest.mark.parametrize('args, text', [
+    (['no_such_bag', '--live', '8765'], 'no_such_bag'),
+    (['BAG', '--live', '70000'], '--live'),
+    (['BAG', '--live', '8765', '--speed', '0'], '--speed'),
+])
+def test_replay_bag_bad_input(tmp_path, args, text):
+    bag = tmp_path / 'run'
+    rec = _tool(tmp_path, 'run_headless', '--schedule', str(SCHEDULE), '--out', str(bag),
+                '--duration', '0.1')
+    assert rec.wait(120) == 0
+    args = [str(bag) if a == 'BAG' else a for a in args]
+    proc = _tool(tmp_path, 'replay_bag', *args)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2
+    assert len(err.strip().splitlines()) == 1 and text in err and 'Traceback' not in err, err
