@@ -85,8 +85,10 @@ def _iter_file_order(path: str | os.PathLike[str], topics: Optional[list[str]] =
     from abd_joint_sim.record.read import mcap_file
     from abd_joint_sim.record.msgdef import message_class
     from abd_joint_sim.record import BagError
+    from abd_joint_sim.record.integrity import check
     try:
         file = mcap_file(path)
+        check(file, path)       # framing and every CRC: damage is named as damage
     except BagError as exc:
         raise BagInputError(str(exc)) from None
     try:
