@@ -785,6 +785,16 @@ class _NodeOutput(LoopOutput):
         if self.node.recorder is not None:
             record_applied(self.node._record, self.node._abs, applied)
 
+    def restarted(self) -> None:
+        node = self.node
+        if node.recorder is not None:
+            node._write_held_clock()
+            if node.recorder is not None:
+                try:
+                    node.recorder.restart_time()    # log times keep increasing
+                except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
+                    node._recording_failed(f'restarting the log time failed: {exc}')
+
     def parameters(self, t_ns: int, changes) -> None:
         node = self.node
         if node.recorder is not None:
