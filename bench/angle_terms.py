@@ -15,8 +15,9 @@ Scenes (dt 1 ms, gravity, pybullet_data's kuka_iiwa/model.urdf via Scene.from_ur
 Answers: the joint angles after the 3000 steps, this tree against the other checkout, and
 beside it the other checkout against itself started from a state moved by one rounding step
 (the arm under these torques is chaotic: any rounding difference grows ~10× per 300 steps).
-Set ABD_KERNEL_CACHE per checkout (e.g. `ABD_KERNEL_CACHE=/tmp/kc`, the child adds `-old`
-/ `-new`) so the two trees do not recompile each other's kernels.
+Set ABD_KERNEL_CACHE per checkout to a directory of your own (e.g.
+`ABD_KERNEL_CACHE=~/.cache/abd-kc`, the child adds `-old` / `-new`) so the two trees do not
+recompile each other's kernels; a cache directory others can write is refused (cache.py).
 """
 from __future__ import annotations
 
