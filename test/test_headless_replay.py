@@ -480,6 +480,11 @@ def test_live_node_bag_replays(tmp_path):
     back = [k for k in range(1, len(clocks)) if clocks[k][1] <= clocks[k - 1][1]]
     assert len(back) == 1 and clocks[back[0]][1] == 0, 'one reset: the stamps restart at 0'
     assert clocks[back[0]][0] == clocks[back[0] - 1][0], 'logged where the segment ended'
+    # Every step's /clock is in the bag: the stamps advance by exactly dt within a segment.
+    dt_ns = round(float(yaml.safe_load((bag / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['custom_data']['abd_joint_sim.time_step']) * 1e9)
+    steps = [clocks[k][1] - clocks[k - 1][1] for k in range(1, len(clocks)) if k != back[0]]
+    assert set(steps) == {dt_ns}, sorted(set(steps))
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['duration']['nanoseconds'] == max(logs) - min(logs) == \
         clocks[back[0] - 1][1] + clocks[-1][1]

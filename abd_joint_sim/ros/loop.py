@@ -379,6 +379,7 @@ class SimLoop:
                      effort: Optional[list] = None) -> None:
         out = self.output
         due = self.publish_schedule.due(t_ns, self.config.publish_rate, force)
+        self.state_due = due        # (replay_check: a due state missing from a bag is a gap)
         if not (due or out.every_state):
             return
         w = self.world
