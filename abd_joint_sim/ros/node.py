@@ -35,6 +35,7 @@ from rclpy.clock import Clock as RclpyClock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -211,7 +212,18 @@ class SimNode(Node):
         """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
         spec = TOPICS_BY_NAME[name]
         topic = name.format(joint=joint) if joint is not None else name
-        return self.create_subscription(msg_type, topic, callback, _qos(spec))
+        if joint is None:
+            return self.create_subscription(msg_type, topic, callback, _qos(spec))
+        from rclpy.exceptions import InvalidTopicNameException
+        try:
+            return self.create_subscription(msg_type, topic, callback, _qos(spec))
+        except InvalidTopicNameException:
+            shown = joint if len(joint) <= 80 else f'{joint[:80]}... ({len(joint)} characters)'
+            raise ValueError(
+                f'joint {shown!r} cannot name its command topic {name!r}: a ROS topic name '
+                "has only letters, digits and '_' between its slashes, no part starting with "
+                'a digit, at most 255 characters in all; rename the joint, or leave it out of '
+                '`actuated`') from None
 
     def _load_scene(self, Scene):
         """robot_description (URDF text) if set, else the scene file (.urdf or YAML); URDF
@@ -287,6 +299,10 @@ class SimNode(Node):
 
     def _vet_parameters(self, params) -> SetParametersResult:
         for p in params:
+            if p.type_ == Parameter.Type.NOT_SET and p.name in PARAMS_BY_NAME:
+                return SetParametersResult(successful=False, reason=(
+                    f'parameter {p.name!r} cannot be deleted: the node always needs its value '
+                    '(set another value instead)'))
             reason = check_live_value(p.name, p.value, len(self.commands.order))
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
