@@ -181,3 +181,45 @@ def test_deleting_a_parameter_is_refused(context):
         assert node.get_parameter('effort_limits').value == before
     finally:
         node.destroy_node()
+
+
+def test_a_flood_of_unknown_joint_names_is_one_short_line_and_no_stall():
+    """One JointState with 10,000 unknown names, then 200 messages of fresh names: a handful
+    of warning lines (one kind of refusal), each short, and the node keeps stepping."""
+    from sensor_msgs.msg import JointState
+    from test_robustness import InProcess
+    run = InProcess(scene='hinge', real_time_factor=1.0, publish_rate=50.0)
+    try:
+        pub = run.probe.create_publisher(JointState, '/joint_commands', 10)
+        run.spin_until(lambda: pub.get_subscription_count() > 0, 10.0, 'the subscription')
+        run.spin_until(lambda: len(run.states) > 3, 10.0, 'joint states')
+        seen: list = []
+        run.probe.create_subscription(JointState, '/joint_states',
+                                      lambda m: seen.append(time.monotonic()), 100)
+        run.spin_for(0.3)
+        names = [f'nope_{k}' for k in range(10_000)]
+        pub.publish(JointState(name=names, effort=[1.0] * len(names)))
+        for k in range(200):
+            pub.publish(JointState(name=[f'fresh_{k}_{i}' for i in range(50)],
+                                   effort=[1.0] * 50))
+            run.executor.spin_once(timeout_sec=0.0)
+        run.spin_for(1.0)
+        warned = [t for lv, t in run.log.lines if lv.startswith('warn') and 'rejected' in t]
+        print('\n'.join(warned))
+        assert 1 <= len(warned) <= 2, warned
+        assert all(len(t) < 700 for t in warned)
+        assert "10000 entries rejected, joints 'nope_0', 'nope_1'" in warned[0]
+        assert 'and 9995 more' in warned[0] and 'not an actuated joint' in warned[0]
+        gaps = [b - a for a, b in zip(seen, seen[1:])]
+        assert len(seen) > 10 and max(gaps) < 1.0, max(gaps)    # the stepping never stalled
+    finally:
+        run.close()
+
+
+def test_duplicate_names_in_one_joint_command_are_refused():
+    from abd_joint_sim.ros.commands import CommandBuffer
+    buf = CommandBuffer(['a', 'b'], ['a', 'b'], [], 0.0)
+    rejections, _ = buf.command_joint_state(['a', 'b', 'a'], [], [], [1.0, 2.0, 3.0])
+    assert len(rejections) == 1 and "['a']" in str(rejections[0])
+    assert 'given more than once; whole joint_commands message ignored' in str(rejections[0])
+    assert not buf.has_pending

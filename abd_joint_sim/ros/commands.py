@@ -254,6 +254,12 @@ class CommandBuffer:
             if bad:
                 return [Rejection(bad[0][0], bad[0][1], f'{field_name} must be finite; '
                                   'whole joint_commands message ignored')], []
+        if len(set(names)) != len(names):
+            seen: set = set()
+            twice = [n for n in names if n in seen or seen.add(n)]
+            return [Rejection(None, sorted(set(twice))[:5], 'joint name(s) given more than '
+                              'once; whole joint_commands message ignored (which value would '
+                              'apply is not said by a JointState)', 'joint_commands')], []
         if velocity:
             rejections.append(Rejection(None, velocity, 'velocity commands are not supported '
                                         '(use position with driving, or effort); ignored',
