@@ -245,7 +245,9 @@ def check(file: str | os.PathLike[str], bag: str | os.PathLike[str] | None = Non
         _checked[key] = result
     if result.ok:
         return
-    bag = bag if bag is not None else (path.parent if path.parent != Path('') else path)
+    bag = Path(bag) if bag is not None else path
+    if bag.is_file():           # bag_recover takes the bag's directory
+        bag = bag.parent
     first = result.damage[0]
     more = len(result.damage) - 1
     also = f' (and {more} more damaged record{"s" if more != 1 else ""})' if more else ''
