@@ -223,3 +223,11 @@ def test_duplicate_names_in_one_joint_command_are_refused():
     assert len(rejections) == 1 and "['a']" in str(rejections[0])
     assert 'given more than once; whole joint_commands message ignored' in str(rejections[0])
     assert not buf.has_pending
+
+
+def test_a_long_rejected_array_is_shown_by_its_head():
+    from abd_joint_sim.ros.commands import CommandBuffer
+    buf = CommandBuffer(['a', 'b'], ['a', 'b'], [], 0.0)
+    rejections, _ = buf.command_array([1.0] * 100_000)
+    text = str(rejections[0])
+    assert len(text) < 300 and '(100000 values)' in text, text

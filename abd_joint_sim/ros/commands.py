@@ -52,7 +52,12 @@ class Rejection:
     def __str__(self) -> str:
         who = (f'joint {self.joint!r}' if self.joint is not None
                else f'{self.topic} command' if self.topic else 'array command')
-        return f'{who}: {self.value!r} rejected: {self.reason}'
+        value = self.value
+        if isinstance(value, (list, tuple)) and len(value) > 8:    # a long array: its head
+            shown = f'{repr(list(value[:8]))[:-1]}, ... ({len(value)} values)]'
+        else:
+            shown = repr(value)
+        return f'{who}: {shown} rejected: {self.reason}'
 
 
 @dataclass(frozen=True)
