@@ -109,8 +109,8 @@ def test_replay_check_and_plot_bag_find_the_resets(reset_bag):
 
 
 def test_without_reset_log_time_is_the_stamp(tmp_path):
-    """A run without reset is logged at its stamps, as before resets were handled at all:
-    the golden bags keep their bytes (test_headless_replay.py replays them exactly)."""
+    """A run without reset is logged at its stamps (log time = stamp): the golden bags,
+    which have no reset, keep their bytes (test_headless_replay.py replays them exactly)."""
     bag = tmp_path / 'one'
     record(bag, (200,))
     for topic, log, msg in file_order(bag):
