@@ -13,6 +13,14 @@ index naming a type this version lacks was an ImportError out of the first kerne
 (switching checkouts or versions), and two versions used alternately recompiled over each
 other. Only the KEEP most recently used directories are kept. A directory that cannot be
 written leaves numba's own locators in charge.
+
+A cache entry is a pickle, and unpickling runs code: only what this user compiled is
+loaded. Each directory of the cache path (root, version, sources) is created mode 0700 and
+must be owned by the current user and not writable by group or others; a file (index or
+data) the same. A directory that fails the test is refused with one line on stderr, and the
+kernels are compiled into a private temporary cache (removed at exit); a file that fails it
+is not loaded (one line) and is compiled over. A damaged entry (truncated, unreadable) is
+discarded with one line naming it and compiled again.
 """
 from __future__ import annotations
 
@@ -20,6 +28,7 @@ import functools
 import hashlib
 import os
 import platform
+import stat
 import sys
 from pathlib import Path
 
@@ -53,7 +62,54 @@ def directory() -> Path:
         base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
         root = os.path.join(base, 'abd_joint_sim')
     tag = f'numba{numba.__version__}-py{sys.version_info[0]}{sys.version_info[1]}-{platform.machine()}'
-    return Path(root) / tag / sources_hash()
+    levels = [Path(root), Path(root) / tag, Path(root) / tag / sources_hash()]
+    for level in levels:
+        why = _untrusted(level, create=True)
+        if why is None:
+            return levels[-1]          # cannot be created: numba's own locators take over
+        if why:
+            return _private_fallback(level, why, tag)
+    return levels[-1]
+
+
+def _untrusted(path: Path, create: bool = False) -> str | None:
+    """'' if `path` (a directory, or a file with `create` False) may be trusted: owned by
+    the current user, not writable by group or others; else why not; None if a missing
+    directory could not be created. `create`: make a missing directory, mode 0700."""
+    if create:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)     # (~/.cache: the user's)
+            path.mkdir(mode=0o700)
+        except FileExistsError:
+            pass
+        except OSError:
+            return None
+    try:
+        st = path.stat()
+    except OSError as exc:
+        return None if create else f'cannot be checked ({exc.strerror or exc})'
+    if create and not stat.S_ISDIR(st.st_mode):
+        return 'not a directory'
+    if st.st_uid != os.geteuid():
+        return f'owned by uid {st.st_uid}, not by the current user (uid {os.geteuid()})'
+    if st.st_mode & 0o022:
+        return f'writable by group or others (mode {stat.S_IMODE(st.st_mode):04o})'
+    return ''
+
+
+def _private_fallback(refused: Path, why: str, tag: str) -> Path:
+    """A fresh private cache (mkdtemp: mode 0700, this user's), removed at exit."""
+    import atexit
+    import shutil
+    import tempfile
+    private = Path(tempfile.mkdtemp(prefix='abd_joint_sim-kernels-'))
+    atexit.register(shutil.rmtree, private, True)
+    (private / tag).mkdir(mode=0o700)
+    here = private / tag / sources_hash()
+    here.mkdir(mode=0o700)
+    print(f'abd_joint_sim: refusing the kernel cache {refused}: {why}; compiling the physics '
+          f'kernels into the private cache {private} instead', file=sys.stderr, flush=True)
+    return here
 
 
 #: kernel directories (source versions) kept per user, numba and Python version
@@ -156,21 +212,71 @@ def install() -> None:
 
     caching.Cache.save_overload = save_overload
 
-    # An index that cannot be read (truncated by a full disk or a killed process, written by
-    # another numba) is a stale cache, compiled over, not an exception out of the first call.
+    # Only this user's files are unpickled (unpickling runs code), and an index or data file
+    # that cannot be read (truncated by a full disk or a killed process, written by another
+    # numba) is a stale entry, discarded and compiled over, not an exception out of the
+    # first call. One line names the file.
     load_index = caching.IndexDataCacheFile._load_index
+    load_data = caching.IndexDataCacheFile._load_data
+
+    def _ours(path: str) -> bool:
+        return path.startswith(str(directory()) + os.sep)
+
+    def _trusted(path: str) -> bool:
+        if not _ours(path) or not os.path.exists(path):
+            return True
+        why = _untrusted(Path(path))
+        if why:
+            _say(f'not loading the compiled kernel file {path}: {why}; compiling it again')
+        return not why
 
     def _load_index(self):
+        if not _trusted(self._index_path):
+            return {}
         try:
             return load_index(self)
-        except Exception:                           # noqa: BLE001 - any unreadable index
+        except Exception as exc:                    # noqa: BLE001 - any unreadable index
+            if _ours(self._index_path):
+                _discard(self._index_path, exc)
             return {}
 
+    def _load_data(self, name):
+        path = self._data_path(name)
+        if not _trusted(path):
+            return None
+        try:
+            return load_data(self, name)
+        except OSError:
+            raise                                   # (numba: removed meanwhile -> a miss)
+        except Exception as exc:                    # noqa: BLE001 - truncated, damaged
+            if not _ours(path):
+                raise
+            _discard(path, exc)
+            return None
+
     caching.IndexDataCacheFile._load_index = _load_index
+    caching.IndexDataCacheFile._load_data = _load_data
     _installed = True
 
 
 _save_failed: list = []
+_said: set = set()
+
+
+def _say(line: str) -> None:
+    if line not in _said:
+        _said.add(line)
+        print(f'abd_joint_sim: {line}', file=sys.stderr, flush=True)
+
+
+def _discard(path: str, exc: BaseException) -> None:
+    """Remove a damaged cache file (one line naming it); it is compiled again."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+    what = f'{type(exc).__name__}: {exc}'.strip().rstrip(':')
+    _say(f'discarding the damaged compiled kernel file {path} ({what}); compiling it again')
 
 
 install()

@@ -24,6 +24,7 @@ import math
 import os
 from pathlib import Path
 import re
+import stat
 from typing import Any
 import warnings
 import xml.etree.ElementTree as ET
@@ -55,6 +56,22 @@ OVERRIDE_KEYS = {'external_torque': ('torque', 'enabled', 'effort_limit'),
                  'driving': ('strength_ratio', 'aim_angle', 'passive', 'enabled'),
                  'limit': ('lower', 'upper', 'strength')}
 MOVABLE = ('revolute', 'continuous')
+MAX_URDF_BYTES = 8 << 20
+"""Largest URDF read [bytes], as for scene YAML (scene.MAX_YAML_BYTES): the largest robot
+of pybullet_data is 0.2 MB, a generated 2000-link arm ~1 MB."""
+MAX_URDF_ELEMENTS = 200_000
+"""Most XML elements in a URDF (links, joints, visuals, their children)."""
+MAX_ECHO = 120
+"""Characters of a value from the file quoted in an error (the rest is counted)."""
+MAX_INERTIA = RANGES['mass'][1] * RANGES['length'][1] ** 2
+"""Largest moment of inertia read [kg m^2]: the largest mass at the largest length."""
+
+
+def _clip(value: str) -> str:
+    """`value` for an error line: at most MAX_ECHO characters, the rest counted."""
+    value = str(value)
+    return value if len(value) <= MAX_ECHO else \
+        f'{value[:MAX_ECHO]}... ({len(value) - MAX_ECHO} more characters)'
 
 
 class UrdfWarning(UserWarning):
@@ -138,9 +155,9 @@ class _Reader:
         try:
             vals = [float(v) for v in raw.split()]
         except ValueError:
-            self.fail(f'{where}: {attr}={raw!r} is not {n} number(s)')
+            self.fail(f'{where}: {attr}={_clip(raw)!r} is not {n} number(s)')
         if len(vals) != n or not all(map(math.isfinite, vals)):
-            self.fail(f'{where}: {attr}={raw!r} must be {n} finite number(s)')
+            self.fail(f'{where}: {attr}={_clip(raw)!r} must be {n} finite number(s)')
         return np.array(vals)
 
     def number(self, elem, attr, where, default=None):
@@ -175,7 +192,10 @@ class _Reader:
             what = str(exc).split(':')[0]
             self.fail(f'line {line}, column {col + 1}: not well-formed XML ({what})')
         if root.tag != 'robot':
-            self.fail(f'root element is <{root.tag}>, expected <robot>')
+            self.fail(f'root element is <{_clip(root.tag)}>, expected <robot>')
+        count = sum(1 for _ in root.iter())
+        if count > MAX_URDF_ELEMENTS:
+            self.fail(f'{count} XML elements, more than the {MAX_URDF_ELEMENTS} a URDF may have')
         # (comments are not in the tree: a `${...}` in a comment is fine)
         for el in root.iter():
             if el.tag.startswith('{') and 'xacro' in el.tag:
@@ -227,11 +247,18 @@ class _Reader:
             link.mass = self.number(mass_el, 'value', f'{where} <mass>') if mass_el is not None else 0.0
             if link.mass < 0.0:
                 self.fail(f'{where}: negative mass {link.mass}')
+            if link.mass > RANGES['mass'][1]:
+                self.fail(f'{where} <mass>: value="{link.mass:g}" is beyond the supported '
+                          f'{RANGES["mass"][1]:g} kg')
             T = self.origin(inertial, f'{where} <inertial>')
             link.com = T[:3, 3]
             i = inertial.find('inertia')
             v = {k: self.number(i, k, f'{where} <inertia>', 0.0)
                  for k in ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz')}
+            for k, x in v.items():
+                if abs(x) > MAX_INERTIA:
+                    self.fail(f'{where} <inertia>: {k}="{x:g}" is beyond the supported '
+                              f'{MAX_INERTIA:g} kg m^2')
             I = np.array([[v['ixx'], v['ixy'], v['ixz']], [v['ixy'], v['iyy'], v['iyz']],
                           [v['ixz'], v['iyz'], v['izz']]])
             link.inertia = T[:3, :3] @ I @ T[:3, :3].T    # inertial frame -> link frame
@@ -293,6 +320,9 @@ class _Reader:
         lim = el.find('limit')
         if lim is not None:
             j.effort = self.number(lim, 'effort', f'{where} <limit>', 0.0)
+            if j.effort < 0.0:
+                self.fail(f'{where} <limit>: effort="{j.effort:g}" is negative; effort is the '
+                          'largest torque magnitude, >= 0 N m (0 or absent: no effort limit)')
             if jtype == 'revolute':
                 j.lower = self.number(lim, 'lower', f'{where} <limit>', 0.0)
                 j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
@@ -392,6 +422,8 @@ class _Options:
         self.strength_ratio = opts.get('strength_ratio')
         self.initial = self.mapping('initial_positions', opts.get('initial_positions') or {})
         for name, value in self.initial.items():
+            if not isinstance(name, str):
+                self.fail('initial_positions', f'keys must be joint names, got {_clip(repr(name))}')
             self.known(f'initial_positions', name, joints)
             if not _finite_number(value):
                 self.fail(f'initial_positions.{name}', f'must be a finite number (rad), got {value!r}')
@@ -400,7 +432,7 @@ class _Options:
         self.actuated = None if actuated is None else self.names('actuated', actuated, joints)
         self.overrides = self.mapping('joints', opts.get('joints') or {})
         for name, over in self.overrides.items():
-            self.known('joints', name, joints)
+            self.known('joints', name, joints)       # (a str: a list key is no dict key)
             if not isinstance(over, dict):
                 self.fail(f'joints.{name}', f'must be a mapping of {", ".join(JOINT_OVERRIDES)}')
             bad = [k for k in over if k not in JOINT_OVERRIDES]
@@ -417,6 +449,14 @@ class _Options:
                 elif key in over and sub is not None and sub is not False:
                     self.fail(f'joints.{name}.{key}', f'must be a mapping (or false to '
                                                       f'remove it), got {sub!r}')
+            for key, sub in over.items():
+                if isinstance(sub, dict):
+                    for k, x in sub.items():
+                        if k in ('enabled', 'passive'):
+                            continue
+                        if not _finite_number(x):
+                            self.fail(f'joints.{name}.{key}.{k}', f'must be a finite number, '
+                                                                  f'got {_clip(repr(x))}')
             if 'strength_ratio' in over:
                 self.positive(f'joints.{name}.strength_ratio', over['strength_ratio'])
             if over.get('damping') not in (None, False):
@@ -450,13 +490,17 @@ class _Options:
         return value
 
     def known(self, field, name, joints):
-        if name not in joints:
-            self.fail(field, f'unknown joint {name!r}; joints: {", ".join(joints) or "none"}')
+        if not isinstance(name, str) or name not in joints:
+            self.fail(field, f'unknown joint {_clip(repr(name))}; joints: '
+                             f'{_clip(", ".join(joints)) or "none"}')
 
     def names(self, field, value, joints):
         if isinstance(value, str) or not isinstance(value, (list, tuple)):
-            self.fail(field, f'must be a list of joint names, got {value!r}')
-        for name in value:
+            self.fail(field, f'must be a list of joint names, got {_clip(repr(value))}')
+        for k, name in enumerate(value):
+            if not isinstance(name, str):
+                self.fail(f'{field}[{k}]', f'must be a joint name (a string), got '
+                                           f'{_clip(repr(name))}')
             self.known(field, name, joints)
         return list(value)
 
@@ -481,6 +525,24 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     children: dict[str, list[_Joint]] = {n: [] for n in links}
     for j in joints.values():
         children[j.parent].append(j)
+    reached, stack = {roots[0]}, [roots[0]]
+    while stack:
+        for j in children[stack.pop()]:
+            if j.child not in reached:
+                reached.add(j.child)
+                stack.append(j.child)
+    if len(reached) != len(links):      # a loop beside the tree: name it
+        start = next(n for n in links if n not in reached)
+        path = [start]
+        while child_of[path[-1]].parent not in path:
+            path.append(child_of[path[-1]].parent)
+        loop = path[path.index(child_of[path[-1]].parent):]
+        loop.reverse()
+        names = [child_of[n].name for n in loop]
+        chain = ' -> '.join(_clip(n) for n in loop + [loop[0]])
+        raise SceneError(f'{source}: the joints {", ".join(map(repr, names))} form a loop '
+                         f'({chain}) not connected to the root link {roots[0]!r}; a URDF is '
+                         'a tree')
 
     # Which joints stay joints.
     for name in opt.lock:
@@ -533,6 +595,21 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             notes.append(msg)
             warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
             j.lower = j.upper = None
+
+    # <limit lower upper> that gives no range: lower > upper (PyBullet's way of writing
+    # "no limit") and lower == upper (a YAML scene's zero-width limit holds its joint; a file
+    # with 0 and 0 rarely means that) are both taken as no limit, said once per file.
+    odd = [j for j in joints.values() if j.type == 'revolute' and moving(j)
+           and j.lower is not None and j.upper <= j.lower]
+    if odd:
+        shown = ', '.join(f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in odd[:8]) + (
+            f' and {len(odd) - 8} more' if len(odd) > 8 else '')
+        msg = (f'{source}: <limit> with lower >= upper taken as no limit (a continuous joint) '
+               f'on {len(odd)} joint(s): {shown}; `joints: {{name: {{limit: {{lower: a, '
+               'upper: b}}}` sets one (a == b holds the joint at a, as in a YAML scene), '
+               '`lock: [name]` holds it rigid')
+        notes.append(msg)
+        warnings.warn(msg, UrdfWarning, stacklevel=4)
 
     # Coulomb friction (a torque of fixed size against the motion, set-valued at rest) is no
     # term of this simulator: said once per file rather than dropped silently.
@@ -751,19 +828,60 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     return data, notes
 
 
+def _decode(raw: bytes, name: str) -> str:
+    """URDF bytes as text: the encoding its XML declaration names (UTF-8 by default)."""
+    encoding = 'utf-8'
+    head = re.match(rb'\s*<\?xml[^>]*?encoding\s*=\s*["\']([A-Za-z0-9._-]+)["\']',
+                    raw.lstrip(b'\xef\xbb\xbf')[:200])
+    if head:
+        encoding = head.group(1).decode('ascii')
+    try:
+        text = raw.decode(encoding)
+    except LookupError:
+        raise SceneError(f'{name}: the XML declaration names the unknown encoding '
+                         f'{_clip(encoding)!r}') from None
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b'\n') + 1
+        raise SceneError(f'{name}: not {encoding} text (byte 0x{raw[exc.start]:02x} at '
+                         f'offset {exc.start}, line {line})') from None
+    return text.lstrip('\ufeff')
+
+
 def read_urdf_source(source) -> tuple[str, str]:
-    """(text, name for messages) of a path or of URDF XML text."""
+    """(text, name for messages) of a path or of URDF XML text (str or bytes): at most
+    MAX_URDF_BYTES, a regular file, text in the encoding the XML declaration names (UTF-8
+    by default). XML text is what starts with '<' (after white space and a byte-order
+    mark); anything else is a path, even one with a '<' in it."""
+    name = '<robot_description>'
     if isinstance(source, (bytes, bytearray)):
-        source = source.decode('utf-8', errors='replace')
-    if isinstance(source, str) and '<' in source:       # XML text (no path has a '<')
-        return source.lstrip('\ufeff'), '<robot_description>'
+        if len(source) > MAX_URDF_BYTES:
+            raise SceneError(f'{name}: URDF larger than {MAX_URDF_BYTES} bytes; not read')
+        return _decode(bytes(source), name), name
+    if isinstance(source, str) and source.lstrip().lstrip('\ufeff').lstrip().startswith('<'):
+        if len(source) > MAX_URDF_BYTES:
+            raise SceneError(f'{name}: URDF larger than {MAX_URDF_BYTES} bytes; not read')
+        return source.lstrip('\ufeff'), name
     path = Path(os.path.expanduser(str(source)))
     try:
-        return path.read_text(), str(path)
+        if not stat.S_ISREG(os.stat(path).st_mode):     # before open: a FIFO would block
+            raise SceneError(f'{_clip(str(path))}: not a regular file; a URDF is read from '
+                             'a file')
+        with open(path, 'rb') as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise SceneError(f'{_clip(str(path))}: not a regular file; a URDF is read from '
+                                 'a file')
+            if st.st_size > MAX_URDF_BYTES:
+                raise SceneError(f'{_clip(str(path))}: URDF larger than {MAX_URDF_BYTES} '
+                                 f'bytes ({st.st_size}); not read')
+            raw = f.read(MAX_URDF_BYTES + 1)
     except OSError as exc:
-        raise SceneError(f'{path}: cannot read URDF: {exc.strerror or exc}') from None
-    except UnicodeDecodeError as exc:
-        raise SceneError(f'{path}: not a text file ({exc.reason})') from None
+        raise SceneError(f'{_clip(str(path))}: cannot read URDF: {exc.strerror or exc}') \
+            from None
+    if len(raw) > MAX_URDF_BYTES:
+        raise SceneError(f'{_clip(str(path))}: URDF larger than {MAX_URDF_BYTES} bytes; '
+                         'not read')
+    return _decode(raw, str(path)), str(path)
 
 
 def resolve_package_uri(uri: str, base_dir: str) -> str:
@@ -773,11 +891,17 @@ def resolve_package_uri(uri: str, base_dir: str) -> str:
         pkg, _, rel = uri[len('package://'):].partition('/')
         try:
             from ament_index_python.packages import get_package_share_directory
-            return os.path.join(get_package_share_directory(pkg), rel)
+            share = get_package_share_directory(pkg)
         except Exception:  # noqa: BLE001 - not found / no ament index
-            if pkg == 'abd_joint_sim':
-                return os.path.join(os.path.dirname(os.path.abspath(__file__)), rel)
-            raise SceneError(f'{uri}: package {pkg!r} not found in the ament index') from None
+            if pkg != 'abd_joint_sim':
+                raise SceneError(f'{_clip(uri)}: package {pkg!r} not found in the ament '
+                                 'index') from None
+            share = os.path.dirname(os.path.abspath(__file__))
+        full = os.path.normpath(os.path.join(share, rel))
+        if os.path.commonpath([os.path.normpath(share), full]) != os.path.normpath(share):
+            raise SceneError(f'{_clip(uri)}: leads outside the package {pkg!r} (a package:// '
+                             'path names a file inside the package)')
+        return full
     path = os.path.expanduser(uri)
     return path if os.path.isabs(path) else os.path.join(base_dir, path)
 

@@ -68,8 +68,11 @@ def _rewrite_bag(src: Path, dst: Path, edit) -> None:
 
 
 def _states(bag: Path) -> list:
+    """(header stamp = simulated time [ns], names, position, velocity, effort) of each
+    recorded joint state, in log-time order (= recording order, across resets too)."""
     from abd_joint_sim.record import read_messages
-    return [(t, list(m.name), list(m.position), list(m.velocity), list(m.effort))
+    return [(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, list(m.name),
+             list(m.position), list(m.velocity), list(m.effort))
             for topic, _, t, m in read_messages(bag) if topic == '/joint_states']
 
 
@@ -460,6 +463,31 @@ def test_live_node_bag_replays(tmp_path):
         elif topic == '/joint_torque_commands':
             recorded.append(('array', list(m.data)[0]))
     assert sorted(recorded, key=str) == sorted(sent, key=str), (recorded, sent)
+
+    # Across the reset log times run on (file order = log-time order) while the /clock
+    # stamps restart at 0; metadata.yaml's duration is the whole recording.
+    from mcap.reader import NonSeekingReader
+    from rclpy.serialization import deserialize_message
+    from rosgraph_msgs.msg import Clock
+    logs, clocks = [], []
+    with open(next(bag.glob('*.mcap')), 'rb') as f:
+        for _s, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+            logs.append(message.log_time)
+            if channel.topic == '/clock':
+                c = deserialize_message(message.data, Clock).clock
+                clocks.append((message.log_time, c.sec * 1_000_000_000 + c.nanosec))
+    assert logs == sorted(logs), 'log times decrease within the bag'
+    back = [k for k in range(1, len(clocks)) if clocks[k][1] <= clocks[k - 1][1]]
+    assert len(back) == 1 and clocks[back[0]][1] == 0, 'one reset: the stamps restart at 0'
+    assert clocks[back[0]][0] == clocks[back[0] - 1][0], 'logged where the segment ended'
+    # Every step's /clock is in the bag: the stamps advance by exactly dt within a segment.
+    dt_ns = round(float(yaml.safe_load((bag / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['custom_data']['abd_joint_sim.time_step']) * 1e9)
+    steps = [clocks[k][1] - clocks[k - 1][1] for k in range(1, len(clocks)) if k != back[0]]
+    assert set(steps) == {dt_ns}, sorted(set(steps))
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['duration']['nanoseconds'] == max(logs) - min(logs) == \
+        clocks[back[0] - 1][1] + clocks[-1][1]
 
     # Independent readers agree with metadata.yaml on every topic's count.
     from mcap_ros2.reader import read_ros2_messages

@@ -293,6 +293,7 @@ class BagWriter:
         self._fast: _FastMessages | None = None
         self._fd: int | None = None
         self._state = 'new'  # new -> open -> closed | failed -> closed
+        self._log_offset = 0  # added to every stamp: log times never decrease (restart_time)
         self.error: str | None = None
         """Why recording stopped, once a write has failed; ``None`` while healthy."""
 
@@ -415,8 +416,18 @@ class BagWriter:
         self._summary.topics.append(record)
         self._write_metadata_yaml()
 
+    def restart_time(self) -> None:
+        """The simulation's time restarts (sim_node's ``~/reset``): from now on a message's
+        log (= publish) time is its stamp plus the latest log time written so far, so log
+        times never decrease within the bag and run on as simulated time since the
+        recording began. Stamps inside the messages are the caller's (the simulation's own
+        time, restarting at 0). Without a restart, log time = stamp."""
+        self._require_open()
+        self._log_offset = self._summary.end_ns or 0
+
     def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
-        """Record ``msg`` on ``topic`` at simulation time ``stamp_ns`` (log = publish time).
+        """Record ``msg`` on ``topic`` at simulation time ``stamp_ns`` (log = publish time
+        = ``stamp_ns``, plus the time recorded before the last :meth:`restart_time`).
 
         Raises BagError (and stops the recording) if the bytes cannot be written.
         """
@@ -457,6 +468,8 @@ class BagWriter:
             for t, data in zip(stamps, datas):      # one by one: the same checks and errors
                 self.write_serialized(topic, t, data)
             return
+        if self._log_offset:
+            stamps = [t + self._log_offset for t in stamps]
         try:
             self._fast.add_many(entry.channel_id, stamps, datas)
         except OSError as exc:
@@ -479,6 +492,7 @@ class BagWriter:
             raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
                            'an int >= 0 (nanoseconds)')
         assert self._writer is not None
+        stamp_ns += self._log_offset
         try:
             if self._fast is not None:
                 self._fast.add(entry.channel_id, stamp_ns, data)

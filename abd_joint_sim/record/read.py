@@ -16,6 +16,7 @@ from rclpy.serialization import deserialize_message
 import yaml
 
 from .bag import BagError
+from .integrity import check
 from .msgdef import message_class, MessageTypeError
 
 
@@ -25,6 +26,8 @@ def mcap_file(path: str | os.PathLike[str]) -> Path:
     if path.is_file():
         return path
     if not path.is_dir():
+        if path.exists():
+            raise BagError(f"bag '{path}' is not a regular file or a directory")
         raise BagError(f"bag '{path}' does not exist")
     info = _metadata(path)
     names = (info or {}).get('relative_file_paths') or []
@@ -48,6 +51,7 @@ def _metadata(bag_dir: Path) -> dict[str, Any] | None:
 
 
 def _open_indexed(file: Path, handle: Any) -> Any:
+    check(file)     # framing and every CRC: damage is named, never read as data
     reader = make_reader(handle)
     try:
         summary = reader.get_summary()

@@ -1,95 +1,307 @@
-"""Recover a bag whose recorder died (SIGKILL, power cut, disk full) before ``close()``.
+"""Recover a damaged bag: a recorder that died (SIGKILL, power cut, disk full) before
+``close()``, a flipped bit in a chunk, a copy cut inside its summary.
 
-Such an MCAP file ends in the middle of a record and has no summary, so indexed readers
-(rosbag2, rosbags, ``mcap.reader.make_reader``) refuse it, and its metadata.yaml is the
-provisional one (counts 0). The python ``mcap`` package has no recovery function (the Go
-``mcap recover`` CLI does the same job), so ``recover()`` scans the file record by record,
-keeps every complete chunk whose CRC checks, and rewrites a complete MCAP plus a complete
-metadata.yaml. The damaged original is kept beside it as ``<name>_0.mcap.orig``.
+Such an MCAP file ends in the middle of a record or has a chunk whose CRC fails, so
+indexed readers (rosbag2, rosbags, ``mcap.reader.make_reader``) and our readers refuse it.
+The python ``mcap`` package has no recovery function (the Go ``mcap recover`` CLI does the
+MCAP half of this job), so ``recover()`` walks the file record by record
+(:mod:`.integrity`), keeps every intact chunk, skips each damaged one (counting the
+messages its message indexes list), and writes a complete MCAP plus a complete
+metadata.yaml. Nothing is overwritten without a copy: the damaged file is kept as
+``<name>_0.mcap.orig`` (``.orig.1``, ``.orig.2``, ... when that exists), a metadata.yaml
+that changes as ``metadata.yaml.orig`` (numbered the same way).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+import io
 import os
 from pathlib import Path
-from typing import Any
+import struct
+from typing import Any, Optional
 
-from mcap.records import Attachment, Channel, Chunk, DataEnd, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk, StreamReader
 from mcap.writer import CompressionType, Writer
 import yaml
 
-from . import metadata as md
+from . import integrity, metadata as md
 from .bag import _FdSink, BagError, LIBRARY, PROFILE
 from .read import _metadata, mcap_file
 
 
 @dataclass(frozen=True)
+class DroppedChunk:
+    """A chunk left out of the recovered bag."""
+
+    index: int
+    """Its number in the file (0 = the first chunk)."""
+    offset: int
+    """Byte offset of its record in the damaged file."""
+    why: str
+    messages: Optional[int]
+    """Messages it held, from its message indexes (None: not known)."""
+
+
+@dataclass(frozen=True)
 class RecoveryReport:
-    """What ``recover()`` found and kept."""
+    """What ``recover()`` found, kept and dropped."""
 
     messages: int
     """Messages in the recovered bag."""
     chunks: int
-    """Complete chunks kept."""
+    """Intact chunks kept."""
     bytes_dropped: int
-    """Bytes after the last complete record (the partial record the writer was in)."""
+    """Bytes after the last readable record (a partial record, or damage that breaks the
+    record framing)."""
     was_complete: bool
-    """The MCAP was already complete; only metadata.yaml was rewritten."""
+    """The MCAP was intact and complete; only metadata.yaml was rewritten."""
     stopped_because: str
     """Why the scan stopped (``'end of data'`` for a complete file)."""
+    dropped_chunks: tuple[DroppedChunk, ...] = ()
+    """Damaged chunks skipped."""
+    dropped_records: tuple[str, ...] = ()
+    """Other damaged records skipped (an attachment whose CRC fails)."""
+    rebuilt_channels: tuple[str, ...] = ()
+    """Topics whose channel record was lost with a damaged chunk, rebuilt from metadata.yaml."""
+    backups: tuple[str, ...] = field(default=())
+    """Copies of the replaced files (the damaged MCAP, the previous metadata.yaml)."""
+
+    @property
+    def messages_dropped(self) -> int:
+        """Messages of the skipped chunks whose count is known."""
+        return sum(c.messages or 0 for c in self.dropped_chunks)
+
+    @property
+    def lost(self) -> bool:
+        """Something of the original did not make it into the recovered bag."""
+        return bool(self.dropped_chunks or self.dropped_records or self.bytes_dropped)
 
 
-class _Copier:
-    """Streams the records of a damaged file into a new MCAP, renumbering ids as it goes."""
+def _parse(raw: bytes) -> Any:
+    """The mcap record of one top-level record's bytes (opcode, length, content)."""
+    return next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
 
-    def __init__(self, writer: Writer, summary: md.BagSummary) -> None:
-        self.writer = writer
-        self.summary = summary
-        self.schema_ids: dict[int, int] = {}
-        self.schemas: dict[int, Schema] = {}
-        self.channel_ids: dict[int, int] = {}
-        self.topics: dict[int, md.TopicRecord] = {}
 
-    def add(self, record: Any) -> None:
-        if isinstance(record, Schema) and record.id not in self.schema_ids:
-            self.schemas[record.id] = record
-            self.schema_ids[record.id] = self.writer.register_schema(
-                name=record.name, encoding=record.encoding, data=record.data)
-        elif isinstance(record, Channel) and record.id not in self.channel_ids:
-            schema = self.schemas.get(record.schema_id)
-            if schema is None:
-                return  # a channel without its schema cannot be decoded; drop it
-            self.channel_ids[record.id] = self.writer.register_channel(
-                topic=record.topic, message_encoding=record.message_encoding,
-                schema_id=self.schema_ids[record.schema_id], metadata=dict(record.metadata))
-            topic = md.TopicRecord(
-                record.topic, schema.name,
-                md.load_qos_profiles(record.metadata.get('offered_qos_profiles', '')),
-                record.metadata.get('topic_type_hash', ''))
-            self.topics[record.id] = topic
-            self.summary.topics.append(topic)
-        elif isinstance(record, Message) and record.channel_id in self.channel_ids:
-            self.writer.add_message(channel_id=self.channel_ids[record.channel_id],
-                                    log_time=record.log_time, data=record.data,
-                                    publish_time=record.publish_time, sequence=record.sequence)
-            self.topics[record.channel_id].message_count += 1
-            self.summary.add_stamp(record.log_time)
+def _index_count(content) -> int:
+    """Messages listed by one MessageIndex record (channel id, then 16-byte entries)."""
+    (n,) = struct.unpack_from('<I', content, 2)
+    return n // 16
+
+
+@dataclass
+class _Found:
+    """Pass one: what the file holds, in file order, and what is damaged."""
+
+    records: list = field(default_factory=list)      # mcap records to copy, in order
+    schemas: dict = field(default_factory=dict)      # id -> Schema
+    channels: dict = field(default_factory=dict)     # id -> Channel
+    dropped: list = field(default_factory=list)      # [index, offset, why, messages]
+    dropped_records: list = field(default_factory=list)
+    data_end: bool = False                           # DataEnd reached: the data is whole
+    chunks: int = 0
+    good_end: int = 0
+    stopped: str = 'end of file'
+    record_custom: Optional[dict] = None
+    header: Optional[Header] = None
+
+
+def _collect(data: memoryview, size: int) -> _Found:
+    found = _Found()
+    pos = len(integrity.MAGIC)
+    if size < pos or bytes(data[:pos]) != integrity.MAGIC:
+        return found
+    found.good_end = pos
+    chunk_no = 0
+    pending: Optional[list] = None      # the dropped chunk whose message indexes follow
+    in_data = True
+    while pos < size:
+        if pos + 9 > size:
+            found.stopped = f'a record cut at byte {pos}'
+            break
+        op = data[pos]
+        (length,) = struct.unpack_from('<Q', data, pos + 1)
+        end = pos + 9 + length
+        if end > size:
+            found.stopped = (f'the record at byte {pos} runs past the end of the file '
+                             '(truncated, or its length is damaged)')
+            break
+        content = data[pos + 9:end]
+        if op == integrity.OP_MESSAGE_INDEX and pending is not None:
+            try:
+                pending[3] = (pending[3] or 0) + _index_count(content)
+            except struct.error:
+                pass
+        else:
+            pending = None
+        if op == integrity.OP_CHUNK:
+            why = integrity.check_chunk(content)
+            if why:
+                pending = [chunk_no, pos, why, None]
+                found.dropped.append(pending)
+            else:
+                for sub in breakup_chunk(_parse(bytes(data[pos:end])), validate_crc=True):
+                    _keep(found, sub, in_data)
+                found.chunks += 1
+            chunk_no += 1
+        elif op == integrity.OP_DATA_END:
+            in_data = False
+            found.data_end = True
+        elif op == integrity.OP_FOOTER:
+            found.good_end = end
+            found.stopped = 'end of data'
+            break
+        elif op != integrity.OP_MESSAGE_INDEX:
+            try:
+                record = _parse(bytes(data[pos:end]))
+            except Exception as exc:  # noqa: BLE001 - a damaged record of any kind
+                found.stopped = f'the record at byte {pos} is unreadable ({exc})'
+                break
+            if isinstance(record, Header):
+                found.header = record
+            elif isinstance(record, Attachment):
+                name, why = integrity._check_attachment(content)
+                if why:                 # damaged: not copied
+                    found.dropped_records.append(f'attachment {name!r} at byte {pos}: {why}')
+                    record = None
+            if record is not None:
+                _keep(found, record, in_data)
+        found.good_end = end
+        pos = end
+    found.dropped = [tuple(d) for d in found.dropped]
+    return found
+
+
+def _keep(found: _Found, record: Any, in_data: bool) -> None:
+    if isinstance(record, Schema):
+        found.schemas.setdefault(record.id, record)
+    elif isinstance(record, Channel):
+        found.channels.setdefault(record.id, record)
+    elif isinstance(record, Metadata) and record.name == 'rosbag2':
+        if found.record_custom is None:
+            try:
+                stored = yaml.safe_load(record.metadata.get('serialized_metadata', ''))
+                found.record_custom = dict((stored or {}).get('custom_data') or {})
+            except (yaml.YAMLError, AttributeError, TypeError, ValueError):
+                pass
+    elif in_data and isinstance(record, (Message, Attachment, Metadata)):
+        found.records.append(record)
+
+
+def _rebuild_channels(found: _Found, info: dict[str, Any]) -> list[str]:
+    """Channels that messages use but whose records were in damaged chunks: our writers
+    number channels 1, 2, ... in the order metadata.yaml lists the topics, so channel k is
+    the k-th topic there; its schema is the installed message definition."""
+    from .msgdef import message_definition, MessageTypeError
+    topics = info.get('topics_with_message_count') or []
+    used = {r.channel_id for r in found.records if isinstance(r, Message)}
+    rebuilt = []
+    next_schema = max(found.schemas, default=0) + 1
+    for cid in sorted(used - set(found.channels)):
+        try:
+            meta = topics[cid - 1]['topic_metadata']
+            name, msg_type = str(meta['name']), str(meta['type'])
+            qos = meta.get('offered_qos_profiles') or []
+            type_hash = str(meta.get('type_description_hash') or '')
+        except (IndexError, KeyError, TypeError):
+            continue
+        schema = next((s for s in found.schemas.values() if s.name == msg_type), None)
+        if schema is None:
+            try:
+                text = message_definition(msg_type)
+            except (MessageTypeError, ValueError):
+                continue
+            schema = Schema(id=next_schema, name=msg_type, encoding='ros2msg',
+                            data=text.encode('utf-8'))
+            found.schemas[next_schema] = schema
+            next_schema += 1
+        found.channels[cid] = Channel(
+            id=cid, topic=name, message_encoding=md.SERIALIZATION_FORMAT,
+            schema_id=schema.id, metadata={
+                'offered_qos_profiles': md.dump_qos_profiles(qos if isinstance(qos, list)
+                                                             else []),
+                'topic_type_hash': type_hash})
+        rebuilt.append(name)
+    return rebuilt
+
+
+def _write(fd: int, found: _Found, summary: md.BagSummary,
+           custom_data: dict[str, str]) -> None:
+    writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
+                    enable_crcs=True, enable_data_crcs=True)
+    header = found.header
+    writer.start(profile=(header.profile if header else '') or PROFILE,
+                 library=f'{LIBRARY} (recovered)')
+    schema_ids: dict[int, int] = {}
+    for sid, schema in sorted(found.schemas.items()):
+        schema_ids[sid] = writer.register_schema(name=schema.name, encoding=schema.encoding,
+                                                 data=schema.data)
+    channel_ids: dict[int, int] = {}
+    topics: dict[int, md.TopicRecord] = {}
+    for cid, channel in sorted(found.channels.items()):
+        schema = found.schemas.get(channel.schema_id)
+        if schema is None:
+            continue    # a channel without its schema cannot be decoded; dropped
+        channel_ids[cid] = writer.register_channel(
+            topic=channel.topic, message_encoding=channel.message_encoding,
+            schema_id=schema_ids[channel.schema_id], metadata=dict(channel.metadata))
+        topics[cid] = md.TopicRecord(
+            channel.topic, schema.name,
+            md.load_qos_profiles(channel.metadata.get('offered_qos_profiles', '')),
+            channel.metadata.get('topic_type_hash', ''))
+        summary.topics.append(topics[cid])
+    for record in found.records:
+        if isinstance(record, Message):
+            if record.channel_id in channel_ids:
+                writer.add_message(channel_id=channel_ids[record.channel_id],
+                                   log_time=record.log_time, data=record.data,
+                                   publish_time=record.publish_time, sequence=record.sequence)
+                topics[record.channel_id].message_count += 1
+                summary.add_stamp(record.log_time)
         elif isinstance(record, Attachment):
-            self.writer.add_attachment(create_time=record.create_time, log_time=record.log_time,
-                                       name=record.name, media_type=record.media_type,
-                                       data=record.data)
+            writer.add_attachment(create_time=record.create_time, log_time=record.log_time,
+                                  name=record.name, media_type=record.media_type,
+                                  data=record.data)
         elif isinstance(record, Metadata) and record.name != 'rosbag2':
-            self.writer.add_metadata(record.name, dict(record.metadata))
+            writer.add_metadata(record.name, dict(record.metadata))
+    writer.add_metadata('rosbag2', {'serialized_metadata': md.dump_yaml(
+        md.bag_information(summary, custom_data))})
+    writer.finish()
+
+
+def backup(path: Path) -> Path:
+    """Keep a copy of `path` under the first free name of ``<path>.orig``,
+    ``<path>.orig.1``, ``<path>.orig.2``, ... (a hard link: created only if the name is
+    free, so no earlier copy is ever overwritten). Returns the copy's path."""
+    for k in range(10000):
+        name = path.with_name(path.name + ('.orig' if k == 0 else f'.orig.{k}'))
+        try:
+            os.link(path, name)
+            return name
+        except FileExistsError:
+            continue
+        except OSError:         # no hard links here: copy into a new file (O_EXCL)
+            try:
+                fd = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileExistsError:
+                continue
+            with os.fdopen(fd, 'wb') as out, open(path, 'rb') as src:
+                while block := src.read(1 << 20):
+                    out.write(block)
+                out.flush()
+                os.fsync(out.fileno())
+            return name
+    raise OSError(f'no free backup name for {path}')
 
 
 def recover(path: str | os.PathLike[str]) -> RecoveryReport:
-    """Make the bag at ``path`` complete again, keeping every complete chunk.
+    """Make the bag at ``path`` complete and intact again, keeping every intact chunk.
 
     Rewrites ``<name>_0.mcap`` (summary, statistics, ``rosbag2`` metadata record) and
-    ``metadata.yaml``; the damaged file is kept as ``<name>_0.mcap.orig``. A bag that is
-    already complete keeps its MCAP; only its metadata.yaml is rewritten from it.
+    ``metadata.yaml``; the replaced files are kept (:func:`backup`). A bag that is intact
+    and complete keeps its MCAP; only its metadata.yaml is rewritten from it (the previous
+    one kept when it differs).
     """
     bag_dir = Path(path)
     if not bag_dir.is_dir():
@@ -98,76 +310,57 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
     info = _metadata(bag_dir) or {}
     custom_data = {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
     summary = md.BagSummary(file_name=file.name)
+    try:
+        raw = file.read_bytes()
+    except OSError as exc:
+        raise BagError(f"bag file '{file}': {exc.strerror or exc}") from None
+    intact = integrity.scan(file).ok if raw else False
+    found = _collect(memoryview(raw), len(raw))
+    if found.header is None:
+        raise BagError(f"bag file '{file}' has no readable MCAP header; nothing to recover")
+    if not info.get('custom_data') and found.record_custom:
+        custom_data = found.record_custom
+    rebuilt = _rebuild_channels(found, info)
     tmp = file.with_name(file.name + '.recovering')
-    size = file.stat().st_size if file.is_file() else 0
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     except OSError as exc:
         raise BagError(f"bag '{bag_dir}': cannot create {tmp.name}: {exc}") from None
-    chunks, good_end, complete, reason = 0, 0, False, 'end of file'
-    record_custom: dict[str, str] | None = None
     try:
-        writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
-                        enable_data_crcs=True)
-        copier = _Copier(writer, summary)
-        with open(file, 'rb') as handle:
-            records = StreamReader(handle, emit_chunks=True, validate_crcs=True).records
-            while True:
-                try:
-                    record = next(records)
-                    inner = breakup_chunk(record, validate_crc=True) \
-                        if isinstance(record, Chunk) else [record]
-                except StopIteration:
-                    break
-                except Exception as exc:  # truncated or corrupt record: stop before it
-                    reason = f'{type(exc).__name__} {exc}'.strip()
-                    break
-                if isinstance(record, Header):
-                    writer.start(profile=record.profile or PROFILE,
-                                 library=f'{LIBRARY} (recovered)')
-                for sub in inner:
-                    copier.add(sub)
-                if isinstance(record, Metadata) and record.name == 'rosbag2':
-                    stored = yaml.safe_load(record.metadata.get('serialized_metadata', ''))
-                    record_custom = dict((stored or {}).get('custom_data') or {})
-                chunks += isinstance(record, Chunk)
-                good_end = handle.tell()
-                if isinstance(record, DataEnd):
-                    complete, reason = True, 'end of data'
-                    break
-        if good_end == 0:
-            raise BagError(f"bag file '{file}' has no readable MCAP header; nothing to recover")
-        if not info.get('custom_data') and record_custom:
-            custom_data = record_custom
-        if not complete:
-            writer.add_metadata('rosbag2', {'serialized_metadata': md.dump_yaml(
-                md.bag_information(summary, custom_data))})
-            writer.finish()
-            os.fsync(fd)
-    except BagError:
-        os.close(fd)
-        tmp.unlink(missing_ok=True)
-        raise
+        _write(fd, found, summary, custom_data)
+        os.fsync(fd)
     except OSError as exc:
         os.close(fd)
         tmp.unlink(missing_ok=True)
         raise BagError(f"bag '{bag_dir}': recovery failed: {exc}") from None
     os.close(fd)
+    backups = []
     try:
-        if complete:
+        if intact:
             tmp.unlink()
         else:
-            orig = file.with_name(file.name + '.orig')
-            if not orig.exists():
-                os.replace(file, orig)
+            backups.append(str(backup(file)))
             os.replace(tmp, file)
         meta = bag_dir / 'metadata.yaml'
-        meta_tmp = bag_dir / '.metadata.yaml.tmp'
-        meta_tmp.write_text(md.metadata_yaml(summary, custom_data), encoding='utf-8')
-        os.replace(meta_tmp, meta)
+        text = md.metadata_yaml(summary, custom_data)
+        old = meta.read_text(encoding='utf-8', errors='replace') if meta.is_file() else None
+        if old != text:
+            if old is not None:
+                backups.append(str(backup(meta)))
+            meta_tmp = bag_dir / '.metadata.yaml.tmp'
+            meta_tmp.write_text(text, encoding='utf-8')
+            os.replace(meta_tmp, meta)
     except OSError as exc:
+        tmp.unlink(missing_ok=True)
         raise BagError(f"bag '{bag_dir}': recovery could not replace its files: {exc}") \
             from None
-    return RecoveryReport(messages=summary.message_count, chunks=chunks,
-                          bytes_dropped=max(0, size - good_end) if not complete else 0,
-                          was_complete=complete, stopped_because=reason)
+    dropped = tuple(DroppedChunk(*d) for d in found.dropped)
+    return RecoveryReport(messages=summary.message_count, chunks=found.chunks,
+                          bytes_dropped=0 if intact or found.data_end
+                          else max(0, len(raw) - found.good_end),
+                          was_complete=intact,
+                          stopped_because='end of data' if intact else found.stopped,
+                          dropped_chunks=dropped,
+                          dropped_records=tuple(found.dropped_records),
+                          rebuilt_channels=tuple(rebuilt),
+                          backups=tuple(backups))

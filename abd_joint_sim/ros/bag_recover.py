@@ -1,17 +1,23 @@
-"""bag_recover: complete a bag whose recorder was killed (SIGKILL, power cut, full disk).
+"""bag_recover: repair a bag whose recorder was killed (SIGKILL, power cut, full disk) or
+whose file is damaged (a flipped bit, a copy cut short).
 
     python -m abd_joint_sim.ros.bag_recover BAG [BAG ...]
     ros2 run abd_joint_sim bag_recover BAG
 
 sim_node closes its current MCAP chunk every second and on pause, so a killed node's bag
 holds everything up to the last second or so; but without the MCAP summary (written on a
-clean stop) indexed readers (``ros2 bag``, rosbags, Foxglove) refuse it. This command runs
-:func:`abd_joint_sim.record.recover` on each bag: it keeps every complete chunk, rewrites
-the MCAP with a summary and a complete metadata.yaml, and keeps the damaged original as
-``<bag>_0.mcap.orig``. A bag that is complete already is left as it is (only its
-metadata.yaml is rewritten).
+clean stop) indexed readers (``ros2 bag``, rosbags, Foxglove) refuse it, and our tools
+refuse any bag whose CRCs fail. This command runs :func:`abd_joint_sim.record.recover` on
+each bag: it keeps every intact chunk, skips each damaged one, rewrites the MCAP with a
+summary and a complete metadata.yaml, and keeps what it replaces (``<bag>_0.mcap.orig``,
+``metadata.yaml.orig``, numbered ``.orig.1``, ``.orig.2``, ... if those exist). A bag that
+is intact and complete keeps its MCAP (only its metadata.yaml is rewritten).
 
-Exit status: 0 every bag usable now; 2 a bag could not be recovered (one line on stderr).
+Each bag gets a line saying what was kept, then one line per thing dropped (a damaged
+chunk and its message count, the partial record at the end of a killed recording).
+
+Exit status: 0 every bag usable and nothing dropped; 1 every bag usable, something was
+dropped (listed); 2 a bag could not be recovered (one line on stderr).
 """
 from __future__ import annotations
 
@@ -22,13 +28,43 @@ from typing import Optional, Sequence
 PROG = 'bag_recover'
 
 
+def describe(bag: str, report) -> list[str]:
+    """The lines bag_recover prints for one recovered bag."""
+    if report.was_complete:
+        return [f'{PROG}: {bag}: intact and complete already ({report.messages} messages); '
+                'metadata.yaml rewritten from it']
+    lines = [f'{PROG}: {bag}: recovered {report.messages} messages in {report.chunks} intact '
+             f'chunk(s)' + (f'; original kept as {", ".join(report.backups)}'
+                            if report.backups else '')]
+    for c in report.dropped_chunks:
+        count = f'{c.messages} message(s)' if c.messages is not None else \
+            'an unknown number of messages'
+        lines.append(f'  dropped chunk {c.index} at byte {c.offset} ({count}): {c.why}')
+    for what in report.dropped_records:
+        lines.append(f'  dropped {what}')
+    if report.bytes_dropped:
+        lines.append(f'  dropped the last {report.bytes_dropped} byte(s): '
+                     f'{report.stopped_because} (the chunk being written when the recorder '
+                     'stopped, or damage that breaks the record framing)')
+    for topic in report.rebuilt_channels:
+        lines.append(f'  topic {topic}: channel record lost with a damaged chunk, rebuilt '
+                     'from metadata.yaml')
+    if report.lost:
+        lines.append(f'{PROG}: {bag}: {report.messages_dropped} message(s) of the damaged '
+                     'chunks dropped' + (' (and the partial tail)' if report.bytes_dropped
+                                         else ''))
+    return lines
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if '--ros-args' in argv:
         argv = argv[:argv.index('--ros-args')]
     parser = argparse.ArgumentParser(prog=PROG, description=(
-        'Complete abd_joint_sim bags whose recorder was killed: keep every complete chunk, '
-        'rewrite the summary and metadata.yaml (the original is kept as *.mcap.orig).'))
+        'Repair abd_joint_sim bags whose recorder was killed or whose file is damaged: keep '
+        'every intact chunk, rewrite the summary and metadata.yaml (the replaced files are '
+        'kept as *.orig, *.orig.1, ...). Exit 0 nothing dropped, 1 something dropped, '
+        '2 a bag could not be recovered.'))
     parser.add_argument('bags', nargs='+', metavar='BAG', help='bag directory')
     args = parser.parse_args(argv)
     from abd_joint_sim.record import BagError, recover
@@ -40,13 +76,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             print(f'{PROG}: error: {exc}', file=sys.stderr)
             status = 2
             continue
-        if report.was_complete:
-            print(f'{PROG}: {bag}: complete already ({report.messages} messages); '
-                  'metadata.yaml rewritten')
-        else:
-            print(f'{PROG}: {bag}: recovered {report.messages} messages in {report.chunks} '
-                  f'complete chunks; dropped {report.bytes_dropped} bytes of the chunk in '
-                  f'progress ({report.stopped_because})')
+        print('\n'.join(describe(bag, report)))
+        if report.lost:
+            status = max(status, 1)
     return status
 
 

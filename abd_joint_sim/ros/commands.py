@@ -52,7 +52,12 @@ class Rejection:
     def __str__(self) -> str:
         who = (f'joint {self.joint!r}' if self.joint is not None
                else f'{self.topic} command' if self.topic else 'array command')
-        return f'{who}: {self.value!r} rejected: {self.reason}'
+        value = self.value
+        if isinstance(value, (list, tuple)) and len(value) > 8:    # a long array: its head
+            shown = f'{repr(list(value[:8]))[:-1]}, ... ({len(value)} values)]'
+        else:
+            shown = repr(value)
+        return f'{who}: {shown} rejected: {self.reason}'
 
 
 @dataclass(frozen=True)
@@ -254,6 +259,12 @@ class CommandBuffer:
             if bad:
                 return [Rejection(bad[0][0], bad[0][1], f'{field_name} must be finite; '
                                   'whole joint_commands message ignored')], []
+        if len(set(names)) != len(names):
+            seen: set = set()
+            twice = [n for n in names if n in seen or seen.add(n)]
+            return [Rejection(None, sorted(set(twice))[:5], 'joint name(s) given more than '
+                              'once; whole joint_commands message ignored (which value would '
+                              'apply is not said by a JointState)', 'joint_commands')], []
         if velocity:
             rejections.append(Rejection(None, velocity, 'velocity commands are not supported '
                                         '(use position with driving, or effort); ignored',

@@ -89,6 +89,10 @@ class LoopOutput:
     def applied(self, applied: Applied) -> None:
         """Commands as they took effect at a step boundary."""
 
+    def restarted(self) -> None:
+        """Simulated time restarts at 0 (reset), before the reset's state is published: a
+        recorder keeps its log times increasing (``BagWriter.restart_time``)."""
+
     def parameters(self, t_ns: int, changes: Mapping[str, Any]) -> None:
         """Live parameter changes (recorded ones) in force from `t_ns` on."""
 
@@ -375,6 +379,7 @@ class SimLoop:
                      effort: Optional[list] = None) -> None:
         out = self.output
         due = self.publish_schedule.due(t_ns, self.config.publish_rate, force)
+        self.state_due = due        # (replay_check: a due state missing from a bag is a gap)
         if not (due or out.every_state):
             return
         w = self.world
@@ -409,6 +414,7 @@ class SimLoop:
     def reset(self, publish: bool = True) -> None:
         """As ``~/reset``: initial state, t = 0, torque commands cleared to 0, pending ones
         dropped, the fault cleared; the pause state is kept. Publishes the state at once."""
+        self.output.restarted()
         self.world.reset()
         self.commands.clear()
         for joint in self.actuated:

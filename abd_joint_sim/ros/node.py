@@ -20,6 +20,7 @@ starts the thread.
 from __future__ import annotations
 
 import difflib
+import functools
 import math
 import os
 import signal
@@ -35,6 +36,7 @@ from rclpy.clock import Clock as RclpyClock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -73,6 +75,7 @@ BATCH_STEPS = 16              # most steps per timer round between wall-clock ch
 AFAP_BATCH_STEPS = 256
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
+MAX_LOG_LINE = 500            # characters of a logged warning (the rest is counted)
 THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (paused, or as fast as
 #                               possible, where the step timer steps; a change wakes it)
 
@@ -212,7 +215,18 @@ class SimNode(Node):
         """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
         spec = TOPICS_BY_NAME[name]
         topic = name.format(joint=joint) if joint is not None else name
-        return self.create_subscription(msg_type, topic, callback, _qos(spec))
+        if joint is None:
+            return self.create_subscription(msg_type, topic, callback, _qos(spec))
+        from rclpy.exceptions import InvalidTopicNameException
+        try:
+            return self.create_subscription(msg_type, topic, callback, _qos(spec))
+        except InvalidTopicNameException:
+            shown = joint if len(joint) <= 80 else f'{joint[:80]}... ({len(joint)} characters)'
+            raise ValueError(
+                f'joint {shown!r} cannot name its command topic {name!r}: a ROS topic name '
+                "has only letters, digits and '_' between its slashes, no part starting with "
+                'a digit, at most 255 characters in all; rename the joint, or leave it out of '
+                '`actuated`') from None
 
     def _load_scene(self, Scene):
         """robot_description (URDF text) if set, else the scene file (.urdf or YAML); URDF
@@ -288,6 +302,10 @@ class SimNode(Node):
 
     def _vet_parameters(self, params) -> SetParametersResult:
         for p in params:
+            if p.type_ == Parameter.Type.NOT_SET and p.name in PARAMS_BY_NAME:
+                return SetParametersResult(successful=False, reason=(
+                    f'parameter {p.name!r} cannot be deleted: the node always needs its value '
+                    '(set another value instead)'))
             reason = check_live_value(p.name, p.value, len(self.commands.order))
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
@@ -514,6 +532,8 @@ class SimNode(Node):
         if now - last < LOG_THROTTLE:
             self._throttle[key] = (last, suppressed + 1)
             return
+        if len(text) > MAX_LOG_LINE:
+            text = f'{text[:MAX_LOG_LINE]}... ({len(text) - MAX_LOG_LINE} more characters)'
         if suppressed:
             text += f' ({suppressed} similar message(s) suppressed)'
         self._throttle[key] = (now, 0)
@@ -521,13 +541,33 @@ class SimNode(Node):
 
     def _report(self, form: str, rejections, clamps) -> None:
         """Throttled per command form (array, joint torque, enable), joint and reason: the
-        first rejection of each kind of command shows at once, whatever came before."""
+        first rejection of each kind of command shows at once, whatever came before. Entries
+        naming joints the scene does not have are one line per message and reason, throttled
+        per reason (a flood of fresh names is one kind of refusal, not one per name)."""
+        joints = self._scene_joints
+        unknown: dict[str, list] = {}
         for r in rejections:
             kind = r.reason.split(' ')[0]
+            if r.joint is not None and r.joint not in joints:
+                unknown.setdefault(kind, []).append(r)
+                continue
             self._warn_throttled(('reject', form, r.joint, kind), f'{form} command: {r}'
                                  if form == 'array' and r.joint is not None else str(r))
+        for kind, rs in unknown.items():
+            names = ', '.join(repr(r.joint if len(r.joint) <= 40 else r.joint[:40] + '...')
+                              for r in rs[:5])
+            more = f' and {len(rs) - 5} more' if len(rs) > 5 else ''
+            reason = rs[0].reason.replace(f'{rs[0].joint!r}', 'the joint')
+            self._warn_throttled(('reject', form, None, 'unknown', kind),
+                                 str(rs[0]) if len(rs) == 1 else
+                                 f'{form} command: {len(rs)} entries rejected, joints {names}'
+                                 f'{more}: {reason}')
         for c in clamps:
             self._warn_throttled(('clamp', form, c.joint, c.applied > 0), str(c))
+
+    @functools.cached_property
+    def _scene_joints(self) -> frozenset:
+        return frozenset(self.world.joint_names)
 
     @_locked
     def _on_torque_array(self, msg: Float64MultiArray) -> None:
@@ -828,6 +868,16 @@ class _NodeOutput(LoopOutput):
     def applied(self, applied) -> None:
         if self.node.recorder is not None:
             record_applied(self.node._record, self.node._abs, applied)
+
+    def restarted(self) -> None:
+        node = self.node
+        if node.recorder is not None:
+            node._write_held_clock()
+            if node.recorder is not None:
+                try:
+                    node.recorder.restart_time()    # log times keep increasing
+                except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
+                    node._recording_failed(f'restarting the log time failed: {exc}')
 
     def parameters(self, t_ns: int, changes) -> None:
         node = self.node

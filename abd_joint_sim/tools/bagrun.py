@@ -1,10 +1,13 @@
 """A recorded bag as what is needed to run it again: scene, parameters, commands, states.
 
-Messages are read in *file* order (the order sim_node wrote them: step order within each segment), not
-log-time order, so that a ``~/reset`` (time jumps back to 0) splits the run into segments
-instead of interleaving them. A segment starts at the first message and wherever
-``/clock`` or ``/joint_states`` does not advance (the node writes both, with increasing
-stamps, after every step, and again at t = 0 on reset).
+Messages are read in *file* order (the order sim_node wrote them, which is step order). A
+segment starts at the first message and wherever the stamp of ``/clock`` or
+``/joint_states`` does not advance (the node writes both, with increasing stamps, after
+every step, and again at t = 0 on ``~/reset``). Log times run on across a reset (simulated
+time since the recording began, docs/bag-format.md "Resets"); a segment's offset is the log
+time minus the stamp of its first ``/clock`` or ``/joint_states``, and a command's time in
+its segment is its log time minus that offset. (Bags whose log times restart at 0 have
+offset 0 throughout and read the same way.)
 
 Topics are recognised by their last components, so a namespaced node's bag works:
 ``.../joint_torque_commands`` (array, in the stored ``joints`` order),
@@ -85,8 +88,10 @@ def _iter_file_order(path: str | os.PathLike[str], topics: Optional[list[str]] =
     from abd_joint_sim.record.read import mcap_file
     from abd_joint_sim.record.msgdef import message_class
     from abd_joint_sim.record import BagError
+    from abd_joint_sim.record.integrity import check
     try:
         file = mcap_file(path)
+        check(file, path)       # framing and every CRC: damage is named as damage
     except BagError as exc:
         raise BagInputError(str(exc)) from None
     try:
@@ -163,6 +168,7 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
     counts: dict[str, int] = {}
     last: dict[str, int] = {}
     ends: list[int] = [0]
+    offset = [0]            # log time - simulated time in the current segment
 
     def new_segment() -> None:
         segments.append(Segment())
@@ -170,24 +176,29 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
         ends.append(0)
         last.clear()
 
-    def step_marker(kind: str, t_ns: int) -> None:
+    def step_marker(kind: str, t_ns: int, log_ns: int) -> None:
         if kind in last and t_ns <= last[kind]:
             new_segment()
+        if not last:        # the segment's first step: its log-time offset
+            offset[0] = log_ns - t_ns
         last[kind] = t_ns
         ends[-1] = max(ends[-1], t_ns)
 
     for topic, _type, log_ns, msg in _iter_file_order(path):
         counts[topic] = counts.get(topic, 0) + 1
-        where = f'{topic} at t={log_ns / convert.NS_PER_S:.9g} s'
         if _CLOCK.search(topic) and hasattr(msg, 'clock'):
-            step_marker('clock', convert.time_msg_to_ns(msg.clock))
-        elif _STATES.search(topic) and hasattr(msg, 'position'):
+            step_marker('clock', convert.time_msg_to_ns(msg.clock), log_ns)
+            continue
+        if _STATES.search(topic) and hasattr(msg, 'position'):
             t_ns = convert.time_msg_to_ns(msg.header.stamp)
-            step_marker('states', t_ns)
+            step_marker('states', t_ns, log_ns)
             states[-1].setdefault(t_ns, []).append(RecordedState(
                 t_ns, list(msg.name), list(msg.position), list(msg.velocity),
                 list(msg.effort)))
-        elif _ARRAY.search(topic):
+            continue
+        log_ns -= offset[0]         # the command's time in its segment
+        where = f'{topic} at t={log_ns / convert.NS_PER_S:.9g} s'
+        if _ARRAY.search(topic):
             segments[-1].commands.append(Command(log_ns, 'array', None,
                                                  convert.array_values(msg), where))
         elif (m := _TORQUE.search(topic)) is not None:

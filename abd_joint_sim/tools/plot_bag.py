@@ -112,23 +112,44 @@ def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
     return wanted
 
 
+def _stamp_ns(msg) -> Optional[int]:
+    """Header stamp of a JointState or of a MarkerArray's first marker (simulated time)."""
+    header = getattr(msg, 'header', None)
+    if header is None and getattr(msg, 'markers', None):
+        header = msg.markers[0].header
+    return None if header is None else header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
 def read_run(bag: str | os.PathLike[str]) -> Run:
     """Read joint states, commands and markers of `bag` (raises PlotError), in the order
-    they were written: log times restart at 0 after a reset, so log-time order would
-    interleave the segments."""
-    from abd_joint_sim.tools.bagrun import _iter_file_order, BagInputError
+    they were written. Log time is simulated time since the recording began (it runs on
+    across a reset); a reset is where the simulation's own stamps (joint states, markers)
+    go back. (Bags whose log times restart at 0 at a reset are laid end to end.)"""
+    from abd_joint_sim.tools.bagrun import _iter_file_order, _STATES, BagInputError
     run = Run()
-    offset = 0.0          # simulated time of earlier segments
+    offset = 0.0          # simulated time of earlier segments (log times restarting at 0)
     last = -1
+    stamps: dict[str, int] = {}     # kind -> the last stamp of the current segment
     try:
         for topic, msg_type, log_ns, msg in _iter_file_order(bag, _wanted_topics(bag)):
-            if log_ns < last:   # a reset: sim time restarted from 0
+            is_state = msg_type == 'sensor_msgs/msg/JointState' and _STATES.search(topic)
+            kind = 'states' if is_state else (
+                'markers' if msg_type == 'visualization_msgs/msg/MarkerArray' else '')
+            stamp = _stamp_ns(msg) if kind else None
+            if log_ns < last:   # log time restarted from 0 at a reset
                 offset += last * 1e-9
                 run.resets.append(offset)
                 run.reset_index.append(len(run.t))
+                stamps.clear()
+            elif stamp is not None and kind in stamps and stamp <= stamps[kind]:
+                run.resets.append(offset + log_ns * 1e-9)     # the stamps went back: reset
+                run.reset_index.append(len(run.t))
+                stamps.clear()
+            if stamp is not None:
+                stamps[kind] = stamp
             last = log_ns
             t = offset + log_ns * 1e-9
-            if msg_type == 'sensor_msgs/msg/JointState':
+            if is_state:
                 if not run.joint_names:
                     run.joint_names = list(msg.name)
                 if list(msg.name) != run.joint_names:
@@ -140,7 +161,8 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
             elif msg_type == 'visualization_msgs/msg/MarkerArray':
                 run.markers.append((t, msg))
                 run.marker_segment.append(len(run.resets))
-            elif msg_type in _COMMAND_TYPES and 'joint_torque' in topic:
+            elif (msg_type in _COMMAND_TYPES and 'joint_torque' in topic) or (
+                    msg_type == 'sensor_msgs/msg/JointState'):    # joint_commands
                 run.commands.append((t, topic))
     except BagInputError as exc:
         raise PlotError(str(exc)) from None

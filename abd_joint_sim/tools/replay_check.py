@@ -61,14 +61,17 @@ class ReplayResult:
     atol: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_ATOL))
     unmatched: list[tuple[int, int]] = field(default_factory=list)
     """(segment, stamp ns) of recorded states the re-simulation never produced."""
+    missing: list[tuple[int, int]] = field(default_factory=list)
+    """(segment, stamp ns) of states the node's publish schedule says were published (up to
+    the segment's last recorded state) that the bag does not hold: a gap."""
     name_errors: list[str] = field(default_factory=list)
     unapplied: int = 0
     wall: float = 0.0
 
     @property
     def ok(self) -> bool:
-        return (not self.unmatched and not self.name_errors and self.compared > 0
-                and all(self.worst[f].beyond == 0 for f in FIELDS))
+        return (not self.unmatched and not self.missing and not self.name_errors
+                and self.compared > 0 and all(self.worst[f].beyond == 0 for f in FIELDS))
 
     def report(self) -> str:
         s = 's' if self.segments != 1 else ''
@@ -92,6 +95,11 @@ class ReplayResult:
             seg, t = self.unmatched[0]
             lines.append(f'  {len(self.unmatched)} recorded state(s) never reached by the '
                          f're-simulation, first t={t * 1e-9:.9f} s (segment {seg})')
+        if self.missing:
+            seg, t = self.missing[0]
+            lines.append(f'  GAP: {len(self.missing)} joint state(s) the publish schedule says '
+                         f'were published are not in the bag, first t={t * 1e-9:.9f} s '
+                         f'(segment {seg})')
         if self.unapplied:
             lines.append(f'  {self.unapplied} recorded command(s) after the last step, '
                          'not applied')
@@ -99,6 +107,8 @@ class ReplayResult:
             lines.append('OK: replay reproduces the recorded joint states')
         elif self.compared == 0 and not self.unmatched and not self.name_errors:
             lines.append('MISMATCH: no joint states compared')
+        elif self.missing and not any(self.worst[f].beyond for f in FIELDS):
+            lines.append('MISMATCH: the bag misses scheduled joint states (see GAP above)')
         else:
             bad = [f for f in FIELDS if self.worst[f].beyond]
             what = ', '.join(f'{f} of joint {self.worst[f].joint!r} (worst at '
@@ -118,11 +128,14 @@ class _Comparer(LoopOutput):
         self.sim = sim
         self.names = list(sim.world.joint_names)
         self.seen: set[tuple[int, int]] = set()
+        self.due: list[tuple[int, int]] = []     # (segment, stamp) the schedule published
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
         segment = self.sim.segment
         if segment >= len(self.recorded):
             return
+        if getattr(self.sim.loop, 'state_due', False):
+            self.due.append((segment, t_ns))
         states = self.recorded[segment].get(t_ns)
         if not states:
             return
@@ -213,6 +226,11 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
         for t_ns in sorted(seg):
             if (k, t_ns) not in comparer.seen:
                 result.unmatched.append((k, t_ns))
+    # A gap: a state due by the publish schedule, before the segment's last recorded one
+    # (a recording cut short, e.g. a killed recorder's lost chunk, ends the check there).
+    last = [max(seg) if seg else -1 for seg in run.states]
+    result.missing = [(k, t) for k, t in comparer.due
+                      if k < len(last) and t <= last[k] and t not in run.states[k]]
     return result
 
 

@@ -242,6 +242,11 @@ class BagRecorder(LoopOutput):
     def applied(self, applied: Applied) -> None:
         record_applied(self._write, resolve_root, applied)
 
+    def restarted(self) -> None:
+        if self._held:
+            self._write_held()
+        self.writer.restart_time()      # log times keep increasing across the reset
+
     def parameters(self, t_ns: int, changes) -> None:
         self._write(TOPIC_PARAMETER_EVENTS, t_ns, parameter_event_msg(t_ns, NODE_FQN, changes))
 

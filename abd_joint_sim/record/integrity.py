@@ -1,0 +1,255 @@
+"""Check an MCAP file's framing and every CRC before anything of it is trusted.
+
+A flipped byte inside a compressed chunk still decompresses into *some* messages, and a
+file cut inside its summary still has a readable data section: without a check the tools
+would compare, plot or replay wrong data. :func:`scan` walks the file record by record
+(no summary needed) and checks
+
+* the leading and trailing magic and that every record fits in the file;
+* each chunk: its records decompress, come out ``uncompressed_size`` long, match
+  ``uncompressed_crc`` and frame exactly into records;
+* each attachment's CRC;
+* the data-section CRC in DataEnd (a CRC-32 of every byte from the leading magic up to
+  DataEnd) and the summary CRC in the Footer.
+
+A stored CRC of 0 means "not computed" in MCAP and is not checked (our writer computes
+every one: docs/bag-format.md, "Integrity"). :func:`check` raises :class:`BagDamageError`
+naming the file, the record (chunk number) and its byte offset, and the command that keeps
+the intact chunks (``bag_recover``). The result is cached per file identity (inode, size,
+mtime), so the readers of one run do not scan a file twice.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import stat
+import struct
+import zlib
+
+from .bag import BagError
+
+MAGIC = b'\x89MCAP0\r\n'
+OP_HEADER, OP_FOOTER, OP_CHUNK, OP_MESSAGE_INDEX = 0x01, 0x02, 0x06, 0x07
+OP_ATTACHMENT, OP_DATA_END = 0x09, 0x0F
+
+RECOVER_HINT = ('run `ros2 run abd_joint_sim bag_recover {bag}` (or `python -m '
+                'abd_joint_sim.ros.bag_recover {bag}`) to keep its intact chunks')
+
+
+class BagDamageError(BagError):
+    """The bag file is damaged (CRC mismatch, truncation, broken framing)."""
+
+    def __init__(self, message: str, damage: list['Damage']) -> None:
+        super().__init__(message)
+        self.damage = damage
+
+
+@dataclass(frozen=True)
+class Damage:
+    """One damaged place: what (``'chunk 3'``, ``'attachment scene.yaml'``, ``'summary'``),
+    the byte offset of its record and why."""
+
+    what: str
+    offset: int
+    why: str
+
+    def __str__(self) -> str:
+        return f'{self.what} at byte {self.offset}: {self.why}'
+
+
+@dataclass
+class ScanResult:
+    """What :func:`scan` found."""
+
+    size: int
+    damage: list[Damage] = field(default_factory=list)
+    chunks: int = 0
+    complete: bool = False
+    """DataEnd, the summary, the Footer and the closing magic are all there."""
+
+    @property
+    def ok(self) -> bool:
+        return not self.damage
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    if compression == '':
+        return data
+    if compression == 'zstd':
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == 'lz4':
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    raise ValueError(f'unknown compression {compression!r}')
+
+
+def _string(buf, pos: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from('<I', buf, pos)
+    return bytes(buf[pos + 4:pos + 4 + n]).decode('utf-8', errors='replace'), pos + 4 + n
+
+
+def check_chunk(content) -> str:
+    """'' if a Chunk record's content (after opcode and length) is intact, else why not."""
+    try:
+        _start, _end, size, crc = struct.unpack_from('<QQQI', content, 0)
+        compression, pos = _string(content, 28)
+        (n,) = struct.unpack_from('<Q', content, pos)
+        pos += 8
+        if pos + n > len(content):
+            return f'its records field ({n} bytes) runs past the record'
+        data = _decompress(compression, bytes(content[pos:pos + n]), size)
+    except Exception as exc:  # noqa: BLE001 - zstd/lz4/struct errors of every kind
+        return f'does not decompress ({type(exc).__name__}: {exc})'.replace(' ()', '')
+    if len(data) != size:
+        return f'decompresses to {len(data)} bytes, {size} stated'
+    if crc != 0:
+        actual = zlib.crc32(data)
+        if actual != crc:
+            return f'CRC {actual:#010x} computed, {crc:#010x} stored'
+    pos = 0
+    while pos < len(data):
+        if pos + 9 > len(data):
+            return f'a record inside it is cut at byte {pos}'
+        (length,) = struct.unpack_from('<Q', data, pos + 1)
+        pos += 9 + length
+        if pos > len(data):
+            return f'a record inside it runs past its end ({length} bytes)'
+    return ''
+
+
+def _check_attachment(content) -> tuple[str, str]:
+    """(name, '' or why) for an Attachment record's content."""
+    try:
+        pos = 16
+        name, pos = _string(content, pos)
+        _media, pos = _string(content, pos)
+        (n,) = struct.unpack_from('<Q', content, pos)
+        pos += 8 + n
+        (crc,) = struct.unpack_from('<I', content, pos)
+    except struct.error:
+        return '?', 'its fields run past the record'
+    if crc != 0:
+        actual = zlib.crc32(content[:pos])
+        if actual != crc:
+            return name, f'CRC {actual:#010x} computed, {crc:#010x} stored'
+    return name, ''
+
+
+def scan(file: str | os.PathLike[str]) -> ScanResult:
+    """Walk `file` record by record and check framing and CRCs (see the module doc)."""
+    path = Path(file)
+    try:
+        with open(path, 'rb') as handle:
+            size = os.fstat(handle.fileno()).st_size
+            if size == 0:
+                return ScanResult(0, [Damage('file', 0, 'it is empty (0 bytes)')])
+            data = handle.read()
+    except OSError as exc:
+        raise BagError(f"bag file '{path}': {exc.strerror or exc}") from None
+    return _scan(memoryview(data), len(data))
+
+
+def _scan(buf, size: int) -> ScanResult:
+    result = ScanResult(size)
+    damage = result.damage
+    if size < len(MAGIC) or bytes(buf[:len(MAGIC)]) != MAGIC:
+        damage.append(Damage('file', 0, 'it does not start with the MCAP magic'))
+        return result
+    pos = len(MAGIC)
+    chunk_no = 0
+    data_crc = zlib.crc32(buf[:pos])
+    in_data = True
+    while pos < size:
+        if pos + 9 > size:
+            damage.append(Damage('record', pos, f'cut: {size - pos} byte(s) left of its '
+                                 'opcode and length (the file is truncated)'))
+            break
+        op = buf[pos]
+        (length,) = struct.unpack_from('<Q', buf, pos + 1)
+        end = pos + 9 + length
+        if end > size:
+            what = f'chunk {chunk_no}' if op == OP_CHUNK else f'record (opcode {op:#04x})'
+            damage.append(Damage(what, pos, f'its {length} bytes run past the end of the '
+                                 f'file ({size} bytes; truncated, or its length is damaged)'))
+            break
+        content = buf[pos + 9:end]
+        if op == OP_DATA_END:
+            in_data = False
+            (stored,) = struct.unpack_from('<I', content, 0) if length >= 4 else (0,)
+            if stored != 0 and stored != data_crc and not damage:
+                damage.append(Damage('data section', 0, f'CRC {data_crc:#010x} computed, '
+                                     f'{stored:#010x} stored in DataEnd at byte {pos}'))
+        elif in_data:
+            data_crc = zlib.crc32(buf[pos:end], data_crc)
+        if op == OP_CHUNK:
+            why = check_chunk(content)
+            if why:
+                damage.append(Damage(f'chunk {chunk_no}', pos, why))
+            chunk_no += 1
+        elif op == OP_ATTACHMENT:
+            name, why = _check_attachment(content)
+            if why:
+                damage.append(Damage(f'attachment {name!r}', pos, why))
+        elif op == OP_FOOTER:
+            if length < 20:
+                damage.append(Damage('footer', pos, f'{length} bytes long, 20 expected'))
+                break
+            summary_start, _offsets, crc = struct.unpack_from('<QQI', content, 0)
+            if summary_start and summary_start > pos:
+                damage.append(Damage('footer', pos, f'summary start {summary_start} lies '
+                                     'after the footer'))
+            elif crc != 0:
+                begin = summary_start or pos
+                actual = zlib.crc32(buf[begin:pos + 9 + 16])
+                if actual != crc:
+                    damage.append(Damage('summary', begin, f'CRC {actual:#010x} computed, '
+                                         f'{crc:#010x} stored in the footer'))
+            pos = end
+            if size - pos != len(MAGIC) or bytes(buf[pos:]) != MAGIC:
+                damage.append(Damage('file end', pos, 'the closing MCAP magic is missing or '
+                                     'followed by other bytes'))
+            else:
+                result.complete = not in_data
+            break
+        pos = end
+    else:
+        damage.append(Damage('file end', size, 'no footer (the file is truncated)'))
+    result.chunks = chunk_no
+    if not result.complete and not damage:
+        damage.append(Damage('file end', size, 'incomplete'))
+    return result
+
+
+_checked: dict[tuple, ScanResult] = {}
+
+
+def check(file: str | os.PathLike[str], bag: str | os.PathLike[str] | None = None) -> None:
+    """Raise :class:`BagDamageError` if `file` is damaged; `bag` (default: the file's
+    directory) is named in the ``bag_recover`` hint."""
+    path = Path(file)
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise BagError(f"bag file '{path}': {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise BagError(f"bag file '{path}' is not a regular file")
+    key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    result = _checked.get(key)
+    if result is None:
+        result = scan(path)
+        if len(_checked) > 64:
+            _checked.clear()
+        _checked[key] = result
+    if result.ok:
+        return
+    bag = Path(bag) if bag is not None else path
+    if bag.is_file():           # bag_recover takes the bag's directory
+        bag = bag.parent
+    first = result.damage[0]
+    more = len(result.damage) - 1
+    also = f' (and {more} more damaged record{"s" if more != 1 else ""})' if more else ''
+    raise BagDamageError(f"bag file '{path}' is damaged: {first}{also}; "
+                         + RECOVER_HINT.format(bag=bag), list(result.damage))
