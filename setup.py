@@ -21,6 +21,8 @@ setup(
          glob(os.path.join(package_name, 'robots', '*.urdf'))),
     ],
     install_requires=['setuptools'],
+    # `pip install '.[sweep]'`: the engine of the `sweep` command (requirements-sweep.txt)
+    extras_require={'sweep': ['ray==2.60.0']},
     zip_safe=True,
     maintainer='abd_joint_sim maintainers',
     maintainer_email='maintainers@abd-joint-sim.example.org',
@@ -34,6 +36,7 @@ setup(
             'replay_check = abd_joint_sim.tools.replay_check:main',
             'bag_recover = abd_joint_sim.ros.bag_recover:main',
             'plot_bag = abd_joint_sim.tools.plot_bag:main',
+            'sweep = abd_joint_sim.tools.sweep:main',
         ],
     },
 )
