@@ -215,6 +215,14 @@ def load_spec(path: str | Path, max_cases: Optional[int] = None) -> Spec:
     plot = data.get('plot') or {}
     if not isinstance(plot, dict) or set(plot) - {'x', 'y', 'series'}:
         raise _fail(f'{src}: plot', f'expected {{x: axis, y: column, series: axis}}, got {plot!r}')
+    for key in ('x', 'series'):
+        if key in plot and plot[key] not in axes:
+            raise _fail(f'{src}: plot.{key}', f'{plot[key]!r} is not an axis of the spec '
+                                              f'(axes: {", ".join(axes) or "none"})')
+    if 'y' in plot and not (plot['y'] in FIXED_COLUMNS or str(plot['y']).startswith(
+            ('angle.', 'velocity.'))):
+        raise _fail(f'{src}: plot.y', f'{plot["y"]!r} is not a result column (angle.<joint>, '
+                                      f'velocity.<joint>, {", ".join(FIXED_COLUMNS[2:])})')
     digest = hashlib.sha256(json.dumps(
         {'base': base, 'source': source, 'duration_ns': duration_ns, 'parameters': parameters,
          'plan': repr(plan.segments), 'cases': cases}, sort_keys=True, default=repr).encode()
@@ -630,8 +638,8 @@ class RayEngine:
             self.workers = workers or os.cpu_count() or 1
             if temp_dir is None:
                 temp_dir = self.own_temp = tempfile.mkdtemp(prefix='ray-sweep-')
-            ray.init(num_cpus=self.workers, _node_ip_address='127.0.0.1',
-                     _temp_dir=os.path.abspath(temp_dir), **kwargs)
+            ray.init(num_cpus=self.workers, _temp_dir=os.path.abspath(temp_dir), **kwargs)
+        self.nodes = sum(1 for n in ray.nodes() if n.get('Alive'))
         self.remote = ray.remote(num_cpus=1, max_restarts=0)(CaseWorker)
 
     def run(self, setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
@@ -822,13 +830,21 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     ok = [r for r in rows if r.get('status') == 'ok']
-    numeric = [a for a in axes if all(isinstance(r.get(a), (int, float))
-                                      and not isinstance(r.get(a), bool) for r in ok)]
+
+    def all_of(axis, types) -> bool:
+        return all(isinstance(r.get(axis), types) and not isinstance(r.get(axis), bool)
+                   for r in ok)
+    numeric = [a for a in axes if all_of(a, (int, float))]
+    scalar = [a for a in axes if all_of(a, (int, float, str))]    # (a list value is no series)
     x = plot.get('x') or (numeric[0] if numeric else None)
     y = plot.get('y') or next((c for r in ok[:1] for c in r if c.startswith('angle.')),
                               'newton_mean')
-    series = plot.get('series') or next((a for a in axes if a != x), None)
-    if not ok or x is None:
+    series = plot.get('series') or next((a for a in scalar if a != x), None)
+    if not ok or x is None or x not in numeric or series not in scalar + [None] \
+            or not all_of(y, (int, float)):
+        print(f'{PROG}: note: no figure: ' + (
+            'no case finished' if not ok else f'needs a numeric axis for x and a numeric '
+            f'column for y (x {x!r}, y {y!r}, series {series!r})'), file=sys.stderr)
         return ''
     fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
     groups: dict = {}
@@ -871,6 +887,7 @@ def _run(args, argv) -> int:
     if args.in_process and args.address:
         raise SpecError('--in-process and --address exclude each other')
     if not args.in_process:
+        _ray_environment(args.address)
         try:
             import ray  # noqa: F401
         except ImportError:
@@ -935,12 +952,11 @@ def _run(args, argv) -> int:
             if args.in_process:
                 run_in_process(spec.setup, jobs, on_row)
             else:
-                if 'RAY_USAGE_STATS_ENABLED' not in os.environ:
-                    os.environ['RAY_USAGE_STATS_ENABLED'] = '0'
                 _export_pythonpath()
                 engine = RayEngine(args.workers, args.address, args.temp_dir)
-                engine_name = (f'Ray {engine.ray.__version__}, {engine.workers} worker(s)'
-                               + (f' on {args.address}' if args.address else ' (local)'))
+                engine_name = (f'Ray {engine.ray.__version__}, {engine.workers} worker(s) on '
+                               f'{engine.nodes} node(s)'
+                               + (f' of {args.address}' if args.address else ' (local)'))
                 engine.run(spec.setup, jobs, on_row)
     except KeyboardInterrupt:
         interrupted = True
@@ -985,6 +1001,20 @@ def _read_rows(path: Path) -> dict:
             if isinstance(row, dict) and 'case' in row:
                 rows[row['case']] = row
     return rows
+
+
+LOOPBACK_HOSTS = ('127.0.0.1', 'localhost')
+
+
+def _ray_environment(address: Optional[str]) -> None:
+    """Before Ray is imported: usage statistics off (unless the user chose), and a Ray on
+    this machine (or a cluster addressed on loopback) kept on 127.0.0.1: Ray otherwise
+    advertises the machine's routable address and its servers listen on every interface.
+    (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 is Ray's switch for a single-machine Ray.)"""
+    os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')
+    host = (address or '').split('://')[-1].rsplit(':', 1)[0]
+    if not address or host in LOOPBACK_HOSTS:
+        os.environ.setdefault('RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER', '0')
 
 
 def _export_pythonpath() -> None:
