@@ -488,13 +488,22 @@ def _outputs():
             pass
 
     class CaseBag(Metrics, BagRecorder):
-        """run_headless's bag with the statistics; diagnostics carry no wall-clock value
-        (real_time_factor_achieved 0), so the bag is the same bytes on every worker."""
+        """run_headless's bag with the statistics, the same bytes on every worker and run:
+        diagnostics carry no wall-clock value (real_time_factor_achieved 0) and no
+        serialiser's padding garbage."""
 
         def __init__(self, path, sim, scene_path, scene_text, extra_custom, urdf_text):
             Metrics.__init__(self, sim)
             BagRecorder.__init__(self, path, sim, scene_path, scene_text, extra_custom,
                                  urdf_text=urdf_text, attachment_time_ns=ATTACHMENT_TIME_NS)
+
+        def _write(self, topic: str, t_ns: int, msg) -> None:
+            # the messages serialised here (diagnostics, commands, parameter events) with
+            # their padding bytes zeroed: the serialiser leaves them as its buffer had them
+            from rclpy.serialization import serialize_message
+            from abd_joint_sim.record import cdr
+            self._write_serialized(topic, t_ns,
+                                   cdr.without_padding(serialize_message(msg), msg))
 
         def diagnostics(self, t_ns: int) -> None:
             from abd_joint_sim.ros.params import NODE_NAME
@@ -640,17 +649,26 @@ class RayEngine:
                 temp_dir = self.own_temp = tempfile.mkdtemp(prefix='ray-sweep-')
             ray.init(num_cpus=self.workers, _temp_dir=os.path.abspath(temp_dir), **kwargs)
         self.nodes = sum(1 for n in ray.nodes() if n.get('Alive'))
+        self.setup: Optional[Setup] = None
+        self.setup_ref = None
+        self.actors: list = []
         self.remote = ray.remote(num_cpus=1, max_restarts=0)(CaseWorker)
 
     def run(self, setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
         ray = self.ray
         from ray.exceptions import RayActorError, WorkerCrashedError
-        setup_ref = ray.put(setup)
+        if self.setup is not setup:             # workers of another set-up: new ones
+            for actor in self.actors:
+                ray.kill(actor, no_restart=True)
+            self.setup, self.setup_ref, self.actors = setup, ray.put(setup), []
+        setup_ref = self.setup_ref
         queue = [(job, 0) for job in jobs]
         queue.reverse()                         # pop() takes the next in case order
-        actors = [self.remote.remote(setup_ref) for _ in range(min(self.workers, len(jobs)))]
+        # the workers stay up between calls (warm kernels); more are started as needed
+        actors = self.actors
+        while len(actors) < min(self.workers, len(jobs)):
+            actors.append(self.remote.remote(setup_ref))
         pending: dict = {}
-        self.actors = actors
 
         def submit(slot: int) -> None:
             if queue:
@@ -678,7 +696,7 @@ class RayEngine:
                 submit(slot)
 
     def close(self) -> None:
-        for actor in getattr(self, 'actors', []):
+        for actor in self.actors:
             try:
                 self.ray.kill(actor, no_restart=True)
             except Exception:  # noqa: BLE001 - shutting down anyway
