@@ -4,12 +4,13 @@ and of the KUKA iiwa URDF in MuJoCo's own batch runner (`mujoco.rollout`, open-l
 torques, as many threads as workers).
 
     python bench/sweep_bench.py [--cases 16] [--duration 0.5] [--workers 1 2] [--no-mujoco]
+                                [--robot arm|kuka|both]
 
 Each rate is measured with warm workers: the Ray workers are started and have loaded the
 compiled kernels (one case each) before the clock starts, as in a long sweep; the Ray
-start-up is given on its own line. Overhead per case (1 worker) = (sweep wall time − the
+start-up is given on its own line. Overhead per case = (sweep wall time × workers − the
 cases' own wall times) / cases: dispatch, argument and result transfer, the driver's
-bookkeeping. Wall-clock times on a machine that may be shared: compare the ratios.
+bookkeeping (and, with several workers, a worker idling at the end). Wall-clock times on a machine that may be shared: compare the ratios.
 """
 from __future__ import annotations
 
@@ -77,10 +78,11 @@ def jobs_of(spec) -> list:
 def serial_rate(spec) -> dict:
     worker = sweep.CaseWorker(spec.setup)          # kernels loaded: not timed
     jobs = jobs_of(spec)
+    worker.run(jobs[0])                              # as the Ray workers' warm round
     t0 = time.perf_counter()
     rows = [worker.run(job) for job in jobs]
     wall = time.perf_counter() - t0
-    return _result('in-process, serial', rows, wall)
+    return _result('in-process, serial', rows, wall, 1)
 
 
 def ray_rate(spec, workers: int) -> dict:
@@ -96,17 +98,20 @@ def ray_rate(spec, workers: int) -> dict:
         wall = time.perf_counter() - t0
     finally:
         engine.close()
-    result = _result(f'Ray local, {workers} worker(s)', rows, wall)
+    result = _result(f'Ray local, {workers} worker(s)', rows, wall, workers)
     result['startup'] = startup
     return result
 
 
-def _result(name: str, rows: list, wall: float) -> dict:
+def _result(name: str, rows: list, wall: float, workers: int) -> dict:
+    """Rates; overhead per case = (wall x workers - the cases' own wall times) / cases:
+    the worker time not spent in a case (dispatch, transfer, idling at the end)."""
     bad = [r for r in rows if r['status'] != 'ok']
     assert not bad, bad[0]
     case_wall = sum(r['wall_s'] for r in rows)
     return {'name': name, 'cases': len(rows), 'wall': wall, 'rate': len(rows) / wall,
-            'case_wall': case_wall / len(rows), 'overhead': (wall - case_wall) / len(rows)}
+            'case_wall': case_wall / len(rows),
+            'overhead': (wall * workers - case_wall) / len(rows)}
 
 
 def mujoco_arm_rate(cases: int, duration: float, threads: int) -> dict | None:
@@ -182,7 +187,7 @@ def main(argv=None) -> int:
     ap.add_argument('--duration', type=float, default=0.5, help='simulated s per case')
     ap.add_argument('--workers', type=int, nargs='*', default=[1, 2])
     ap.add_argument('--no-mujoco', action='store_true')
-    ap.add_argument('--no-kuka', action='store_true')
+    ap.add_argument('--robot', choices=('arm', 'kuka', 'both'), default='both')
     args = ap.parse_args(argv)
     sweep._ray_environment(None)
     sweep._export_pythonpath()
@@ -190,8 +195,9 @@ def main(argv=None) -> int:
     print(f'sweep_bench: {args.cases} cases of {args.duration:g} s simulated, dt 1 ms; '
           f'{os.cpu_count()} CPU(s), numba {numba.__version__}', flush=True)
     tmp = Path(tempfile.mkdtemp(prefix='sweep-bench-'))
-    robots = [('two-link arm', arm_spec(tmp, args.cases, args.duration), None)]
-    if not args.no_kuka:
+    robots = [('two-link arm', arm_spec(tmp, args.cases, args.duration), None)] \
+        if args.robot != 'kuka' else []
+    if args.robot != 'arm':
         from robot_bench import robot_path
         path = robot_path()
         if path:

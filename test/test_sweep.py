@@ -476,3 +476,14 @@ def test_two_runs_write_the_same_bag_bytes(tmp_path):
         time.sleep(0.01)
     a, b = _bag_bytes(tmp_path / 'a'), _bag_bytes(tmp_path / 'b')
     assert a and a == b
+
+
+def test_an_address_with_no_ray_is_one_line_at_once(tmp_path):
+    spec = _write(tmp_path, 'spec.yaml', 'scene: hinge\nduration: 0.02\n')
+    t0 = time.monotonic()
+    proc = _sweep(spec, tmp_path / 'out', '--address', f'127.0.0.1:{_free_port()}',
+                  timeout=120)
+    assert proc.returncode == 2 and time.monotonic() - t0 < 60
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'no Ray there' in lines[0], proc.stderr
+    assert not (tmp_path / 'out').exists()

@@ -592,12 +592,20 @@ def run_case(setup: Setup, job: Job) -> dict:
 
 
 def warm_kernels() -> None:
-    """Load (or compile) the compiled step once in this process: a tiny world takes a step."""
-    from abd_joint_sim import Scene, World
+    """Load (or compile) the compiled step, and import what a case uses, once in this
+    process: a short case of the packaged hinge scene runs through the loop."""
+    from abd_joint_sim.errors import SceneError
     from abd_joint_sim.ros.params import resolve_scene
-    world = World(Scene.from_yaml(resolve_scene('hinge')))
-    world.step()
-    world.step_clean(2)
+    from abd_joint_sim.scene import read_yaml_file
+    from .schedule import parse_schedule
+    path = resolve_scene('hinge')
+    _, data = read_yaml_file(path, SceneError, 'scene file')
+    plan = parse_schedule({'duration': 0.05, 'events': [{'t': 0.0, 'torque': {'hinge': 1.0}}]},
+                          '<warm-up>')
+    row = run_case(Setup(data, path, path, plan, {}, plan.segments[-1].end_ns, []),
+                   Job(0, 'warm-up', {}))
+    if row['status'] != 'ok':
+        raise RuntimeError(f'the warm-up case failed: {row["message"]}')
 
 
 class CaseWorker:
@@ -928,9 +936,6 @@ def _run(args, argv) -> int:
         done = _read_rows(rows_path)
     elif out.exists() and any(out.iterdir()):
         raise SpecError(f'--out {out}: exists and holds no sweep; use a new or empty directory')
-    out.mkdir(parents=True, exist_ok=True)
-    state_path.write_text(json.dumps({'spec': os.path.abspath(args.spec),
-                                      'digest': spec.digest, 'cases': len(spec.cases)}) + '\n')
     total = len(spec.cases)
     jobs, kept = [], {}
     for k, values in enumerate(spec.cases):
@@ -942,6 +947,26 @@ def _run(args, argv) -> int:
             kept[name] = row
         else:
             jobs.append(Job(k, name, values, bag))
+    engine = None
+    engine_name = 'in-process (serial)'
+    if jobs and not args.in_process:            # connect before anything is written
+        _export_pythonpath()
+        _probe_address(args.address)
+        try:
+            engine = RayEngine(args.workers, args.address, args.temp_dir)
+        except KeyboardInterrupt:
+            print(f'{PROG}: interrupted while starting Ray; nothing ran', file=sys.stderr)
+            return 130
+        except Exception as exc:  # noqa: BLE001 - Ray's errors have no common base
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            where = f'--address {args.address}' if args.address else 'a local Ray'
+            raise SpecError(f'{where}: Ray did not start or connect: {first[:300]}') from None
+        engine_name = (f'Ray {engine.ray.__version__}, {engine.workers} worker(s) on '
+                       f'{engine.nodes} node(s)'
+                       + (f' of {args.address}' if args.address else ' (local)'))
+    out.mkdir(parents=True, exist_ok=True)
+    state_path.write_text(json.dumps({'spec': os.path.abspath(args.spec),
+                                      'digest': spec.digest, 'cases': len(spec.cases)}) + '\n')
     rows = dict(kept)
     progress = Progress(total, len(kept), quiet=args.quiet)
     if not args.quiet and kept:
@@ -963,19 +988,11 @@ def _run(args, argv) -> int:
 
     wall0 = time.monotonic()
     interrupted = False
-    engine_name = 'in-process (serial)'
-    engine = None
     try:
-        if jobs:
-            if args.in_process:
-                run_in_process(spec.setup, jobs, on_row)
-            else:
-                _export_pythonpath()
-                engine = RayEngine(args.workers, args.address, args.temp_dir)
-                engine_name = (f'Ray {engine.ray.__version__}, {engine.workers} worker(s) on '
-                               f'{engine.nodes} node(s)'
-                               + (f' of {args.address}' if args.address else ' (local)'))
-                engine.run(spec.setup, jobs, on_row)
+        if jobs and engine is None:
+            run_in_process(spec.setup, jobs, on_row)
+        elif jobs:
+            engine.run(spec.setup, jobs, on_row)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -1033,6 +1050,30 @@ def _ray_environment(address: Optional[str]) -> None:
     host = (address or '').split('://')[-1].rsplit(':', 1)[0]
     if not address or host in LOOPBACK_HOSTS:
         os.environ.setdefault('RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER', '0')
+
+
+PROBE_TIMEOUT = 5.0
+"""[s] How long a cluster's address may take to accept a connection before the sweep gives
+up (Ray itself retries for minutes, logging each attempt)."""
+
+
+def _probe_address(address: Optional[str]) -> None:
+    """A HOST:PORT or ray://HOST:PORT address must accept a TCP connection: SpecError (one
+    line) at once otherwise. 'auto' and a local Ray are Ray's to find."""
+    import socket
+    if not address or address == 'auto':
+        return
+    hostport = address.split('://', 1)[-1]
+    host, sep, port = hostport.rpartition(':')
+    if not sep or not port.isdigit() or not host:
+        raise SpecError(f'--address {address}: expected auto, HOST:PORT or ray://HOST:PORT')
+    try:
+        with socket.create_connection((host.strip('[]'), int(port)), timeout=PROBE_TIMEOUT):
+            pass
+    except OSError as exc:
+        raise SpecError(f'--address {address}: no Ray there ({exc.strerror or exc}); start '
+                        'one with `ray start --head`, or leave --address out for a local '
+                        'Ray') from None
 
 
 def _export_pythonpath() -> None:
