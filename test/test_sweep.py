@@ -354,6 +354,9 @@ BAD = {
                  '1000000 cases asked, more than the cap of 10000'),
     'unseeded': ('random: {n: 3, uniform: {dt: [0.001, 0.002]}}\n', 'random.seed'),
     'unknown_key': ('grids: {dt: [0.001]}\n', 'grids: unknown key'),
+    'through_a_value': ('grid:\n  dt.x: [1.0]\n', 'dt.x: unknown path: dt is a value'),
+    'robot_on_a_yaml': ('grid:\n  robot.fixed_base: [true]\n',
+                        'robot.fixed_base: unknown path: the scene has no robot: block'),
 }
 
 

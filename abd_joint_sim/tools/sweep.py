@@ -378,7 +378,6 @@ def _set_path(data: dict, path: str, value: Any) -> None:
     cur: Any = data
     for k, part in enumerate(parts):
         last = k == len(parts) - 1
-        here = '.'.join(parts[:k + 1])
         if isinstance(cur, list):
             items = [x for x in cur if isinstance(x, dict) and x.get('name') == part]
             if not items:
@@ -398,7 +397,6 @@ def _set_path(data: dict, path: str, value: Any) -> None:
         else:
             raise SceneError(f'{path}: unknown path: {".".join(parts[:k])} is a value '
                              f'({cur!r}), not a mapping or list')
-        del here
 
 
 def case_scene(setup: Setup, values: dict):
@@ -617,9 +615,6 @@ class CaseWorker:
 
     def run(self, job: Job) -> dict:
         return run_case(self.setup, job)
-
-    def pid(self) -> int:
-        return os.getpid()
 
 
 # ---------------------------------------------------------------------- engines -----
