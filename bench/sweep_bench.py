@@ -195,6 +195,14 @@ def main(argv=None) -> int:
     print(f'sweep_bench: {args.cases} cases of {args.duration:g} s simulated, dt 1 ms; '
           f'{os.cpu_count()} CPU(s), numba {numba.__version__}', flush=True)
     tmp = Path(tempfile.mkdtemp(prefix='sweep-bench-'))
+    try:
+        return _bench(args, tmp)
+    finally:
+        import shutil
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _bench(args, tmp: Path) -> int:
     robots = [('two-link arm', arm_spec(tmp, args.cases, args.duration), None)] \
         if args.robot != 'kuka' else []
     if args.robot != 'arm':
