@@ -876,8 +876,10 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
                          if isinstance(r.get(x), (int, float)) else 0.0)
         label = f'{series} = {key:.4g}' if isinstance(key, float) else (
             f'{series} = {key}' if series else None)
-        ax.plot([r.get(x) for r in members], [r.get(y) for r in members], 'o-'
-                if len(groups) <= 12 else 'o', ms=4, label=label)
+        xs = [r.get(x) for r in members]
+        # a line only where it is one: one point per x (other axes vary otherwise)
+        style = 'o-' if len(groups) <= 12 and len(set(xs)) == len(xs) else 'o'
+        ax.plot(xs, [r.get(y) for r in members], style, ms=4, alpha=0.8, label=label)
     ax.set_xlabel(x)
     ax.set_ylabel(y)
     ax.set_title(f'{y} against {x} ({len(ok)} cases)')
