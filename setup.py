@@ -22,6 +22,8 @@ setup(
          glob(os.path.join(package_name, 'robots', '*.urdf'))),
     ],
     install_requires=['setuptools'],
+    # `pip install '.[sweep]'`: the engine of the `sweep` command (requirements-sweep.txt)
+    extras_require={'sweep': ['ray==2.60.0'], 'live': ['foxglove-sdk==0.30.3']},
     zip_safe=True,
     maintainer='abd_joint_sim maintainers',
     maintainer_email='maintainers@abd-joint-sim.example.org',
@@ -36,6 +38,7 @@ setup(
             'bag_recover = abd_joint_sim.ros.bag_recover:main',
             'plot_bag = abd_joint_sim.tools.plot_bag:main',
             'replay_bag = abd_joint_sim.tools.replay_bag:main',
+            'sweep = abd_joint_sim.tools.sweep:main',
         ],
     },
 )

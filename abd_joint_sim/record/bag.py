@@ -255,6 +255,9 @@ class BagWriter:
     :param custom_data: strings stored in ``metadata.yaml`` ``custom_data`` and in the MCAP
         ``rosbag2`` metadata record (we keep the scene YAML and effective parameters here).
     :param attachments: files stored as MCAP attachments at open, e.g. ``{'scene.yaml': b...}``.
+    :param attachment_time_ns: the attachments' MCAP ``create_time`` [ns]; None = the wall
+        clock at open. A fixed value makes a bag's bytes a function of its content alone
+        (the sweeps' bags are bit-identical whichever worker writes them, and when).
     :param chunk_size: uncompressed bytes per MCAP chunk; the most a SIGKILL can lose.
     :param compression: chunk compression, ``'zstd'`` (default), ``'lz4'`` or ``'none'``;
         all three are read by rosbag2's MCAP plugin, Foxglove, rosbags and mcap_ros2.
@@ -263,6 +266,7 @@ class BagWriter:
     def __init__(self, path: str | os.PathLike[str], *,
                  custom_data: dict[str, str] | None = None,
                  attachments: dict[str, bytes] | None = None,
+                 attachment_time_ns: int | None = None,
                  chunk_size: int = DEFAULT_CHUNK_SIZE,
                  compression: str = 'zstd') -> None:
         self.path = Path(path)
@@ -275,6 +279,7 @@ class BagWriter:
             self._check_custom(key, value)
             self._custom_data[key] = value
         self._attachments = dict(attachments or {})
+        self._attachment_time_ns = attachment_time_ns
         for name, data in self._attachments.items():
             if not isinstance(name, str) or not isinstance(data, (bytes, bytearray)):
                 raise BagError(f"bag '{self.path}': attachment {name!r} must map a str name "
@@ -319,7 +324,8 @@ class BagWriter:
                             enable_crcs=True, enable_data_crcs=True)
             writer.start(profile=PROFILE, library=LIBRARY)
             self._fast = _FastMessages(writer) if fast_messages_work() else None
-            now = time.time_ns()
+            now = time.time_ns() if self._attachment_time_ns is None \
+                else int(self._attachment_time_ns)
             # log_time 0: the attachment belongs before the first simulated instant.
             for name, data in self._attachments.items():
                 writer.add_attachment(create_time=now, log_time=0, name=name,

@@ -164,12 +164,14 @@ class BagRecorder(LoopOutput):
     markers_wanted = True
 
     def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
-                 extra_custom: Optional[dict[str, str]] = None, urdf_text: str = ''):
+                 extra_custom: Optional[dict[str, str]] = None, urdf_text: str = '',
+                 attachment_time_ns: Optional[int] = None):
         from abd_joint_sim.record import BagWriter
         self.sim = sim
         custom, attachments = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
                                               sim.commands.order, extra_custom, urdf_text)
-        self.writer = BagWriter(path, custom_data=custom, attachments=attachments)
+        self.writer = BagWriter(path, custom_data=custom, attachments=attachments,
+                                attachment_time_ns=attachment_time_ns)
         self.writer.open()
         try:
             add_node_topics(self.writer, resolve_root, sim.actuated,

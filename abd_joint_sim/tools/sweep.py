@@ -1,0 +1,1086 @@
+"""sweep: run many variants of one scene (a grid and seeded random samples) on Ray.
+
+    sweep SPEC.yaml --out DIR [--workers N] [--address auto|ray://host:10001] [--bags]
+    sweep SPEC.yaml --out DIR --in-process        # serially in this process, no Ray
+
+A spec names a base scene (packaged name, scene YAML or URDF with its options), a duration,
+an optional command schedule (the ``run_headless`` format, docs/replay.md) and the axes:
+lists crossed as a grid, and seeded random samples (uniform / normal / choice), each over a
+scene field named by a dotted path (``joints.elbow.external_torque.torque``,
+``bodies.forearm.density``, ``dt``, ``integrator``, ``robot.initial_positions.<joint>``):
+
+.. code-block:: yaml
+
+    scene: default            # packaged name, scene YAML or URDF (paths relative to the spec)
+    duration: 0.5             # simulated seconds per case
+    schedule: cmds.yaml       # optional (or the schedule inline, as a mapping)
+    grid:                     # crossed: 2 x 2 = 4 combinations
+      dt: [0.002, 0.001]
+      joints.shoulder.external_torque.torque: [0.5, 2.0]
+    random:                   # n seeded samples, crossed with the grid: 4 x 3 = 12 cases
+      n: 3
+      seed: 11
+      uniform: {bodies.forearm.density: [800.0, 1500.0]}
+
+Every case is checked before anything runs (the path exists, the scene format accepts the
+value, the URDF loads, the schedule's joints are the scene's, at most ``max_cases`` cases);
+the first problem is one line on stderr naming the path and the case, exit status 2.
+
+Each case runs through sim_node's loop exactly as ``run_headless`` runs it (ros/loop.py via
+tools/sim.py: commands, timeouts, faults), records its bag with ``--bags`` and gives one
+row: its axis values, final joint angles and velocities, the change of mechanical energy,
+the largest joint separation, Newton iterations (mean, max), sub-steps, status (ok, fault,
+error, died) with its message, and its wall time. DIR gets ``results.csv`` (rows in case
+order), ``summary.md`` and ``figure.png``; ``rows.jsonl`` and ``sweep.json`` let a re-run
+of the same command resume (finished cases are skipped). See docs/sweeps.md.
+
+Exit status: 0 every case ran (faulted cases are results, not errors); 1 a case raised an
+exception or lost its worker twice; 2 bad input; 130 interrupted (re-run to resume).
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+from dataclasses import dataclass, field
+import hashlib
+import itertools
+import json
+import math
+import os
+from pathlib import Path
+import shutil
+import sys
+import time
+from typing import Any, Callable, Optional, Sequence
+
+PROG = 'sweep'
+DEFAULT_MAX_CASES = 10_000
+"""Most cases a spec may ask for unless it (or --max-cases) raises the cap."""
+SPEC_KEYS = ('scene', 'urdf_options', 'duration', 'schedule', 'grid', 'random', 'max_cases',
+             'plot')
+RANDOM_KINDS = ('uniform', 'normal', 'choice')
+STATUSES = ('ok', 'fault', 'error', 'died')
+INSTALL_HINT = ("Ray is not installed: pip install -r requirements-sweep.txt (or "
+                "pip install 'abd_joint_sim[sweep]'), or run serially with --in-process")
+ATTACHMENT_TIME_NS = 0
+"""The bags' attachment time: fixed, so a case's bag is the same bytes on every worker."""
+
+
+class SpecError(Exception):
+    """A spec that cannot run; one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit 2 (argparse prints usage too)
+        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description=(
+        'Run a sweep over an abd_joint_sim scene: a grid and seeded random samples of scene '
+        'fields, each case through the run_headless loop, on Ray (local cores or a cluster). '
+        'Writes DIR/results.csv, summary.md and figure.png; re-running resumes. '
+        'Spec format: docs/sweeps.md.'))
+    p.add_argument('spec', metavar='SPEC.yaml', help='the sweep spec')
+    p.add_argument('--out', required=True, metavar='DIR',
+                   help='results directory (created; an existing one of the same spec resumes)')
+    p.add_argument('--workers', type=int, metavar='N',
+                   help='parallel workers (default: every core of this machine, or every '
+                        'CPU of the cluster with --address)')
+    p.add_argument('--address', metavar='ADDR',
+                   help="a running Ray cluster: 'auto' (started here with `ray start`), "
+                        "host:port or ray://host:10001; default: a Ray of its own on this "
+                        'machine')
+    p.add_argument('--bags', action='store_true',
+                   help='record each case\'s bag (as run_headless) in DIR/bags/CASE')
+    p.add_argument('--in-process', action='store_true',
+                   help='run the cases one after another in this process (no Ray)')
+    p.add_argument('--max-cases', type=int, metavar='N',
+                   help=f'refuse a spec of more cases (default: the spec\'s max_cases, else '
+                        f'{DEFAULT_MAX_CASES})')
+    p.add_argument('--temp-dir', metavar='DIR',
+                   help='Ray\'s session directory for a local Ray (default: a new one under '
+                        'the system temp directory, removed afterwards)')
+    p.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary line')
+    return p
+
+
+# ------------------------------------------------------------------------- the spec ----
+@dataclass
+class Setup:
+    """What every case shares: the base scene data, the schedule, the duration."""
+
+    base: dict                      # scene data (a URDF robot as a `robot:` block)
+    source: str                     # the base scene's path (relative URDF paths resolve there)
+    scene_path: str                 # what a bag stores as the scene ('' = spec-made scene)
+    plan: Any                       # schedule.Plan (one segment)
+    parameters: dict                # the schedule's sim_node parameters
+    duration_ns: int
+    axes: list                      # dotted paths, grid axes first
+
+
+@dataclass
+class Job:
+    """One case for a worker."""
+
+    index: int
+    case: str                       # 'case_0003'
+    values: dict                    # path -> value
+    bag: str = ''                   # bag directory to write, '' = none
+
+
+@dataclass
+class Spec:
+    setup: Setup
+    cases: list                     # [{path: value}], in case order
+    digest: str
+    plot: dict = field(default_factory=dict)
+
+
+def _fail(where: str, what: str) -> SpecError:
+    return SpecError(f'{where}: {what}')
+
+
+def _finite(where: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(float(value)):
+        raise _fail(where, f'expected a finite number, got {value!r}')
+    return float(value)
+
+
+def _check_path(where: str, path: Any) -> str:
+    if not isinstance(path, str) or not path or any(not s for s in path.split('.')):
+        raise _fail(where, f'{path!r} is not a dotted path into the scene '
+                           '(e.g. joints.elbow.external_torque.torque)')
+    return path
+
+
+def load_spec(path: str | Path, max_cases: Optional[int] = None) -> Spec:
+    """Read, expand and check a spec; SpecError (one line) on the first problem."""
+    from abd_joint_sim.errors import SceneError
+    from abd_joint_sim.scene import read_yaml_file
+    path = Path(path)
+    _, data = read_yaml_file(path, SpecError, 'sweep spec')
+    src = str(path)
+    if not isinstance(data, dict):
+        raise _fail(src, 'expected a mapping with scene, duration, grid and/or random '
+                         '(docs/sweeps.md)')
+    unknown = [k for k in data if k not in SPEC_KEYS]
+    if unknown:
+        raise _fail(f'{src}: {unknown[0]}', f'unknown key (allowed: {", ".join(SPEC_KEYS)})')
+    here = path.resolve().parent
+    try:
+        base, source, scene_path = _base_scene(src, here, data.get('scene', 'default'),
+                                               data.get('urdf_options'))
+    except SceneError as exc:
+        raise _fail(f'{src}: scene', str(exc)) from None
+    plan, parameters = _schedule(src, here, data.get('schedule'))
+    duration = data.get('duration')
+    if duration is None:
+        if plan is None or not plan.duration_given:
+            raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
+        duration_ns = plan.segments[-1].end_ns
+    else:
+        from .schedule import MAX_TIME
+        from abd_joint_sim.ros.convert import seconds_to_ns
+        duration = _finite(f'{src}: duration', duration)
+        if not 0.0 < duration <= MAX_TIME:
+            raise _fail(f'{src}: duration', f'{duration:g} must be > 0 and at most {MAX_TIME:g} s')
+        duration_ns = seconds_to_ns(duration)
+    if plan is None:
+        from .schedule import parse_schedule
+        plan = parse_schedule({'events': []}, f'{src}: (no schedule)')
+    plan.segments[-1].end_ns = duration_ns
+
+    grid = _grid(src, data.get('grid'))
+    rnd = _random(src, data.get('random'))
+    axes = list(grid) + list(rnd['axes'])
+    dup = [a for a in axes if axes.count(a) > 1]
+    if dup:
+        raise _fail(src, f'axis {dup[0]} is given twice')
+    cap = max_cases if max_cases is not None else data.get('max_cases', DEFAULT_MAX_CASES)
+    if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
+        raise _fail(f'{src}: max_cases', f'expected an integer >= 1, got {cap!r}')
+    count = math.prod(len(v) for v in grid.values()) * rnd['n']
+    if count > cap:
+        raise _fail(src, f'{count} cases asked, more than the cap of {cap} (raise it with '
+                         f'max_cases: in the spec or --max-cases)')
+    samples = _samples(rnd)
+    cases = [{**dict(zip(grid, combo)), **sample}
+             for combo in itertools.product(*grid.values()) for sample in samples]
+    setup = Setup(base, source, scene_path, plan, parameters, duration_ns, axes)
+    for k, values in enumerate(cases):
+        check_case(setup, k, values)
+    plot = data.get('plot') or {}
+    if not isinstance(plot, dict) or set(plot) - {'x', 'y', 'series'}:
+        raise _fail(f'{src}: plot', f'expected {{x: axis, y: column, series: axis}}, got {plot!r}')
+    for key in ('x', 'series'):
+        if key in plot and plot[key] not in axes:
+            raise _fail(f'{src}: plot.{key}', f'{plot[key]!r} is not an axis of the spec '
+                                              f'(axes: {", ".join(axes) or "none"})')
+    if 'y' in plot and not (plot['y'] in FIXED_COLUMNS or str(plot['y']).startswith(
+            ('angle.', 'velocity.'))):
+        raise _fail(f'{src}: plot.y', f'{plot["y"]!r} is not a result column (angle.<joint>, '
+                                      f'velocity.<joint>, {", ".join(FIXED_COLUMNS[2:])})')
+    digest = hashlib.sha256(json.dumps(
+        {'base': base, 'source': source, 'duration_ns': duration_ns, 'parameters': parameters,
+         'plan': repr(plan.segments), 'cases': cases}, sort_keys=True, default=repr).encode()
+    ).hexdigest()[:16]
+    return Spec(setup, cases, digest, plot)
+
+
+def _base_scene(src: str, here: Path, scene: Any, urdf_options: Any) -> tuple[dict, str, str]:
+    """(scene data, its source path, the scene path a bag stores) of the spec's `scene`."""
+    from abd_joint_sim import urdf
+    from abd_joint_sim.ros.params import resolve_scene
+    from abd_joint_sim.scene import read_yaml_file
+    from abd_joint_sim.errors import SceneError
+    if not isinstance(scene, str) or not scene.strip():
+        raise SceneError('expected a packaged scene name or the path of a .yaml or .urdf file, '
+                         f'got {scene!r}')
+    if os.sep in scene or scene.endswith(('.yaml', '.yml', '.urdf')):
+        scene = str((here / os.path.expanduser(scene)).resolve())
+    scene_path = resolve_scene(scene)
+    if not os.path.isfile(scene_path):
+        raise SceneError(f'{scene_path}: no such file')
+    if urdf_options is not None and not scene_path.lower().endswith('.urdf'):
+        raise SceneError('urdf_options apply to a .urdf scene only (a scene YAML has a '
+                         'robot: block for that)')
+    if scene_path.lower().endswith('.urdf'):
+        options = urdf_options or {}
+        if not isinstance(options, dict):
+            raise SceneError(f'urdf_options: expected a mapping, got {options!r}')
+        allowed = urdf.ROBOT_OPTIONS + urdf.SCENE_OPTIONS
+        bad = [k for k in options if k not in allowed]
+        if bad:
+            raise SceneError(f'urdf_options.{bad[0]}: unknown option (allowed: '
+                             f'{", ".join(allowed)})')
+        data = {k: v for k, v in options.items() if k in urdf.SCENE_OPTIONS}
+        data.setdefault('dt', urdf.DEFAULT_DT)
+        data.setdefault('gravity', list(urdf.DEFAULT_GRAVITY))
+        data['robot'] = {'urdf': scene_path,
+                         **{k: v for k, v in options.items() if k in urdf.ROBOT_OPTIONS}}
+        return data, scene_path, scene_path
+    _, data = read_yaml_file(scene_path, SceneError, 'scene file')
+    if not isinstance(data, dict):
+        raise SceneError(f'{scene_path}: expected a scene mapping')
+    return data, scene_path, scene_path
+
+
+def _schedule(src: str, here: Path, value: Any):
+    from .schedule import load_schedule, parse_schedule, ScheduleError
+    if value is None:
+        return None, {}
+    try:
+        if isinstance(value, str):
+            plan = load_schedule(here / os.path.expanduser(value))
+        else:
+            plan = parse_schedule(value, f'{src}: schedule')
+    except ScheduleError as exc:
+        raise SpecError(str(exc)) from None
+    return plan, dict(plan.parameters)
+
+
+def _grid(src: str, grid: Any) -> dict:
+    if grid is None:
+        return {}
+    if not isinstance(grid, dict):
+        raise _fail(f'{src}: grid', f'expected {{path: [values]}}, got {grid!r}')
+    out = {}
+    for path, values in grid.items():
+        _check_path(f'{src}: grid', path)
+        if not isinstance(values, list):
+            raise _fail(f'{src}: grid.{path}', f'expected a list of values, got {values!r}')
+        if not values:
+            raise _fail(f'{src}: grid.{path}', 'empty list: an axis needs at least one value')
+        out[path] = values
+    return out
+
+
+def _random(src: str, rnd: Any) -> dict:
+    if rnd is None:
+        return {'n': 1, 'seed': 0, 'axes': {}}
+    where = f'{src}: random'
+    if not isinstance(rnd, dict):
+        raise _fail(where, f'expected a mapping with n, seed and uniform/normal/choice, got {rnd!r}')
+    bad = [k for k in rnd if k not in ('n', 'seed') + RANDOM_KINDS]
+    if bad:
+        raise _fail(f'{where}.{bad[0]}', f'unknown key (allowed: n, seed, {", ".join(RANDOM_KINDS)})')
+    n, seed = rnd.get('n'), rnd.get('seed')
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise _fail(f'{where}.n', f'expected the number of samples, an integer >= 1, got {n!r}')
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise _fail(f'{where}.seed', f'expected an integer >= 0 (samples are seeded), got {seed!r}')
+    axes: dict = {}
+    for kind in RANDOM_KINDS:
+        block = rnd.get(kind)
+        if block is None:
+            continue
+        if not isinstance(block, dict) or not block:
+            raise _fail(f'{where}.{kind}', f'expected {{path: ...}}, got {block!r}')
+        for path, arg in block.items():
+            w = f'{where}.{kind}.{_check_path(f"{where}.{kind}", path)}'
+            if path in axes:
+                raise _fail(w, 'axis given twice')
+            if kind == 'choice':
+                if not isinstance(arg, list) or not arg:
+                    raise _fail(w, f'expected a non-empty list of values, got {arg!r}')
+            else:
+                if not isinstance(arg, list) or len(arg) != 2:
+                    want = '[low, high]' if kind == 'uniform' else '[mean, std]'
+                    raise _fail(w, f'expected {want}, got {arg!r}')
+                a, b = (_finite(w, v) for v in arg)
+                if kind == 'uniform' and not a <= b:
+                    raise _fail(w, f'low {a:g} is above high {b:g}')
+                if kind == 'normal' and b < 0.0:
+                    raise _fail(w, f'std {b:g} is negative')
+                arg = [a, b]
+            axes[path] = (kind, arg)
+    if not axes:
+        raise _fail(where, 'no axis: give uniform, normal or choice')
+    return {'n': n, 'seed': seed, 'axes': axes}
+
+
+def _samples(rnd: dict) -> list[dict]:
+    """n samples {path: value}: one seeded generator, axes drawn in spec order, n at a time."""
+    import numpy as np
+    n = rnd['n']
+    if not rnd['axes']:
+        return [{}] * n
+    gen = np.random.default_rng(rnd['seed'])
+    columns = {}
+    for path, (kind, arg) in rnd['axes'].items():
+        if kind == 'uniform':
+            columns[path] = [float(x) for x in gen.uniform(arg[0], arg[1], n)]
+        elif kind == 'normal':
+            columns[path] = [float(x) for x in gen.normal(arg[0], arg[1], n)]
+        else:
+            columns[path] = [arg[int(k)] for k in gen.integers(0, len(arg), n)]
+    return [{p: columns[p][i] for p in columns} for i in range(n)]
+
+
+def case_name(index: int, total: int) -> str:
+    return f'case_{index:0{max(4, len(str(total - 1)))}d}'
+
+
+def _describe(index: int, values: dict) -> str:
+    shown = ', '.join(f'{p} = {v!r}' for p, v in values.items())
+    return f'case {index}' + (f' ({shown})' if shown else '')
+
+
+# ------------------------------------------------------------- scene of one case ----
+def _set_path(data: dict, path: str, value: Any) -> None:
+    """data[path] = value: mapping keys by name, list items (bodies, joints) by their name.
+    Missing mapping keys are created (the scene format decides whether they are allowed)."""
+    from abd_joint_sim.errors import SceneError
+    parts = path.split('.')
+    cur: Any = data
+    for k, part in enumerate(parts):
+        last = k == len(parts) - 1
+        if isinstance(cur, list):
+            items = [x for x in cur if isinstance(x, dict) and x.get('name') == part]
+            if not items:
+                names = [x.get('name') for x in cur if isinstance(x, dict)]
+                raise SceneError(f'{path}: unknown path: no item named {part!r} in '
+                                 f'{".".join(parts[:k])} (have: {", ".join(map(str, names))})')
+            if last:
+                raise SceneError(f'{path}: names a whole item; name one of its fields')
+            cur = items[0]
+        elif isinstance(cur, dict):
+            if last:
+                cur[part] = copy.deepcopy(value)
+            else:
+                if cur.get(part) is None:
+                    cur[part] = {}
+                cur = cur[part]
+        else:
+            raise SceneError(f'{path}: unknown path: {".".join(parts[:k])} is a value '
+                             f'({cur!r}), not a mapping or list')
+
+
+def case_scene(setup: Setup, values: dict):
+    """The Scene of one case (SceneError naming the path on a refused value)."""
+    from abd_joint_sim import Scene
+    from abd_joint_sim.errors import SceneError
+    from abd_joint_sim.scene import _Parser, _with_robot
+    data = copy.deepcopy(setup.base)
+    robot = None
+    if 'robot' in data:
+        for path, value in values.items():
+            if path.split('.')[0] in ('robot',) + _TOP_SCENE_KEYS:
+                _set_path(data, path, value)
+        try:
+            data, robot = _Parser(setup.source).robot(data)
+        except SceneError as exc:
+            raise SceneError(f'robot: {exc}') from None
+        rest = {p: v for p, v in values.items()
+                if p.split('.')[0] not in ('robot',) + _TOP_SCENE_KEYS}
+    else:
+        rest = values
+    for path, value in rest.items():
+        if path.split('.')[0] == 'robot':
+            raise SceneError(f'{path}: unknown path: the scene has no robot: block')
+        _set_path(data, path, value)
+    scene = Scene.from_dict(data, source=setup.source)
+    if robot is not None:
+        scene = _with_robot(scene, *robot)
+    return scene
+
+
+_TOP_SCENE_KEYS = ('name', 'description', 'dt', 'gravity', 'integrator', 'newton')
+
+
+def check_case(setup: Setup, index: int, values: dict) -> None:
+    """Build the case's scene and check the schedule against it (SpecError naming the case)."""
+    from abd_joint_sim.errors import SceneError
+    from abd_joint_sim.ros.commands import CommandBuffer
+    from .bagrun import config_for
+    from .schedule import check_plan, ScheduleError
+    try:
+        scene = case_scene(setup, values)
+        config = config_for(setup.parameters, scene_path=setup.scene_path)
+        actuated = [j.name for j in scene.joints if j.external_torque is not None]
+        buffer = CommandBuffer(actuated, config.joints, config.effort_limits, 0.0,
+                               scene_limits={j.name: j.external_torque.effort_limit
+                                             for j in scene.joints
+                                             if j.external_torque is not None},
+                               driven=[j.name for j in scene.joints if j.driving is not None])
+        check_plan(setup.plan, actuated, buffer.order, buffer)
+    except (SceneError, ScheduleError, ValueError) as exc:
+        raise SpecError(f'{_describe(index, values)}: {exc}') from None
+
+
+# ------------------------------------------------------------------ one case -----
+def _outputs():
+    """The loop outputs of a case (defined on first use: they import the ROS messages)."""
+    global _Metrics, _CaseBag
+    if _Metrics is not None:
+        return _Metrics, _CaseBag
+    from abd_joint_sim.ros.loop import LoopOutput
+    from .sim import BagRecorder
+
+    class Metrics(LoopOutput):
+        """Per-step solver statistics of a case (reads the world after every step)."""
+
+        world_each_step = True
+
+        def __init__(self, sim):
+            self.sim = sim
+            self.steps = self.newton_sum = self.newton_max = 0
+            self.substep_steps = self.substeps_max = 0
+            self.max_sep = 0.0
+
+        def stepped(self, t_ns: int, force: bool) -> None:
+            rep = self.sim.world.last_step
+            self.max_sep = max(self.max_sep, float(rep.max_joint_separation))
+            if force:               # the initial state, not a step
+                return
+            self.steps += 1
+            self.newton_sum += rep.newton_iterations
+            self.newton_max = max(self.newton_max, rep.newton_iterations)
+            self.substep_steps += rep.substeps > 1
+            self.substeps_max = max(self.substeps_max, rep.substeps)
+
+        def close(self) -> None:
+            pass
+
+    class CaseBag(Metrics, BagRecorder):
+        """run_headless's bag with the statistics, the same bytes on every worker and run:
+        diagnostics carry no wall-clock value (real_time_factor_achieved 0) and no
+        serialiser's padding garbage."""
+
+        def __init__(self, path, sim, scene_path, scene_text, extra_custom, urdf_text):
+            Metrics.__init__(self, sim)
+            BagRecorder.__init__(self, path, sim, scene_path, scene_text, extra_custom,
+                                 urdf_text=urdf_text, attachment_time_ns=ATTACHMENT_TIME_NS)
+
+        def _write(self, topic: str, t_ns: int, msg) -> None:
+            # the messages serialised here (diagnostics, commands, parameter events) with
+            # their padding bytes zeroed: the serialiser leaves them as its buffer had them
+            from rclpy.serialization import serialize_message
+            from abd_joint_sim.record import cdr
+            self._write_serialized(topic, t_ns,
+                                   cdr.without_padding(serialize_message(msg), msg))
+
+        def diagnostics(self, t_ns: int) -> None:
+            from abd_joint_sim.ros.params import NODE_NAME
+            from abd_joint_sim.ros.recording import TOPIC_DIAGNOSTICS
+            self._write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
+                t_ns, f'{NODE_NAME}: solver', real_time_factor_requested=0.0,
+                real_time_factor_achieved=0.0, recording=True))
+
+        def close(self) -> None:
+            BagRecorder.close(self)
+
+    _Metrics, _CaseBag = Metrics, CaseBag
+    return Metrics, CaseBag
+
+
+_Metrics = _CaseBag = None
+
+
+def incomplete_marker(bag: str) -> Path:
+    """The file beside a bag that says it is not finished (removed once it is)."""
+    return Path(bag + '.incomplete')
+
+
+def run_case(setup: Setup, job: Job) -> dict:
+    """Run one case; always returns its row (a failure is a status and a message)."""
+    from abd_joint_sim.errors import SimulationError
+    wall0 = time.perf_counter()
+    row: dict = {'case': job.case, **job.values}
+    status, message = 'ok', ''
+    out = None
+    try:
+        from .bagrun import config_for
+        from .sim import HeadlessSim
+        scene = case_scene(setup, job.values)
+        config = config_for(setup.parameters, scene_path=setup.scene_path)
+        sim = HeadlessSim(scene, config, clamp=True)
+        plan = copy.deepcopy(setup.plan)
+        Metrics, CaseBag = _outputs()
+        if job.bag:
+            marker = incomplete_marker(job.bag)
+            marker.parent.mkdir(parents=True, exist_ok=True)
+            marker.write_text('this bag is being written; a bag beside this file is partial\n')
+            if os.path.isdir(job.bag):
+                shutil.rmtree(job.bag)          # a partial bag of an interrupted run
+            config.record = job.bag
+            out = CaseBag(job.bag, sim, setup.scene_path, getattr(scene, 'source_text', ''),
+                          {'abd_joint_sim.recorded_by': f'sweep ({job.case})',
+                           'abd_joint_sim.sweep_case': json.dumps(job.values, sort_keys=True)},
+                          getattr(scene, 'robot_description', '') or '')
+        else:
+            out = Metrics(sim)
+        world = sim.world
+        energy0 = world.mechanical_energy()
+        try:
+            sim.run(plan, out)
+        except (SimulationError, ArithmeticError, ValueError) as exc:
+            what = str(exc) if isinstance(exc, SimulationError) else f'{type(exc).__name__}: {exc}'
+            status, message = 'fault', f'step at t={world.time:.6f} s failed: {what}'
+        finally:
+            out.close()
+        if job.bag:
+            incomplete_marker(job.bag).unlink()
+        for name, a, v in zip(world.joint_names, world.joint_angles().tolist(),
+                              world.joint_velocities().tolist()):
+            row[f'angle.{name}'] = a
+            row[f'velocity.{name}'] = v
+        row.update({
+            'sim_time': float(world.time), 'steps': out.steps,
+            'energy_drift': float(world.mechanical_energy() - energy0),
+            'max_joint_separation': out.max_sep,
+            'newton_mean': out.newton_sum / out.steps if out.steps else 0.0,
+            'newton_max': out.newton_max, 'substep_steps': out.substep_steps,
+            'substeps_max': out.substeps_max,
+            'not_converged': sim.not_converged})
+    except Exception as exc:  # noqa: BLE001 - a case's failure is its row, not the sweep's
+        status, message = 'error', f'{type(exc).__name__}: {exc}'
+        if out is not None and job.bag:
+            try:
+                out.close()
+            except Exception:  # noqa: BLE001 - the marker stays: the bag is partial
+                pass
+    row['status'] = status
+    row['message'] = message.replace('\n', ' ')
+    row['wall_s'] = time.perf_counter() - wall0
+    return row
+
+
+def warm_kernels() -> None:
+    """Load (or compile) the compiled step, and import what a case uses, once in this
+    process: a short case of the packaged hinge scene runs through the loop."""
+    from abd_joint_sim.errors import SceneError
+    from abd_joint_sim.ros.params import resolve_scene
+    from abd_joint_sim.scene import read_yaml_file
+    from .schedule import parse_schedule
+    path = resolve_scene('hinge')
+    _, data = read_yaml_file(path, SceneError, 'scene file')
+    plan = parse_schedule({'duration': 0.05, 'events': [{'t': 0.0, 'torque': {'hinge': 1.0}}]},
+                          '<warm-up>')
+    row = run_case(Setup(data, path, path, plan, {}, plan.segments[-1].end_ns, []),
+                   Job(0, 'warm-up', {}))
+    if row['status'] != 'ok':
+        raise RuntimeError(f'the warm-up case failed: {row["message"]}')
+
+
+class CaseWorker:
+    """A worker process's state: the shared set-up and the warm kernels (a Ray actor)."""
+
+    def __init__(self, setup: Setup):
+        self.setup = setup
+        warm_kernels()
+
+    def run(self, job: Job) -> dict:
+        return run_case(self.setup, job)
+
+
+# ---------------------------------------------------------------------- engines -----
+def run_in_process(setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
+    worker = CaseWorker(setup)
+    for job in jobs:
+        on_row(worker.run(job))
+
+
+def _died_row(job: Job, why: str) -> dict:
+    return {'case': job.case, **job.values, 'status': 'died',
+            'message': f'worker process died twice: {why}'.replace('\n', ' '), 'wall_s': 0.0}
+
+
+class RayEngine:
+    """The cases on Ray actors (one per worker, each with warm kernels); a case whose
+    worker dies is retried once on a new worker, then recorded as 'died'."""
+
+    def __init__(self, workers: Optional[int], address: Optional[str],
+                 temp_dir: Optional[str] = None):
+        import ray
+        self.ray = ray
+        self.own_temp = None
+        kwargs: dict = dict(include_dashboard=False, log_to_driver=False,
+                            logging_level='ERROR', configure_logging=True)
+        if address:
+            ray.init(address=address, **{k: v for k, v in kwargs.items()
+                                         if k not in ('include_dashboard',)})
+            cpus = int(ray.cluster_resources().get('CPU', 1))
+            self.workers = workers or cpus
+        else:
+            import tempfile
+            self.workers = workers or os.cpu_count() or 1
+            if temp_dir is None:
+                temp_dir = self.own_temp = tempfile.mkdtemp(prefix='ray-sweep-')
+            ray.init(num_cpus=self.workers, _temp_dir=os.path.abspath(temp_dir), **kwargs)
+        self.nodes = sum(1 for n in ray.nodes() if n.get('Alive'))
+        self.setup: Optional[Setup] = None
+        self.setup_ref = None
+        self.actors: list = []
+        self.remote = ray.remote(num_cpus=1, max_restarts=0)(CaseWorker)
+
+    def run(self, setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
+        ray = self.ray
+        from ray.exceptions import RayActorError, WorkerCrashedError
+        if self.setup is not setup:             # workers of another set-up: new ones
+            for actor in self.actors:
+                ray.kill(actor, no_restart=True)
+            self.setup, self.setup_ref, self.actors = setup, ray.put(setup), []
+        setup_ref = self.setup_ref
+        queue = [(job, 0) for job in jobs]
+        queue.reverse()                         # pop() takes the next in case order
+        # the workers stay up between calls (warm kernels); more are started as needed
+        actors = self.actors
+        while len(actors) < min(self.workers, len(jobs)):
+            actors.append(self.remote.remote(setup_ref))
+        pending: dict = {}
+
+        def submit(slot: int) -> None:
+            if queue:
+                job, attempt = queue.pop()
+                pending[actors[slot].run.remote(job)] = (slot, job, attempt)
+
+        for slot in range(len(actors)):
+            submit(slot)
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                slot, job, attempt = pending.pop(ref)
+                try:
+                    row = ray.get(ref)
+                except (RayActorError, WorkerCrashedError) as exc:
+                    ray.kill(actors[slot], no_restart=True)
+                    actors[slot] = self.remote.remote(setup_ref)
+                    if attempt == 0:
+                        queue.append((job, 1))
+                        submit(slot)
+                        continue
+                    first = str(exc).strip().splitlines()
+                    row = _died_row(job, first[0] if first else type(exc).__name__)
+                on_row(row)
+                submit(slot)
+
+    def close(self) -> None:
+        for actor in self.actors:
+            try:
+                self.ray.kill(actor, no_restart=True)
+            except Exception:  # noqa: BLE001 - shutting down anyway
+                pass
+        self.ray.shutdown()
+        if self.own_temp:
+            shutil.rmtree(self.own_temp, ignore_errors=True)
+
+
+# --------------------------------------------------------------------- progress -----
+class Progress:
+    """Cases done / failed / ETA: a bar on a terminal, else a line per 10 %."""
+
+    def __init__(self, total: int, done: int, stream=None, quiet: bool = False):
+        self.total, self.done, self.failed = total, done, 0
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, 'isatty') and self.stream.isatty()
+        self.quiet = quiet
+        self.start_done = done
+        self.t0 = time.monotonic()
+        self.next_tenth = (10 * done // max(total, 1)) + 1
+
+    def update(self, row: dict) -> None:
+        self.done += 1
+        self.failed += row.get('status') != 'ok'
+        if self.quiet or not self.total:
+            return
+        ran = self.done - self.start_done
+        elapsed = time.monotonic() - self.t0
+        eta = elapsed / ran * (self.total - self.done) if ran else math.nan
+        text = (f'{self.done}/{self.total} cases, {self.failed} failed, '
+                f'ETA {eta:.0f} s' if self.done < self.total else
+                f'{self.done}/{self.total} cases, {self.failed} failed, {elapsed:.1f} s')
+        if self.tty:
+            width = 30
+            filled = int(width * self.done / self.total)
+            self.stream.write(f'\r{PROG}: [{"#" * filled}{"." * (width - filled)}] {text}  ')
+            if self.done == self.total:
+                self.stream.write('\n')
+            self.stream.flush()
+        else:
+            tenth = 10 * self.done // self.total
+            if tenth >= self.next_tenth:
+                self.next_tenth = tenth + 1
+                print(f'{PROG}: {100 * self.done // self.total}% {text}', file=self.stream,
+                      flush=True)
+
+    def end_line(self) -> None:
+        if self.tty and not self.quiet and self.done < self.total:
+            self.stream.write('\n')
+            self.stream.flush()
+
+
+# ---------------------------------------------------------------------- results -----
+FIXED_COLUMNS = ('status', 'message', 'sim_time', 'steps', 'energy_drift',
+                 'max_joint_separation', 'newton_mean', 'newton_max', 'substep_steps',
+                 'substeps_max', 'not_converged', 'wall_s')
+
+
+def columns_of(rows: list, axes: list) -> list:
+    joints = []
+    for row in rows:
+        for key in row:
+            if key.startswith(('angle.', 'velocity.')) and key not in joints:
+                joints.append(key)
+    angles = [k for k in joints if k.startswith('angle.')]
+    vels = [k for k in joints if k.startswith('velocity.')]
+    return ['case'] + list(axes) + ['status', 'message'] + angles + vels + \
+        [c for c in FIXED_COLUMNS if c not in ('status', 'message')]
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (dict, list)):
+        return json.dumps(value)
+    return '' if value is None else str(value)
+
+
+def write_csv(path: Path, rows: list, columns: list) -> None:
+    import csv
+    tmp = path.with_suffix('.csv.tmp')
+    with open(tmp, 'w', newline='') as f:
+        w = csv.writer(f)
+        w.writerow(columns)
+        for row in rows:
+            w.writerow([_cell(row.get(c)) for c in columns])
+    os.replace(tmp, path)
+
+
+def read_csv(path: str | Path) -> list[dict]:
+    """results.csv back as dicts (numbers as floats where they parse)."""
+    import csv
+    rows = []
+    with open(path, newline='') as f:
+        for row in csv.DictReader(f):
+            out = {}
+            for k, v in row.items():
+                try:
+                    out[k] = float(v) if v not in ('', 'ok') else v
+                except ValueError:
+                    out[k] = v
+            rows.append(out)
+    return rows
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f'{v:.4g}'
+    return str(v).replace('|', '/')
+
+
+def summary_md(spec_path: str, rows: list, columns: list, total: int, wall: float,
+               engine: str, figure: str, argv: Sequence[str]) -> str:
+    counts = {s: sum(r.get('status') == s for r in rows) for s in STATUSES}
+    case_wall = sum(float(r.get('wall_s') or 0.0) for r in rows)
+    lines = [f'# Sweep {Path(spec_path).name}', '',
+             f'Command: `sweep {" ".join(argv)}`; engine: {engine}.', '',
+             f'{len(rows)} of {total} cases: ' + ', '.join(f'{counts[s]} {s}' for s in STATUSES)
+             + f'. Wall time of this run {wall:.1f} s; the cases\' own wall time sums to '
+             f'{case_wall:.1f} s.', '']
+    if figure:
+        lines += [f'![{figure}]({figure})', '']
+    failed = [r for r in rows if r.get('status') != 'ok']
+    if failed:
+        lines += ['## Cases that did not finish', '',
+                  '| case | status | message |', '|---|---|---|']
+        lines += [f'| {r["case"]} | {r["status"]} | {_fmt(r.get("message", ""))[:300]} |'
+                  for r in failed[:100]]
+        lines.append('')
+    shown = [c for c in columns if c not in ('message',)]
+    lines += ['## Results', '', '| ' + ' | '.join(shown) + ' |', '|' + '---|' * len(shown)]
+    for r in rows[:200]:
+        lines.append('| ' + ' | '.join(_fmt(r.get(c, '')) for c in shown) + ' |')
+    if len(rows) > 200:
+        lines.append(f'\n{len(rows) - 200} more rows in results.csv.')
+    return '\n'.join(lines) + '\n'
+
+
+def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
+    """A metric against one axis (coloured by a second): matplotlib as plot_bag uses it.
+    Returns the file name, or '' (with the reason on stderr) when there is nothing to plot."""
+    try:
+        import matplotlib
+    except ImportError:
+        print(f'{PROG}: note: matplotlib is not installed; figure skipped '
+              '(pip install -r requirements-study.txt)', file=sys.stderr)
+        return ''
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    ok = [r for r in rows if r.get('status') == 'ok']
+
+    def all_of(axis, types) -> bool:
+        return all(isinstance(r.get(axis), types) and not isinstance(r.get(axis), bool)
+                   for r in ok)
+    numeric = [a for a in axes if all_of(a, (int, float))]
+    scalar = [a for a in axes if all_of(a, (int, float, str))]    # (a list value is no series)
+    x = plot.get('x') or (numeric[0] if numeric else None)
+    y = plot.get('y') or next((c for r in ok[:1] for c in r if c.startswith('angle.')),
+                              'newton_mean')
+    series = plot.get('series') or next((a for a in scalar if a != x), None)
+    if not ok or x is None or x not in numeric or series not in scalar + [None] \
+            or not all_of(y, (int, float)):
+        print(f'{PROG}: note: no figure: ' + (
+            'no case finished' if not ok else f'needs a numeric axis for x and a numeric '
+            f'column for y (x {x!r}, y {y!r}, series {series!r})'), file=sys.stderr)
+        return ''
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    groups: dict = {}
+    for r in ok:
+        groups.setdefault(r.get(series) if series else None, []).append(r)
+    for key, members in sorted(groups.items(), key=lambda kv: str(kv[0])):
+        members = sorted(members, key=lambda r: float(r.get(x, 0.0))
+                         if isinstance(r.get(x), (int, float)) else 0.0)
+        label = f'{series} = {key:.4g}' if isinstance(key, float) else (
+            f'{series} = {key}' if series else None)
+        xs = [r.get(x) for r in members]
+        # a line only where it is one: one point per x (other axes vary otherwise)
+        style = 'o-' if len(groups) <= 12 and len(set(xs)) == len(xs) else 'o'
+        ax.plot(xs, [r.get(y) for r in members], style, ms=4, alpha=0.8, label=label)
+    ax.set_xlabel(x)
+    ax.set_ylabel(y)
+    ax.set_title(f'{y} against {x} ({len(ok)} cases)')
+    ax.grid(True, alpha=0.3)
+    if series and len(groups) <= 12:
+        ax.legend(fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
+
+
+# -------------------------------------------------------------------------- main -----
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        return _run(args, argv)
+    except SpecError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+
+
+def _run(args, argv) -> int:
+    if args.workers is not None and args.workers < 1:
+        raise SpecError(f'--workers {args.workers}: must be >= 1')
+    if args.max_cases is not None and args.max_cases < 1:
+        raise SpecError(f'--max-cases {args.max_cases}: must be >= 1')
+    if args.in_process and args.address:
+        raise SpecError('--in-process and --address exclude each other')
+    if not args.in_process:
+        _ray_environment(args.address)
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise SpecError(INSTALL_HINT) from None
+    spec = load_spec(args.spec, args.max_cases)
+    out = Path(args.out)
+    state_path = out / 'sweep.json'
+    rows_path = out / 'rows.jsonl'
+    if out.exists() and not out.is_dir():
+        raise SpecError(f'--out {out}: exists and is not a directory')
+    done: dict = {}
+    if state_path.exists():
+        try:
+            state = json.loads(state_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise SpecError(f'{state_path}: unreadable ({exc}); use a new --out') from None
+        if state.get('digest') != spec.digest:
+            raise SpecError(f'--out {out}: holds the results of a different sweep (spec '
+                            f'{state.get("spec")}); use a new --out')
+        done = _read_rows(rows_path)
+    elif out.exists() and any(out.iterdir()):
+        raise SpecError(f'--out {out}: exists and holds no sweep; use a new or empty directory')
+    total = len(spec.cases)
+    jobs, kept = [], {}
+    for k, values in enumerate(spec.cases):
+        name = case_name(k, total)
+        bag = str((out / 'bags' / name).resolve()) if args.bags else ''
+        row = done.get(name)
+        if row is not None and row.get('status') != 'died' and (
+                not bag or (os.path.isdir(bag) and not incomplete_marker(bag).exists())):
+            kept[name] = row
+        else:
+            jobs.append(Job(k, name, values, bag))
+    engine = None
+    engine_name = 'in-process (serial)'
+    if jobs and not args.in_process:            # connect before anything is written
+        _export_pythonpath()
+        _probe_address(args.address)
+        try:
+            engine = RayEngine(args.workers, args.address, args.temp_dir)
+        except KeyboardInterrupt:
+            print(f'{PROG}: interrupted while starting Ray; nothing ran', file=sys.stderr)
+            return 130
+        except Exception as exc:  # noqa: BLE001 - Ray's errors have no common base
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            where = f'--address {args.address}' if args.address else 'a local Ray'
+            raise SpecError(f'{where}: Ray did not start or connect: {first[:300]}') from None
+        engine_name = (f'Ray {engine.ray.__version__}, {engine.workers} worker(s) on '
+                       f'{engine.nodes} node(s)'
+                       + (f' of {args.address}' if args.address else ' (local)'))
+    out.mkdir(parents=True, exist_ok=True)
+    state_path.write_text(json.dumps({'spec': os.path.abspath(args.spec),
+                                      'digest': spec.digest, 'cases': len(spec.cases)}) + '\n')
+    rows = dict(kept)
+    progress = Progress(total, len(kept), quiet=args.quiet)
+    if not args.quiet and kept:
+        print(f'{PROG}: resuming: {len(kept)} of {total} cases done already', file=sys.stderr)
+    if rows_path.exists() and rows_path.stat().st_size:
+        with open(rows_path, 'rb') as f:       # a torn last line ends before new rows
+            f.seek(-1, os.SEEK_END)
+            torn = f.read(1) != b'\n'
+        if torn:
+            with open(rows_path, 'a') as f:
+                f.write('\n')
+    rows_file = open(rows_path, 'a')
+
+    def on_row(row: dict) -> None:
+        rows[row['case']] = row
+        rows_file.write(json.dumps(row, sort_keys=True) + '\n')
+        rows_file.flush()
+        progress.update(row)
+
+    wall0 = time.monotonic()
+    interrupted = False
+    try:
+        if jobs and engine is None:
+            run_in_process(spec.setup, jobs, on_row)
+        elif jobs:
+            engine.run(spec.setup, jobs, on_row)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        progress.end_line()
+        rows_file.close()
+        if engine is not None:
+            try:
+                engine.close()
+            except KeyboardInterrupt:
+                interrupted = True
+    wall = time.monotonic() - wall0
+    ordered = [rows[case_name(k, total)] for k in range(total) if case_name(k, total) in rows]
+    columns = columns_of(ordered, spec.setup.axes)
+    write_csv(out / 'results.csv', ordered, columns)
+    figure = write_figure(out / 'figure.png', ordered, spec.setup.axes, spec.plot) \
+        if ordered else ''
+    (out / 'summary.md').write_text(summary_md(args.spec, ordered, columns, total, wall,
+                                               engine_name, figure, argv))
+    counts = {s: sum(r.get('status') == s for r in ordered) for s in STATUSES}
+    if interrupted:
+        print(f'{PROG}: interrupted: {len(ordered)} of {total} cases done, kept in {out}; '
+              'run the same command again to resume', file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(f'{PROG}: {total} cases ({", ".join(f"{n} {s}" for s, n in counts.items() if n)}) '
+              f'in {wall:.1f} s on {engine_name} -> {out}/results.csv')
+    return 1 if counts['error'] or counts['died'] else 0
+
+
+def _read_rows(path: Path) -> dict:
+    """The finished rows of an earlier run (a torn last line is ignored: it is re-run)."""
+    rows: dict = {}
+    if not path.exists():
+        return rows
+    with open(path) as f:
+        for line in f:
+            try:
+                row = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(row, dict) and 'case' in row:
+                rows[row['case']] = row
+    return rows
+
+
+LOOPBACK_HOSTS = ('127.0.0.1', 'localhost')
+
+
+def _ray_environment(address: Optional[str]) -> None:
+    """Before Ray is imported: usage statistics off (unless the user chose), and a Ray on
+    this machine (or a cluster addressed on loopback) kept on 127.0.0.1: Ray otherwise
+    advertises the machine's routable address and its servers listen on every interface.
+    (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 is Ray's switch for a single-machine Ray.)"""
+    os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')
+    host = (address or '').split('://')[-1].rsplit(':', 1)[0]
+    if not address or host in LOOPBACK_HOSTS:
+        os.environ.setdefault('RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER', '0')
+
+
+PROBE_TIMEOUT = 5.0
+"""[s] How long a cluster's address may take to accept a connection before the sweep gives
+up (Ray itself retries for minutes, logging each attempt)."""
+
+
+def _probe_address(address: Optional[str]) -> None:
+    """A HOST:PORT or ray://HOST:PORT address must accept a TCP connection: SpecError (one
+    line) at once otherwise. 'auto' and a local Ray are Ray's to find."""
+    import socket
+    if not address or address == 'auto':
+        return
+    hostport = address.split('://', 1)[-1]
+    host, sep, port = hostport.rpartition(':')
+    if not sep or not port.isdigit() or not host:
+        raise SpecError(f'--address {address}: expected auto, HOST:PORT or ray://HOST:PORT')
+    try:
+        with socket.create_connection((host.strip('[]'), int(port)), timeout=PROBE_TIMEOUT):
+            pass
+    except OSError as exc:
+        raise SpecError(f'--address {address}: no Ray there ({exc.strerror or exc}); start '
+                        'one with `ray start --head`, or leave --address out for a local '
+                        'Ray') from None
+
+
+def _export_pythonpath() -> None:
+    """A local Ray's workers import abd_joint_sim as this process does (they inherit the
+    environment of the Ray this process starts)."""
+    root = str(Path(__file__).resolve().parents[2])
+    paths = os.environ.get('PYTHONPATH', '').split(os.pathsep)
+    if root not in paths:
+        os.environ['PYTHONPATH'] = os.pathsep.join([root] + [p for p in paths if p])
+
+
+if __name__ == '__main__':
+    sys.exit(main())
