@@ -34,12 +34,12 @@ not exist, and so each message replaces the previous one in RViz and Foxglove al
 """
 from __future__ import annotations
 
-import math
 import struct
 from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from abd_joint_sim.geometry import rpy_matrix
 from abd_joint_sim.smallmat import frame_poses, nearest_rotation_in, quaternion_in
 
 TOPIC_MARKERS = 'markers'
@@ -70,12 +70,6 @@ def nearest_rotations(A: np.ndarray) -> np.ndarray:
     for k in range(A.shape[0]):
         nearest_rotation_in(A[k], R[k], work)
     return R
-
-
-def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
-    """URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    from abd_joint_sim.model import rpy_matrix
-    return rpy_matrix(tuple(float(v) for v in rpy))
 
 
 def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
@@ -147,7 +141,7 @@ class MarkerBuilder:
             length = robot_axis_length(scene)
             for j, joint in enumerate(scene.joints):
                 parent = bodies[joint.parent]
-                R0 = rpy_to_matrix(parent.rpy)
+                R0 = rpy_matrix(parent.rpy)
                 p0 = np.asarray(parent.position, dtype=float)
                 q0 = np.asarray(joint.p0, dtype=float)
                 q1 = np.asarray(joint.p1, dtype=float)
@@ -170,7 +164,7 @@ class MarkerBuilder:
             parts = []
             for i, v in enumerate(visuals):
                 rgba = v.rgba if v.rgba is not None else colour
-                R_v = rpy_to_matrix(v.origin_rpy)
+                R_v = rpy_matrix(v.origin_rpy)
                 size = tuple(float(s) for s in v.size)
                 if v.kind == 'box':
                     parts.append(_Part(body.name, i, M.CUBE, size, rgba, v.origin_xyz, R_v))
