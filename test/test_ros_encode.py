@@ -19,7 +19,8 @@ from visualization_msgs.msg import MarkerArray
 from abd_joint_sim import Scene, World
 from abd_joint_sim.record import cdr
 from abd_joint_sim.ros import convert
-from abd_joint_sim.ros.markers import MarkerBuilder, quaternion
+from abd_joint_sim.ros.markers import MarkerBuilder
+from physics_helpers import nearest_rotations, quaternion
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -170,7 +171,6 @@ def _quaternion_reference(R):
 
 
 def test_quaternion_bits_unchanged():
-    from abd_joint_sim.ros.markers import nearest_rotations
     rng = np.random.default_rng(3)
     Rs = list(nearest_rotations(rng.normal(size=(3000, 3, 3))))
     Rs += [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]),

@@ -513,10 +513,6 @@ class BagWriter:
         """Messages written so far."""
         return self._summary.message_count
 
-    @property
-    def is_open(self) -> bool:
-        return self._state == 'open'
-
     # -- helpers -----------------------------------------------------------------------------
 
     def _check_custom(self, key: Any, value: Any) -> None:

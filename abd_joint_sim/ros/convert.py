@@ -29,10 +29,6 @@ def ns_to_time_msg(ns: int) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
-def time_msg_to_seconds(stamp: Time) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
-
-
 def time_msg_to_ns(stamp: Time) -> int:
     return stamp.sec * NS_PER_S + stamp.nanosec
 

@@ -40,7 +40,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from abd_joint_sim.geometry import rpy_matrix
-from abd_joint_sim.smallmat import frame_poses, nearest_rotation_in, quaternion_in
+from abd_joint_sim.smallmat import frame_poses
 
 TOPIC_MARKERS = 'markers'
 MARKER_TYPE = 'visualization_msgs/msg/MarkerArray'
@@ -54,31 +54,6 @@ AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 _STAMP = struct.Struct('<iI')      # builtin_interfaces/Time: int32 sec, uint32 nanosec
 _POSE = struct.Struct('<7d')       # geometry_msgs/Pose: position x y z, orientation x y z w
 _POINTS = struct.Struct('<6d')     # an arrow's two geometry_msgs/Point
-
-
-def nearest_rotation(A: np.ndarray) -> np.ndarray:
-    """The rotation nearest to A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ from
-    the SVD A = U S Vᵀ (smallmat.nearest_rotation_in, what the markers use)."""
-    return nearest_rotations(np.asarray(A, dtype=float)[None])[0]
-
-
-def nearest_rotations(A: np.ndarray) -> np.ndarray:
-    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3)."""
-    A = np.ascontiguousarray(A, dtype=float)
-    R = np.empty_like(A)
-    work = np.empty((5, 3, 3))
-    for k in range(A.shape[0]):
-        nearest_rotation_in(A[k], R[k], work)
-    return R
-
-
-def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
-    w, x, y, z is computed first, so no division by a small number; smallmat.quaternion_in,
-    what the markers use)."""
-    out = np.empty(4)
-    quaternion_in(np.ascontiguousarray(R, dtype=float), out)
-    return tuple(out.tolist())
 
 
 def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:

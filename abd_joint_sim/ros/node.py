@@ -472,10 +472,6 @@ class SimNode(Node):
             self._stats_steps += 1
         return ok
 
-    def _step_batch(self, max_steps: int) -> int:
-        """Up to max_steps steps (the loop batches them). Returns the number taken."""
-        return self._advance(max_steps)
-
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
         wall = max(now - self._stats_wall, 1e-9)

@@ -211,7 +211,7 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
                                                  bool(msg.data), where))
     for seg, end in zip(segments, ends):
         seg.end_ns = end
-    plan = Plan(segments, {}, source=path, duration_given=True)
+    plan = Plan(segments, {}, source=path)
     return RecordedRun(path, custom, scene_text,
                        custom.get('abd_joint_sim.scene_path', '') or 'scene.yaml',
                        parameters, plan, states, counts)

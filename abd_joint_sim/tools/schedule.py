@@ -94,7 +94,6 @@ class Plan:
     segments: list[Segment]
     parameters: dict[str, Any] = field(default_factory=dict)
     source: str = ''
-    duration_given: bool = False
 
 
 def _fail(where: str, what: str) -> ScheduleError:
@@ -224,7 +223,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
         end_ns = seconds_to_ns(duration)
     else:
         end_ns = seconds_to_ns((last_t or 0.0) + DEFAULT_TAIL)
-    return Plan([Segment(commands, end_ns)], params, source, duration is not None)
+    return Plan([Segment(commands, end_ns)], params, source)
 
 
 def _joint_command(where: str, value: Any, t_ns: int) -> Command:
