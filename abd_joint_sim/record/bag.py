@@ -445,7 +445,7 @@ class BagWriter:
 
     def write_serialized_many(self, topic: str, stamps: list, datas: list) -> None:
         """``write_serialized(topic, t, data)`` for each pair in order, in one call: the same
-        bytes in the bag (sim_node's /clock of a batch of steps, `HeldMessages`)."""
+        bytes in the bag (sim_node's /clock of a batch of steps, `ros.recording.Recording`)."""
         entry = self._topics.get(topic) if self._state == 'open' else None
         if entry is None:
             entry = self._entry(topic)      # raises the error that says why

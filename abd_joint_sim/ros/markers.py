@@ -42,9 +42,6 @@ import numpy as np
 from abd_joint_sim.geometry import rpy_matrix
 from abd_joint_sim.smallmat import frame_poses
 
-TOPIC_MARKERS = 'markers'
-MARKER_TYPE = 'visualization_msgs/msg/MarkerArray'
-
 # Colours of bodies without an rgba of their own (fixed bodies grey), RGBA in [0, 1].
 PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 1.0),
            (0.80, 0.25, 0.30, 1.0), (0.55, 0.40, 0.75, 1.0), (0.55, 0.35, 0.25, 1.0))
