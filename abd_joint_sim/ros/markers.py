@@ -34,7 +34,6 @@ not exist, and so each message replaces the previous one in RViz and Foxglove al
 """
 from __future__ import annotations
 
-import struct
 from typing import Any, Optional, Sequence
 
 import numpy as np
@@ -48,9 +47,6 @@ PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 
 FIXED_COLOUR = (0.55, 0.55, 0.55, 1.0)
 AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 
-_STAMP = struct.Struct('<iI')      # builtin_interfaces/Time: int32 sec, uint32 nanosec
-_POSE = struct.Struct('<7d')       # geometry_msgs/Pose: position x y z, orientation x y z w
-_POINTS = struct.Struct('<6d')     # an arrow's two geometry_msgs/Point
 
 
 def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +120,7 @@ class MarkerBuilder:
                 self.axes.append((j, joint.name, joint.parent, a, b))
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
-        self._packed: Optional[tuple] = None    # build_serialized's template and offsets
+        self._cdr: Optional[Any] = None    # build_serialized's cdr.Template
         self._stacked: Optional[tuple] = None   # the parts' bodies, origins, arrows as arrays
         self._packed_ok = False
 
@@ -226,47 +222,36 @@ class MarkerBuilder:
         not finite.
 
         A MarkerArray of a scene has a fixed layout: only the stamps, poses and arrow points
-        change, so the array is serialised once and those fields are packed in place at the
-        offsets ``cdr.field_offsets`` finds (converting and serialising the whole message
-        costs far more than computing the poses). The first call checks the packed bytes
-        against ``serialize_message`` of :meth:`build`; should they differ, every call
-        serialises :meth:`build` instead."""
-        from rclpy.serialization import serialize_message
+        change, so the array is serialised once and those fields are packed into it
+        (``cdr.Template``; converting and serialising the whole message costs far more than
+        computing the poses). The first call checks the packed bytes against
+        ``serialize_message`` of :meth:`build`; should they differ, every call serialises
+        :meth:`build` instead."""
         from abd_joint_sim.record import cdr
-        if self._packed is None:
+        if self._cdr is None:
             msg = self.build(stamp_ns, pose)
             if msg is None:
                 return None
-            offsets = cdr.field_offsets(msg)
-            n = len(self.parts)
-            self._packed = (
-                bytearray(cdr.without_padding(serialize_message(msg), msg)),
-                [offsets[('markers', i, 'header', 'stamp', 'sec')]
-                 for i in range(len(msg.markers))],
-                [offsets[('markers', i, 'pose', 'position', 'x')] for i in range(n)],
-                [offsets[('markers', n + i, 'points', 0, 'x')] for i in range(len(self.axes))])
-            expected = bytes(self._packed[0])
-            self._packed_ok = self._pack(stamp_ns, self._values(pose)) == expected
-            return expected
+            n, count = len(self.parts), len(msg.markers)
+            self._cdr = cdr.Template(
+                msg, [(('markers', i, 'header', 'stamp', 'sec'), 'iI') for i in range(count)]
+                + [(('markers', i, 'pose', 'position', 'x'), '7d') for i in range(n)]
+                + [(('markers', n + i, 'points', 0, 'x'), '6d') for i in range(len(self.axes))])
+            self._packed_ok = self._pack(stamp_ns, self._values(pose)) == self._cdr.data
+            return self._cdr.data
         values = self._values(pose)
         if values is None:
             return None
         if not self._packed_ok:
-            msg = self.build(stamp_ns, pose)
-            return cdr.without_padding(serialize_message(msg), msg)
+            return cdr.serialized(self.build(stamp_ns, pose))
         return self._pack(stamp_ns, values)
 
     def _pack(self, stamp_ns: int, values) -> bytes:
-        buf, stamps, pose_at, points_at = self._packed
+        """The template with every marker's stamp, the parts' poses (position x y z,
+        orientation x y z w) and the arrows' two points set."""
         poses, points = values
-        stamp = _STAMP.pack(*divmod(int(stamp_ns), 1_000_000_000))
-        for at in stamps:
-            buf[at:at + 8] = stamp
-        for at, v in zip(pose_at, poses):
-            _POSE.pack_into(buf, at, *v)
-        for at, v in zip(points_at, points):
-            _POINTS.pack_into(buf, at, *v)
-        return bytes(buf)
+        stamps = [divmod(int(stamp_ns), 1_000_000_000)] * (len(self.parts) + len(self.axes))
+        return self._cdr.pack(*stamps, *poses, *points)
 
     def _values(self, pose) -> Optional[tuple[list, list]]:
         """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint

@@ -163,17 +163,16 @@ class BagRecorder(LoopOutput):
     def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
                  extra_custom: Optional[dict[str, str]] = None, urdf_text: str = ''):
         self.sim = sim
+        self._clock = convert.ClockEncoder()
+        self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
         bag_data = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
                                    sim.commands.order, extra_custom, urdf_text)
         self.recording = Recording.open(path, bag_data, sim.actuated, resolve_root, NODE_FQN,
                                         markers=sim.loop.markers is not None)
-        self.writer = self.recording.writer
         self.counts = self.recording.counts
         # One /diagnostics per simulated second, on the loop's grid.
         sim.loop.diagnostics_period_ns = DIAGNOSTICS_PERIOD_NS
         sim.loop.next_diagnostics_ns = DIAGNOSTICS_PERIOD_NS
-        self._clock = convert.ClockEncoder()
-        self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
         self._wall0 = time.monotonic()
 
     # -- LoopOutput -----------------------------------------------------------------------
