@@ -123,30 +123,7 @@ class _FastMessages:
     def add(self, channel_id: int, log_time: int, data) -> None:
         """``writer.add_message(channel_id, log_time, data, publish_time=log_time,
         sequence=0)``."""
-        st = self._stats
-        if st.message_count == 0 or log_time < st.message_start_time:
-            st.message_start_time = log_time
-        if log_time > st.message_end_time:
-            st.message_end_time = log_time
-        st.channel_message_counts[channel_id] += 1
-        st.message_count += 1
-        cb = self._chunk
-        if cb.num_messages == 0 or log_time < cb.message_start_time:
-            cb.message_start_time = log_time
-        if log_time > cb.message_end_time:
-            cb.message_end_time = log_time
-        index = cb.message_indices.get(channel_id)
-        if not index:
-            index = cb.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id,
-                                                                       records=[])
-        buffer = cb.record_writer._buffer                         # noqa: SLF001
-        index.records.append((log_time, buffer.tell()))
-        cb.num_messages += 1
-        buffer.write(_MESSAGE_HEAD.pack(_MESSAGE_OPCODE, _MESSAGE_FIELDS + len(data),
-                                        channel_id, 0, log_time, log_time))
-        buffer.write(data)
-        if buffer.tell() > self._chunk_size:
-            self._finalize()
+        self.add_many(channel_id, (log_time,), (data,))
 
     def add_many(self, channel_id: int, stamps: list, datas: list) -> None:
         """``add(channel_id, t, data)`` for each pair in order (the same bytes and state), with
