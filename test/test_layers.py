@@ -1,6 +1,7 @@
 """The package's floors: every import in abd_joint_sim/ (at the top of a module or inside a
 function) goes down the layer order below or stays on its floor, no modules import each other
-in a circle, and the physics core never imports rclpy.
+in a circle, no module imports the package's facade (its ``__init__``), and the physics core
+never imports rclpy.
 
 Imports are read from the source (ast), so an import hidden in a function counts as much as
 one at the top. A package's ``__init__`` counts only where it is named
@@ -139,6 +140,14 @@ def test_imports_go_down_the_layers():
               for name, found in graph().items() for m, line in found
               if ORDER[layer_of(m)] > ORDER[layer_of(name)]]
     assert upward == []
+
+
+def test_modules_import_the_module_that_defines_a_name_not_the_facade():
+    """``abd_joint_sim/__init__.py`` re-exports the public names for users; inside the
+    package, ``from abd_joint_sim.world import World``, so the imports show the floors."""
+    facade = [f'{name} line {line}' for name, found in graph().items() if name != PACKAGE
+              for m, line in found if m == PACKAGE]
+    assert facade == []
 
 
 def test_core_never_imports_rclpy():

@@ -101,7 +101,7 @@ class SimNode(Node):
 
         # Scene, and the loop that owns the world (ros/loop.py, shared with the headless
         # tools). Imported here so that `--help`-like failures stay cheap.
-        from abd_joint_sim import Scene
+        from abd_joint_sim.scene import Scene
         self.scene = self._load_scene(Scene)
         self._output = _NodeOutput(self)
         self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,

@@ -219,7 +219,7 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
 
 def scene_from_text(text: str, source: str):
     """Parse stored scene YAML like ``Scene.from_yaml`` (SceneError names `source`)."""
-    from abd_joint_sim import Scene
+    from abd_joint_sim.scene import Scene
     from abd_joint_sim.errors import SceneError
     from abd_joint_sim.scene import load_yaml
     try:
