@@ -31,6 +31,15 @@ def time_msg_to_ns(stamp: Time) -> int:
     return stamp.sec * NS_PER_S + stamp.nanosec
 
 
+def check_lengths(n: int, position, velocity, effort) -> None:
+    """ValueError unless a joint state's three arrays hold one value per each of its `n`
+    names."""
+    if not (len(position) == len(velocity) == len(effort) == n):
+        raise ValueError(
+            f'joint state arrays differ in length: name {n}, position {len(position)}, '
+            f'velocity {len(velocity)}, effort {len(effort)}')
+
+
 def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[float],
                     velocity: Iterable[float], effort: Iterable[float],
                     frame_id: str = '') -> JointState:
@@ -42,11 +51,7 @@ def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[floa
     msg.position = [float(x) for x in np.asarray(position, dtype=float).ravel()]
     msg.velocity = [float(x) for x in np.asarray(velocity, dtype=float).ravel()]
     msg.effort = [float(x) for x in np.asarray(effort, dtype=float).ravel()]
-    n = len(msg.name)
-    if not (len(msg.position) == len(msg.velocity) == len(msg.effort) == n):
-        raise ValueError(
-            f'joint state arrays differ in length: name {n}, position {len(msg.position)}, '
-            f'velocity {len(msg.velocity)}, effort {len(msg.effort)}')
+    check_lengths(len(msg.name), msg.position, msg.velocity, msg.effort)
     return msg
 
 
@@ -54,11 +59,7 @@ def fill_joint_state(msg: JointState, stamp_ns: int, position: list[float], velo
                      effort: list[float], frame_id: str) -> None:
     """Refill a JointState made by `joint_state_msg` (same names) for a new state: sim_node
     reuses one message, as building one costs ~25 µs."""
-    n = len(msg.name)
-    if not (len(position) == len(velocity) == len(effort) == n):
-        raise ValueError(
-            f'joint state arrays differ in length: name {n}, position {len(position)}, '
-            f'velocity {len(velocity)}, effort {len(effort)}')
+    check_lengths(len(msg.name), position, velocity, effort)
     stamp = msg.header.stamp
     stamp.sec, stamp.nanosec = divmod(int(stamp_ns), NS_PER_S)
     msg.header.frame_id = frame_id
@@ -147,11 +148,7 @@ class JointStateEncoder:
     def encode(self, stamp_ns: int, position: Sequence[float], velocity: Sequence[float],
                effort: Sequence[float]) -> bytes:
         """The CDR bytes of the JointState at `stamp_ns` (plain float lists, one per joint)."""
-        n = self._n
-        if not (len(position) == len(velocity) == len(effort) == n):
-            raise ValueError(
-                f'joint state arrays differ in length: name {n}, position {len(position)}, '
-                f'velocity {len(velocity)}, effort {len(effort)}')
+        check_lengths(self._n, position, velocity, effort)
         if self.checked:
             return self._pack(stamp_ns, position, velocity, effort)
         return self._serialize(stamp_ns, position, velocity, effort)
