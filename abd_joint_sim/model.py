@@ -16,41 +16,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SceneError
+from .geometry import point_jacobian, rpy_matrix, skew
 from .scene import Scene, check_dt
 
 #: largest h d / I of a damped joint (I: the lighter body's moment about the axis): beyond it
 #: the damper outweighs the body's inertia by more than double precision resolves in Newton's
 #: matrix (measured: steps fail from ~4e19), and the joint is locked for all purposes
 DAMPING_RATIO_MAX = 1e15
-
-
-def rpy_matrix(rpy) -> np.ndarray:
-    """URDF convention: R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
-
-
-def skew(w) -> np.ndarray:
-    """[w]x with [w]x v = w x v; batched over leading axes."""
-    w = np.asarray(w, dtype=float)
-    out = np.zeros(w.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
-    return out
-
-
-def point_jacobian(xbar) -> np.ndarray:
-    """J(x̄) = [I3 | I3 ⊗ x̄ᵀ], shape (..., 3, 12)."""
-    xbar = np.asarray(xbar, dtype=float)
-    J = np.zeros(xbar.shape[:-1] + (3, 12))
-    for r in range(3):
-        J[..., r, r] = 1.0
-        J[..., r, 3 + 3 * r:6 + 3 * r] = xbar
-    return J
 
 
 def mass_properties(body):
@@ -174,7 +146,6 @@ class Model:
 def compile_scene(scene: Scene, dt: float | None = None) -> Model:
     """Turn a validated Scene into a Model; `dt` overrides the scene's step size (checked as
     the scene's own: SceneError outside 1e-6 to 1 s, or if not a finite number)."""
-    B = len(scene.bodies)
     index = {b.name: k for k, b in enumerate(scene.bodies)}
     mass, com, M, Minv, vol, corners, q0, v0, R0 = [], [], [], [], [], [], [], [], []
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)

@@ -16,7 +16,9 @@ from typing import Any
 
 import yaml
 
+from . import urdf
 from .errors import SceneError
+from .ranges import RANGES
 
 INTEGRATORS = ('bdf1', 'bdf2')
 
@@ -201,31 +203,6 @@ def read_yaml_file(path, error: type[Exception], what: str, max_bytes: int = MAX
         raise error(f'{path}: not valid YAML: {exc}') from None
 
 
-RANGES = {
-    # name: (lowest, highest, unit); positive quantities must lie in [lowest, highest],
-    # signed ones in magnitude below highest. Far wider than any mechanism needs, and
-    # narrow enough that the solver's arithmetic (masses ~ density * size^3, stiffness ~
-    # kappa * volume / dt^2, 1/dt) stays inside float64 with digits to spare.
-    'dt': (1e-6, 1.0, 's'),
-    'gravity': (0.0, 1e4, 'm/s^2'),
-    'length': (1e-4, 1e3, 'm'),
-    'position': (0.0, 1e4, 'm'),
-    'angle': (0.0, 1e4, 'rad'),
-    'speed': (0.0, 1e4, 'm/s'),
-    'angular_speed': (0.0, 1e4, 'rad/s'),
-    'density': (1e-6, 1e12, 'kg/m^3'),
-    'mass': (1e-12, 1e15, 'kg'),
-    'inertia': (0.0, 1e9, 'kg m^2'),
-    'volume': (1e-12, 1e9, 'm^3'),
-    'kappa': (1.0, 1e16, 'Pa'),
-    'strength': (1e-6, 1e9, ''),
-    'torque': (0.0, 1e9, 'N m'),
-    'effort_limit': (1e-9, 1e9, 'N m'),
-    'damping': (0.0, 1e9, 'N m s/rad'),
-    'tolerance': (1e-12, 1e3, ''),
-}
-"""Sane ranges of the numbers a scene carries (SceneError beyond; docs/robustness.md)."""
-
 MAX_ABS_AIM = RANGES['angle'][1]
 """[rad] Largest |aim angle| of a drive, in a scene and at run time (World.set_drive, the
 node's joint_commands): beyond it the drive's (θ − aim)² loses θ to rounding (an aim of 1e300
@@ -351,8 +328,7 @@ class Scene:
         Repairs are warned as `abd_joint_sim.urdf.UrdfWarning` and listed in
         `Scene.warnings`.
         """
-        from .urdf import scene_data_from_urdf
-        data, name, text, notes = scene_data_from_urdf(source, options)
+        data, name, text, notes = urdf.scene_data_from_urdf(source, options)
         scene = cls.from_dict(data, source=name)
         return _with_robot(scene, text, notes)
 
@@ -527,7 +503,6 @@ class _Parser:
     def robot(self, data):
         """A `robot:` block (docs/urdf.md): the URDF lowered to bodies and joints, merged
         with the scene's dt/gravity/integrator/newton (defaults as Scene.from_urdf)."""
-        from . import urdf
         if 'bodies' in data or 'joints' in data:
             self.fail('robot', 'a scene with a robot: block takes its bodies and joints from '
                                'the URDF; remove bodies:/joints:')

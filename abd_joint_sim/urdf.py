@@ -32,7 +32,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from .errors import SceneError
-from .scene import RANGES
+from .geometry import axis_rotation, matrix_rpy, rpy_matrix
+from .ranges import RANGES
 
 DEFAULT_DT = 1e-3                      # s, from_urdf / robot: scenes
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)    # m/s^2: a robot description assumes Earth's gravity
@@ -105,36 +106,11 @@ class _Joint:
         self.damping = self.friction = 0.0     # <dynamics>
 
 
-def rpy_matrix(rpy) -> np.ndarray:
-    """URDF convention: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    from .model import rpy_matrix as _rpy
-    return _rpy(rpy)
-
-
-def matrix_rpy(R) -> tuple:
-    """(roll, pitch, yaw) with ``rpy_matrix(rpy) == R`` (pitch in [-pi/2, pi/2])."""
-    R = np.asarray(R, dtype=float)
-    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
-    if math.hypot(R[0, 0], R[1, 0]) > 1e-9:
-        roll = math.atan2(R[2, 1], R[2, 2])
-        yaw = math.atan2(R[1, 0], R[0, 0])
-    else:                                   # gimbal lock: only roll -/+ yaw is defined
-        roll, yaw = 0.0, math.atan2(-R[0, 1], R[1, 1])
-    return (roll, pitch, yaw)
-
-
 def _transform(xyz, rpy) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = rpy_matrix(rpy)
     T[:3, 3] = xyz
     return T
-
-
-def axis_rotation(axis, angle) -> np.ndarray:
-    """Right-hand rotation by `angle` about the unit `axis` (Rodrigues)."""
-    k = np.asarray(axis, dtype=float)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
 
 
 class _Reader:

@@ -9,6 +9,7 @@ import numpy as np
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
 from abd_joint_sim.scene import load_yaml
+from abd_joint_sim.smallmat import nearest_rotation_in, quaternion_in
 
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
 
@@ -77,3 +78,28 @@ def torque_axis(world, q, k=0):
     e = np.zeros(3)
     torque.axis(np.ascontiguousarray(q, dtype=float), world.solver.data, int(world.model.torque_joints[k]), e)
     return e
+
+
+def nearest_rotation(A: np.ndarray) -> np.ndarray:
+    """The rotation nearest to A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ from
+    the SVD A = U S Vᵀ (smallmat.nearest_rotation_in, as the markers pose bodies)."""
+    return nearest_rotations(np.asarray(A, dtype=float)[None])[0]
+
+
+def nearest_rotations(A: np.ndarray) -> np.ndarray:
+    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3)."""
+    A = np.ascontiguousarray(A, dtype=float)
+    R = np.empty_like(A)
+    work = np.empty((5, 3, 3))
+    for k in range(A.shape[0]):
+        nearest_rotation_in(A[k], R[k], work)
+    return R
+
+
+def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
+    w, x, y, z is computed first, so no division by a small number; smallmat.quaternion_in,
+    as the markers do)."""
+    out = np.empty(4)
+    quaternion_in(np.ascontiguousarray(R, dtype=float), out)
+    return tuple(out.tolist())

@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from conftest import NodeProcess, Probe, next_domain_id
 from abd_joint_sim import Scene
-from abd_joint_sim.ros.markers import (equal_inertia_box, MarkerBuilder, nearest_rotation,
-                                       quaternion)
+from abd_joint_sim.ros.markers import equal_inertia_box, MarkerBuilder
+from physics_helpers import nearest_rotation, quaternion
 from abd_joint_sim.ros.params import config_from_values, resolve_scene
 from abd_joint_sim.scene import VisualSpec
 from abd_joint_sim.tools.schedule import parse_schedule

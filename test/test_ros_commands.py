@@ -46,7 +46,7 @@ def test_array_order_length_and_nonfinite():
     assert len(rej) == 1 and 'expected 2 values' in str(rej[0])
     rej, _ = buf.command_array([1.0, math.nan])
     assert rej and 'shoulder' in str(rej[0]) and 'nan' in str(rej[0])
-    assert not buf.has_pending        # rejected as a whole
+    assert buf.idle        # rejected as a whole
     assert buf.command_array([1.0, 2.0]) == ([], [])
     applied = buf.apply(world)
     assert world.torque == {'shoulder': 2.0, 'elbow': 1.0}
@@ -69,7 +69,7 @@ def test_rejects_unknown_and_nonfinite_joint_commands():
     rej, _ = buf.command_torque('elbow', math.inf)
     assert rej and "'elbow'" in str(rej[0]) and 'inf' in str(rej[0])
     assert buf.command_enable('wrist', True)
-    assert not buf.has_pending
+    assert buf.idle
 
 
 def test_effort_limits_clamp_and_say_so():
@@ -211,7 +211,7 @@ def test_absurd_torque_rejected_without_limit_clamped_with_one():
     assert rej and 'beyond' in rej[0].reason and 'effort_limits' in rej[0].reason
     rej, _ = buf.command_array([1.0, -1e300])
     assert len(rej) == 1 and rej[0].joint == 'elbow' and 'whole array' in rej[0].reason
-    assert not buf.has_pending
+    assert buf.idle
     assert buf.command_torque('shoulder', MAX_ABS_TORQUE) == ([], [])
     limited = make(limits=[10.0, 5.0])
     rej, clamps = limited.command_torque('elbow', -1e300)

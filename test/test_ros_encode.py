@@ -19,7 +19,8 @@ from visualization_msgs.msg import MarkerArray
 from abd_joint_sim import Scene, World
 from abd_joint_sim.record import cdr
 from abd_joint_sim.ros import convert
-from abd_joint_sim.ros.markers import MarkerBuilder, quaternion
+from abd_joint_sim.ros.markers import MarkerBuilder
+from physics_helpers import nearest_rotations, quaternion
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -62,12 +63,27 @@ def test_joint_state_encoder_gives_rclpys_bytes(frame_id):
 
 def test_joint_state_encoder_check_can_fail_and_falls_back():
     enc = convert.JointStateEncoder(['a', 'b'], 'base')
-    enc._pieces[0] = enc._pieces[0][:-1] + b'\x07'      # a wrong constant byte
+    head = enc._template._args[0]                       # the constant bytes before the stamp
+    enc._template._args[0] = head[:-1] + b'\x07'        # a wrong constant byte
     state = (0, [1.0, 2.0], [3.0, 4.0], [5.0, 6.0])
     assert enc._pack(*state) != enc._serialize(*state)
     enc.checked = False                                 # what __init__ decides on a mismatch
     msg = convert.joint_state_msg(*state[:1], ['a', 'b'], *state[1:], 'base')
     assert enc.encode(*state) == cdr.without_padding(serialize_message(msg), msg)
+
+
+def test_template_packs_fields_in_stream_order_and_refuses_overlaps():
+    """cdr.Template: fields given in any order land at their offsets; a field whose code
+    reaches into the next is refused."""
+    msg = convert.joint_state_msg(0, ['a', 'b'], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], 'f')
+    template = cdr.Template(msg, [(('effort',), '2d'), (('header', 'stamp', 'sec'), 'iI')])
+    filled = convert.joint_state_msg(3 * 10 ** 9 + 4, ['a', 'b'], [0.0, 0.0], [0.0, 0.0],
+                                     [5.0, -6.0], 'f')
+    assert template.pack([5.0, -6.0], (3, 4)) == cdr.serialized(filled)
+    assert template.matches([(([5.0, -6.0], (3, 4)), filled)])
+    assert not template.matches([(([5.0, -6.0], (3, 5)), filled)])
+    with pytest.raises(ValueError, match='overlaps'):
+        cdr.Template(msg, [(('position',), '4d'), (('velocity',), '2d')])
 
 
 def test_field_offsets_and_padding_against_rosbags():
@@ -132,14 +148,15 @@ def test_marker_bytes_fall_back_when_the_check_fails():
     raw = builder.build_serialized(5, world.body_pose)
     msg = MarkerBuilder(scene).build(5, world.body_pose)
     assert raw == cdr.without_padding(serialize_message(msg), msg)
-    # ... and the check itself can fail: a wrong offset packs the pose into other bytes.
-    other = MarkerBuilder(scene)
-    other.build_serialized(0, world.body_pose)
-    buf, stamps, poses, points = other._packed
-    template = bytes(buf)                       # the bytes of build() at this pose
-    assert other._pack(0, other._values(world.body_pose)) == template
-    other._packed = (buf, stamps, [p + 8 for p in poses], points)
-    assert other._pack(0, other._values(world.body_pose)) != template
+    # ... and the check itself can fail: a pose packed one field off lands in other bytes.
+    path = ('markers', 0, 'pose', 'position')
+    right = cdr.Template(msg, [(path + ('x',), '7d')])
+    wrong = cdr.Template(msg, [(path + ('y',), '7d')])
+    pose = msg.markers[0].pose
+    pose.position.x, pose.position.y, pose.position.z = 1.0, 2.0, 3.0
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = 0, 0, 0, 1.0
+    values = [(1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0)]
+    assert right.matches([(values, msg)]) and not wrong.matches([(values, msg)])
 
 
 def _quaternion_reference(R):
@@ -170,7 +187,6 @@ def _quaternion_reference(R):
 
 
 def test_quaternion_bits_unchanged():
-    from abd_joint_sim.ros.markers import nearest_rotations
     rng = np.random.default_rng(3)
     Rs = list(nearest_rotations(rng.normal(size=(3000, 3, 3))))
     Rs += [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]),

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from abd_joint_sim import Scene, SceneError, World, compile_scene
-from abd_joint_sim.model import DAMPING_RATIO_MAX, mass_properties, rpy_matrix
+from abd_joint_sim.geometry import rpy_matrix
+from abd_joint_sim.model import DAMPING_RATIO_MAX, mass_properties
 
 from physics_helpers import SCENES, box, hinge_dict, scene_dict
 

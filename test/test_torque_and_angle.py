@@ -5,7 +5,7 @@ import pytest
 import scipy.linalg
 
 from abd_joint_sim import Scene, World
-from abd_joint_sim.model import skew
+from abd_joint_sim.geometry import skew
 
 from physics_helpers import (box, hinge_dict, random_rotation, rotation_about, theta as joint_theta,
                              torque_axis, torque_force, world_from)

@@ -9,9 +9,9 @@ import pytest
 
 from abd_joint_sim import Scene, World
 from abd_joint_sim.errors import SceneError
-from abd_joint_sim.model import rpy_matrix
+from abd_joint_sim.geometry import axis_rotation, matrix_rpy, rpy_matrix
 from abd_joint_sim.scene import load_yaml
-from abd_joint_sim.urdf import UrdfWarning, axis_rotation, matrix_rpy
+from abd_joint_sim.urdf import UrdfWarning
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DEMO = os.path.join(os.path.dirname(HERE), 'abd_joint_sim', 'robots', 'demo_arm.urdf')

@@ -123,30 +123,7 @@ class _FastMessages:
     def add(self, channel_id: int, log_time: int, data) -> None:
         """``writer.add_message(channel_id, log_time, data, publish_time=log_time,
         sequence=0)``."""
-        st = self._stats
-        if st.message_count == 0 or log_time < st.message_start_time:
-            st.message_start_time = log_time
-        if log_time > st.message_end_time:
-            st.message_end_time = log_time
-        st.channel_message_counts[channel_id] += 1
-        st.message_count += 1
-        cb = self._chunk
-        if cb.num_messages == 0 or log_time < cb.message_start_time:
-            cb.message_start_time = log_time
-        if log_time > cb.message_end_time:
-            cb.message_end_time = log_time
-        index = cb.message_indices.get(channel_id)
-        if not index:
-            index = cb.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id,
-                                                                       records=[])
-        buffer = cb.record_writer._buffer                         # noqa: SLF001
-        index.records.append((log_time, buffer.tell()))
-        cb.num_messages += 1
-        buffer.write(_MESSAGE_HEAD.pack(_MESSAGE_OPCODE, _MESSAGE_FIELDS + len(data),
-                                        channel_id, 0, log_time, log_time))
-        buffer.write(data)
-        if buffer.tell() > self._chunk_size:
-            self._finalize()
+        self.add_many(channel_id, (log_time,), (data,))
 
     def add_many(self, channel_id: int, stamps: list, datas: list) -> None:
         """``add(channel_id, t, data)`` for each pair in order (the same bytes and state), with
@@ -462,7 +439,7 @@ class BagWriter:
 
     def write_serialized_many(self, topic: str, stamps: list, datas: list) -> None:
         """``write_serialized(topic, t, data)`` for each pair in order, in one call: the same
-        bytes in the bag (sim_node's /clock of a batch of steps, `HeldMessages`)."""
+        bytes in the bag (sim_node's /clock of a batch of steps, `ros.recording.Recording`)."""
         entry = self._topics.get(topic) if self._state == 'open' else None
         if entry is None:
             entry = self._entry(topic)      # raises the error that says why
@@ -532,10 +509,6 @@ class BagWriter:
     def message_count(self) -> int:
         """Messages written so far."""
         return self._summary.message_count
-
-    @property
-    def is_open(self) -> bool:
-        return self._state == 'open'
 
     # -- helpers -----------------------------------------------------------------------------
 

@@ -23,7 +23,8 @@ implementation) and ``mcap_ros2`` in the tests.
 from __future__ import annotations
 
 import importlib
-from typing import Any
+import struct
+from typing import Any, Iterable, Sequence
 
 HEADER = 4
 """Bytes of the encapsulation header before the CDR stream."""
@@ -183,3 +184,65 @@ def _walk(msg: Any, pos: int, path: tuple, out: dict, pads: list) -> int:
                 for i, item in enumerate(value):
                     pos = _walk(item, pos, here + (i,), out, pads)
     return pos
+
+
+def serialized(msg: Any) -> bytes:
+    """``serialize_message(msg)`` as the bag stores it and a :class:`Template` packs it:
+    trimmed to the stream padded to 4 bytes, every padding byte 0 (:func:`without_padding`)."""
+    from rclpy.serialization import serialize_message
+    return without_padding(serialize_message(msg), msg)
+
+
+class Template:
+    """The CDR bytes of a message of fixed layout, re-packed with new values of a few of its
+    primitive fields: what sim_node publishes and records at every step (/clock, the joint
+    states, the body markers), where serialising the whole message would cost more than the
+    step.
+
+    `msg` is serialised once (:func:`serialized`); `fields` names the fields that change,
+    each by its :func:`field_offsets` path and a ``struct`` code of what starts there, e.g.
+    ``(('header', 'stamp', 'sec'), 'iI')`` (a Time: int32 sec, uint32 nanosec) or
+    ``(('position',), '3d')`` (the elements of a float64[] of length 3). :meth:`pack` then
+    builds the bytes with one ``struct`` call: the constant pieces of the template and the
+    new values, in stream order. :meth:`matches` compares it with :func:`serialized` of
+    filled messages, so an encoder can fall back to serialising when the layout is not what
+    these rules say (another RMW's encapsulation).
+    """
+
+    def __init__(self, msg: Any, fields: Sequence[tuple[tuple, str]]) -> None:
+        self.data = serialized(msg)
+        offsets = field_offsets(msg)
+        spans = sorted((offsets[path], code, k) for k, (path, code) in enumerate(fields))
+        fmt, args, self._slots, cut = '<', [], [slice(0)] * len(fields), 0
+        for at, code, k in spans:
+            if at < cut:
+                raise ValueError(f'CDR template: field {fields[k][0]} overlaps the one before')
+            if at > cut:
+                fmt += f'{at - cut}s'
+                args.append(self.data[cut:at])
+            current = struct.unpack_from('<' + code, self.data, at)
+            self._slots[k] = slice(len(args), len(args) + len(current))
+            args += current
+            fmt += code
+            cut = at + struct.calcsize('<' + code)
+        if cut < len(self.data):
+            fmt += f'{len(self.data) - cut}s'
+            args.append(self.data[cut:])
+        self._struct = struct.Struct(fmt)
+        self._args = args
+        if len(fields) == 1:                # /clock after every step: one call, no list
+            pack, slot = self._struct.pack, self._slots[0]
+            before, after = tuple(args[:slot.start]), tuple(args[slot.stop:])
+            self.pack = lambda value: pack(*before, *value, *after)
+
+    def pack(self, *values: Sequence) -> bytes:
+        """The message's bytes with each field of `fields` set to its entry of `values` (a
+        sequence of as many numbers as its code packs)."""
+        args = self._args.copy()
+        for slot, value in zip(self._slots, values):
+            args[slot] = value
+        return self._struct.pack(*args)
+
+    def matches(self, cases: Iterable[tuple[Sequence, Any]]) -> bool:
+        """True if ``pack(*values)`` is ``serialized(msg)`` for every (values, msg)."""
+        return all(self.pack(*values) == serialized(msg) for values, msg in cases)

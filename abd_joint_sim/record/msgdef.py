@@ -162,9 +162,3 @@ def message_class(msg_type: str) -> Any:
     except (ImportError, AttributeError) as exc:
         raise MessageTypeError(
             f"message type '{msg_type}': no Python class ({exc})") from None
-
-
-def type_name_of(msg: Any) -> str:
-    """Return ``pkg/msg/Type`` for an rclpy message instance."""
-    cls = type(msg)
-    return f"{cls.__module__.split('.', 1)[0]}/msg/{cls.__name__}"

@@ -52,8 +52,8 @@ def _metadata(bag_dir: Path) -> dict[str, Any] | None:
 
 def _open_indexed(file: Path, handle: Any) -> Any:
     check(file)     # framing and every CRC: damage is named, never read as data
-    reader = make_reader(handle)
     try:
+        reader = make_reader(handle)
         summary = reader.get_summary()
     except Exception as exc:  # truncated file: the footer bytes are garbage of any kind
         raise BagError(f"bag file '{file}' has no valid summary ({type(exc).__name__}: {exc}); "
@@ -64,9 +64,10 @@ def _open_indexed(file: Path, handle: Any) -> Any:
     return reader
 
 
-def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
-                  ) -> Iterator[tuple[str, str, int, Any]]:
-    """Yield ``(topic, msg_type, log_time_ns, message)`` in log-time order.
+def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None,
+                  log_time_order: bool = True) -> Iterator[tuple[str, str, int, Any]]:
+    """Yield ``(topic, msg_type, log_time_ns, message)`` in log-time order, or in the order
+    the recorder wrote them with ``log_time_order=False`` (what a replay applies).
 
     :param path: bag directory or its ``.mcap`` file.
     :param topics: only these topics (all when ``None``).
@@ -81,8 +82,8 @@ def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
         reader = _open_indexed(file, handle)
         classes: dict[str, Any] = {}
         try:
-            for schema, channel, message in reader.iter_messages(topics=wanted,
-                                                                 log_time_order=True):
+            for schema, channel, message in reader.iter_messages(
+                    topics=wanted, log_time_order=log_time_order):
                 if schema is None:
                     raise BagError(f"bag file '{file}': topic '{channel.topic}' has no schema")
                 cls = classes.get(schema.name)

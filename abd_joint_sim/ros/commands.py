@@ -296,10 +296,6 @@ class CommandBuffer:
                     self._pending_aim[joint] = float(position[k])
         return rejections, clamps
 
-    @property
-    def has_pending(self) -> bool:
-        return bool(self._pending_torque or self._pending_enable or self._pending_aim)
-
     def clear(self) -> None:
         """Drop pending commands and forget command times (used on reset)."""
         self._pending_torque.clear()
@@ -365,7 +361,3 @@ class CommandBuffer:
             return math.inf
         times = [t for j, t in self._last_command_time.items() if j not in self._timed_out]
         return min(times) + self.command_timeout - 1e-9 if times else math.inf
-
-    def seconds_since_command(self, joint: str, now: float) -> Optional[float]:
-        t = self._last_command_time.get(joint)
-        return None if t is None else now - t

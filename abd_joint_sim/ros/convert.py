@@ -2,13 +2,11 @@
 from __future__ import annotations
 
 import math
-import struct
 from typing import Iterable, Mapping, Optional, Sequence
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
-from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
@@ -29,12 +27,17 @@ def ns_to_time_msg(ns: int) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
-def time_msg_to_seconds(stamp: Time) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
-
-
 def time_msg_to_ns(stamp: Time) -> int:
     return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def check_lengths(n: int, position, velocity, effort) -> None:
+    """ValueError unless a joint state's three arrays hold one value per each of its `n`
+    names."""
+    if not (len(position) == len(velocity) == len(effort) == n):
+        raise ValueError(
+            f'joint state arrays differ in length: name {n}, position {len(position)}, '
+            f'velocity {len(velocity)}, effort {len(effort)}')
 
 
 def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[float],
@@ -48,11 +51,7 @@ def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[floa
     msg.position = [float(x) for x in np.asarray(position, dtype=float).ravel()]
     msg.velocity = [float(x) for x in np.asarray(velocity, dtype=float).ravel()]
     msg.effort = [float(x) for x in np.asarray(effort, dtype=float).ravel()]
-    n = len(msg.name)
-    if not (len(msg.position) == len(msg.velocity) == len(msg.effort) == n):
-        raise ValueError(
-            f'joint state arrays differ in length: name {n}, position {len(msg.position)}, '
-            f'velocity {len(msg.velocity)}, effort {len(msg.effort)}')
+    check_lengths(len(msg.name), msg.position, msg.velocity, msg.effort)
     return msg
 
 
@@ -60,11 +59,7 @@ def fill_joint_state(msg: JointState, stamp_ns: int, position: list[float], velo
                      effort: list[float], frame_id: str) -> None:
     """Refill a JointState made by `joint_state_msg` (same names) for a new state: sim_node
     reuses one message, as building one costs ~25 µs."""
-    n = len(msg.name)
-    if not (len(position) == len(velocity) == len(effort) == n):
-        raise ValueError(
-            f'joint state arrays differ in length: name {n}, position {len(position)}, '
-            f'velocity {len(velocity)}, effort {len(effort)}')
+    check_lengths(len(msg.name), position, velocity, effort)
     stamp = msg.header.stamp
     stamp.sec, stamp.nanosec = divmod(int(stamp_ns), NS_PER_S)
     msg.header.frame_id = frame_id
@@ -80,36 +75,31 @@ class ClockEncoder:
 
     sim_node publishes /clock after every step: building a Clock and letting rclpy serialise
     it costs ~10 µs (and as much again to record it), a tenth of a step of the default scene.
-    A Clock is 12 bytes: the 4-byte CDR encapsulation header, int32 sec, uint32 nanosec. The
-    header and that layout are taken from ``rclpy.serialization`` and checked against it
-    here; if the check fails (another RMW's encapsulation), ``encode`` serialises through
-    rclpy instead. test_ros_commands.py compares both on many stamps.
+    A Clock is 12 bytes: the 4-byte CDR encapsulation header, int32 sec, uint32 nanosec,
+    packed by ``cdr.Template`` and checked here against ``serialize_message``; if the check
+    fails (another RMW's encapsulation), ``encode`` serialises through rclpy instead.
+    test_ros_commands.py compares both on many stamps.
     """
 
     def __init__(self) -> None:
-        self._header = serialize_message(Clock())[:4]
-        self.checked = all(
-            serialize_message(clock_msg(ns)) == self._pack(ns)
+        from abd_joint_sim.record import cdr
+        self._template = cdr.Template(clock_msg(0), [(('clock', 'sec'), 'iI')])
+        self.checked = self._template.matches(
+            ((divmod(ns, NS_PER_S),), clock_msg(ns))
             for ns in (0, 1, NS_PER_S - 1, 1_234_567_891_011, (2 ** 31 - 1) * NS_PER_S + NS_PER_S - 1))
-
-    def _pack(self, ns: int) -> bytes:
-        return _CLOCK_ROW.pack(self._header, *divmod(ns, NS_PER_S))
 
     def encode(self, stamp_ns: int) -> bytes:
         if self.checked:
-            return self._pack(stamp_ns)
-        return serialize_message(clock_msg(stamp_ns))
+            return self._template.pack(divmod(stamp_ns, NS_PER_S))
+        from abd_joint_sim.record import cdr
+        return cdr.serialized(clock_msg(stamp_ns))
 
     def encode_many(self, stamps_ns: Sequence[int]) -> list[bytes]:
-        """``[encode(t) for t in stamps_ns]`` (a run of a batch's steps), with one
-        ``struct`` pack each and no call per stamp."""
+        """``[encode(t) for t in stamps_ns]`` (a run of a batch's steps)."""
         if not self.checked:
             return [self.encode(t) for t in stamps_ns]
-        pack, header = _CLOCK_ROW.pack, self._header
-        return [pack(header, *divmod(t, NS_PER_S)) for t in stamps_ns]
-
-
-_CLOCK_ROW = struct.Struct('<4siI')      # the CDR header, sec, nanosec: 12 bytes
+        pack = self._template.pack
+        return [pack(divmod(t, NS_PER_S)) for t in stamps_ns]
 
 
 class JointStateEncoder:
@@ -118,14 +108,11 @@ class JointStateEncoder:
     The node publishes a JointState of fixed names and frame at 100 Hz and records it: letting
     rclpy convert and serialise the message each time (and once more for the bag) costs more
     than the rest of the publish. The CDR stream of a JointState with fixed names has a fixed
-    layout: only the stamp (int32 sec, uint32 nanosec) and the three float64 arrays change.
-    The template is ``serialize_message`` of the message itself, trimmed as the bag stores it
-    and with its alignment padding zeroed (``cdr.without_padding``); the offsets of those
-    fields come from ``cdr.field_offsets``, and ``encode`` packs the new values between the
-    template's constant pieces. The result is checked against ``serialize_message`` of the
-    filled message here, on several states; if that check fails, ``encode`` serialises
-    through rclpy instead (test_ros_encode.py compares both on many states, and decodes the
-    bytes with rosbags).
+    layout: only the stamp (int32 sec, uint32 nanosec) and the three float64 arrays change,
+    packed into the message's template by ``cdr.Template``. The result is checked against
+    ``serialize_message`` of the filled message here, on several states; if that check
+    fails, ``encode`` serialises through rclpy instead (test_ros_encode.py compares both on
+    many states, and decodes the bytes with rosbags).
     """
 
     def __init__(self, names: Sequence[str], frame_id: str = '') -> None:
@@ -135,17 +122,10 @@ class JointStateEncoder:
         n = len(self.names)
         self._n = n
         self._msg = joint_state_msg(0, self.names, [0.0] * n, [0.0] * n, [0.0] * n, frame_id)
-        template = cdr.without_padding(serialize_message(self._msg), self._msg)
-        offsets = cdr.field_offsets(self._msg)
-        stamp = offsets[('header', 'stamp', 'sec')]
-        cuts = [stamp, stamp + 8]
-        for attr in ('position', 'velocity', 'effort'):
-            if n:
-                cuts += [offsets[(attr,)], offsets[(attr,)] + 8 * n]
-        # Constant pieces between the variable fields: [head, between..., tail].
-        self._pieces = [template[a:b] for a, b in zip([0] + cuts[1::2], cuts[0::2] + [None])]
-        self._stamp = struct.Struct('<iI')
-        self._values = struct.Struct(f'<{n}d')
+        fields = [(('header', 'stamp', 'sec'), 'iI')]
+        if n:
+            fields += [((attr,), f'{n}d') for attr in ('position', 'velocity', 'effort')]
+        self._template = cdr.Template(self._msg, fields)
         rng = np.random.default_rng(15)
         self.checked = all(
             self._pack(ns, *vals) == self._serialize(ns, *vals)
@@ -157,26 +137,18 @@ class JointStateEncoder:
         from abd_joint_sim.record import cdr
         fill_joint_state(self._msg, stamp_ns, list(position), list(velocity), list(effort),
                          self.frame_id)
-        return cdr.without_padding(serialize_message(self._msg), self._msg)
+        return cdr.serialized(self._msg)
 
     def _pack(self, stamp_ns: int, position, velocity, effort) -> bytes:
-        p = self._pieces
-        parts = [p[0], self._stamp.pack(*divmod(int(stamp_ns), NS_PER_S))]
+        stamp = divmod(int(stamp_ns), NS_PER_S)
         if self._n:
-            pack = self._values.pack
-            parts += [p[1], pack(*position), p[2], pack(*velocity), p[3], pack(*effort), p[4]]
-        else:
-            parts.append(p[1])
-        return b''.join(parts)
+            return self._template.pack(stamp, position, velocity, effort)
+        return self._template.pack(stamp)           # no joints: the stamp alone changes
 
     def encode(self, stamp_ns: int, position: Sequence[float], velocity: Sequence[float],
                effort: Sequence[float]) -> bytes:
         """The CDR bytes of the JointState at `stamp_ns` (plain float lists, one per joint)."""
-        n = self._n
-        if not (len(position) == len(velocity) == len(effort) == n):
-            raise ValueError(
-                f'joint state arrays differ in length: name {n}, position {len(position)}, '
-                f'velocity {len(velocity)}, effort {len(effort)}')
+        check_lengths(self._n, position, velocity, effort)
         if self.checked:
             return self._pack(stamp_ns, position, velocity, effort)
         return self._serialize(stamp_ns, position, velocity, effort)

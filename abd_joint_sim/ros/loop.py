@@ -131,7 +131,7 @@ class SimLoop:
     def __init__(self, scene: Any, config: SimConfig, output: Optional[LoopOutput] = None,
                  clamp: bool = True, raise_faults: bool = False, paused: bool = False,
                  diagnostics_period_ns: int = 0):
-        from abd_joint_sim import World
+        from abd_joint_sim.world import World
         self.scene = scene
         self.config = config
         self.output = output if output is not None else LoopOutput()

@@ -34,16 +34,12 @@ not exist, and so each message replaces the previous one in RViz and Foxglove al
 """
 from __future__ import annotations
 
-import math
-import struct
 from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from abd_joint_sim.smallmat import frame_poses, nearest_rotation_in, quaternion_in
-
-TOPIC_MARKERS = 'markers'
-MARKER_TYPE = 'visualization_msgs/msg/MarkerArray'
+from abd_joint_sim.geometry import rpy_matrix
+from abd_joint_sim.smallmat import frame_poses
 
 # Colours of bodies without an rgba of their own (fixed bodies grey), RGBA in [0, 1].
 PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 1.0),
@@ -51,40 +47,6 @@ PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 
 FIXED_COLOUR = (0.55, 0.55, 0.55, 1.0)
 AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 
-_STAMP = struct.Struct('<iI')      # builtin_interfaces/Time: int32 sec, uint32 nanosec
-_POSE = struct.Struct('<7d')       # geometry_msgs/Pose: position x y z, orientation x y z w
-_POINTS = struct.Struct('<6d')     # an arrow's two geometry_msgs/Point
-
-
-def nearest_rotation(A: np.ndarray) -> np.ndarray:
-    """The rotation nearest to A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ from
-    the SVD A = U S Vᵀ (smallmat.nearest_rotation_in, what the markers use)."""
-    return nearest_rotations(np.asarray(A, dtype=float)[None])[0]
-
-
-def nearest_rotations(A: np.ndarray) -> np.ndarray:
-    """:func:`nearest_rotation` of each of a stack of matrices (B, 3, 3)."""
-    A = np.ascontiguousarray(A, dtype=float)
-    R = np.empty_like(A)
-    work = np.empty((5, 3, 3))
-    for k in range(A.shape[0]):
-        nearest_rotation_in(A[k], R[k], work)
-    return R
-
-
-def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
-    """URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    from abd_joint_sim.model import rpy_matrix
-    return rpy_matrix(tuple(float(v) for v in rpy))
-
-
-def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix, w >= 0 (Shepperd's method: the largest of
-    w, x, y, z is computed first, so no division by a small number; smallmat.quaternion_in,
-    what the markers use)."""
-    out = np.empty(4)
-    quaternion_in(np.ascontiguousarray(R, dtype=float), out)
-    return tuple(out.tolist())
 
 
 def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +109,7 @@ class MarkerBuilder:
             length = robot_axis_length(scene)
             for j, joint in enumerate(scene.joints):
                 parent = bodies[joint.parent]
-                R0 = rpy_to_matrix(parent.rpy)
+                R0 = rpy_matrix(parent.rpy)
                 p0 = np.asarray(parent.position, dtype=float)
                 q0 = np.asarray(joint.p0, dtype=float)
                 q1 = np.asarray(joint.p1, dtype=float)
@@ -158,7 +120,7 @@ class MarkerBuilder:
                 self.axes.append((j, joint.name, joint.parent, a, b))
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
-        self._packed: Optional[tuple] = None    # build_serialized's template and offsets
+        self._cdr: Optional[Any] = None    # build_serialized's cdr.Template
         self._stacked: Optional[tuple] = None   # the parts' bodies, origins, arrows as arrays
         self._packed_ok = False
 
@@ -170,7 +132,7 @@ class MarkerBuilder:
             parts = []
             for i, v in enumerate(visuals):
                 rgba = v.rgba if v.rgba is not None else colour
-                R_v = rpy_to_matrix(v.origin_rpy)
+                R_v = rpy_matrix(v.origin_rpy)
                 size = tuple(float(s) for s in v.size)
                 if v.kind == 'box':
                     parts.append(_Part(body.name, i, M.CUBE, size, rgba, v.origin_xyz, R_v))
@@ -260,47 +222,36 @@ class MarkerBuilder:
         not finite.
 
         A MarkerArray of a scene has a fixed layout: only the stamps, poses and arrow points
-        change, so the array is serialised once and those fields are packed in place at the
-        offsets ``cdr.field_offsets`` finds (converting and serialising the whole message
-        costs far more than computing the poses). The first call checks the packed bytes
-        against ``serialize_message`` of :meth:`build`; should they differ, every call
-        serialises :meth:`build` instead."""
-        from rclpy.serialization import serialize_message
+        change, so the array is serialised once and those fields are packed into it
+        (``cdr.Template``; converting and serialising the whole message costs far more than
+        computing the poses). The first call checks the packed bytes against
+        ``serialize_message`` of :meth:`build`; should they differ, every call serialises
+        :meth:`build` instead."""
         from abd_joint_sim.record import cdr
-        if self._packed is None:
+        if self._cdr is None:
             msg = self.build(stamp_ns, pose)
             if msg is None:
                 return None
-            offsets = cdr.field_offsets(msg)
-            n = len(self.parts)
-            self._packed = (
-                bytearray(cdr.without_padding(serialize_message(msg), msg)),
-                [offsets[('markers', i, 'header', 'stamp', 'sec')]
-                 for i in range(len(msg.markers))],
-                [offsets[('markers', i, 'pose', 'position', 'x')] for i in range(n)],
-                [offsets[('markers', n + i, 'points', 0, 'x')] for i in range(len(self.axes))])
-            expected = bytes(self._packed[0])
-            self._packed_ok = self._pack(stamp_ns, self._values(pose)) == expected
-            return expected
+            n, count = len(self.parts), len(msg.markers)
+            self._cdr = cdr.Template(
+                msg, [(('markers', i, 'header', 'stamp', 'sec'), 'iI') for i in range(count)]
+                + [(('markers', i, 'pose', 'position', 'x'), '7d') for i in range(n)]
+                + [(('markers', n + i, 'points', 0, 'x'), '6d') for i in range(len(self.axes))])
+            self._packed_ok = self._pack(stamp_ns, self._values(pose)) == self._cdr.data
+            return self._cdr.data
         values = self._values(pose)
         if values is None:
             return None
         if not self._packed_ok:
-            msg = self.build(stamp_ns, pose)
-            return cdr.without_padding(serialize_message(msg), msg)
+            return cdr.serialized(self.build(stamp_ns, pose))
         return self._pack(stamp_ns, values)
 
     def _pack(self, stamp_ns: int, values) -> bytes:
-        buf, stamps, pose_at, points_at = self._packed
+        """The template with every marker's stamp, the parts' poses (position x y z,
+        orientation x y z w) and the arrows' two points set."""
         poses, points = values
-        stamp = _STAMP.pack(*divmod(int(stamp_ns), 1_000_000_000))
-        for at in stamps:
-            buf[at:at + 8] = stamp
-        for at, v in zip(pose_at, poses):
-            _POSE.pack_into(buf, at, *v)
-        for at, v in zip(points_at, points):
-            _POINTS.pack_into(buf, at, *v)
-        return bytes(buf)
+        stamps = [divmod(int(stamp_ns), 1_000_000_000)] * (len(self.parts) + len(self.axes))
+        return self._cdr.pack(*stamps, *poses, *points)
 
     def _values(self, pose) -> Optional[tuple[list, list]]:
         """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint

@@ -45,16 +45,14 @@ from std_srvs.srv import Trigger
 
 from . import convert
 from .loop import LoopOutput, SimLoop
-from .markers import TOPIC_MARKERS
 from .params import (check_live_value, config_from_values, conflicting_parameter_sources,
                      default_scene_path, NODE_NAME, PARAMS, PARAMS_BY_NAME,
                      undeclared_parameters)
-from .recording import (add_node_topics, bag_custom_data, HeldMessages, parameter_event_msg,
-                        record_applied)
+from .recording import bag_custom_data, Recording
 from .topics import (BEST_EFFORT, TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL,
                      TOPIC_ENABLE_JOINT, TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
-                     TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT,
-                     TOPICS_BY_NAME, TopicSpec)
+                     TOPIC_MARKERS, TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT, TOPICS_BY_NAME,
+                     TopicSpec)
 
 
 def _qos(spec: TopicSpec) -> QoSProfile:
@@ -106,9 +104,8 @@ class SimNode(Node):
 
         # Scene, and the loop that owns the world (ros/loop.py, shared with the headless
         # tools). Imported here so that `--help`-like failures stay cheap.
-        from abd_joint_sim import Scene
+        from abd_joint_sim.scene import Scene
         self.scene = self._load_scene(Scene)
-        self._held_clock = HeldMessages(TOPIC_CLOCK)     # /clock held back in a batch
         self._output = _NodeOutput(self)
         self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,
                             paused=bool(self.config.start_paused))
@@ -140,7 +137,6 @@ class SimNode(Node):
         self.joint_state_encoder = convert.JointStateEncoder(self.joint_names,
                                                              self.config.frame_id)
         self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
-        self._joint_states_topic = self._abs(TOPIC_JOINT_STATES)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
         # the run is recorded.
@@ -496,10 +492,6 @@ class SimNode(Node):
             self.live.publish_loop(self.loop, force=force_publish)
         return ok
 
-    def _step_batch(self, max_steps: int) -> int:
-        """Up to max_steps steps (the loop batches them). Returns the number taken."""
-        return self._advance(max_steps)
-
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
         wall = max(now - self._stats_wall, 1e-9)
@@ -512,7 +504,8 @@ class SimNode(Node):
             real_time_factor_achieved=achieved_rtf, recording=self.recorder is not None,
             recording_error=self.recording_error or '')
         self.diagnostics_pub.publish(msg)
-        self._record(TOPIC_DIAGNOSTICS, t_ns, msg)
+        if self.recorder is not None:
+            self.recorder.write(TOPIC_DIAGNOSTICS, t_ns, msg)
 
     @_locked
     def _on_diagnostics_timer(self) -> None:
@@ -669,54 +662,23 @@ class SimNode(Node):
 
     # ---------------------------------------------------------------- recording ----
     def _open_recorder(self, path: str) -> None:
-        writer = None
         try:
-            from abd_joint_sim.record.bag import BagWriter
-            custom, attachments = bag_custom_data(
+            bag_data = bag_custom_data(
                 self.config, self.config.scene, getattr(self.scene, 'source_text', '') or '',
                 self.world.dt, self.commands.order,
                 urdf_text=getattr(self.scene, 'robot_description', '') or '')
-            writer = BagWriter(path, custom_data=custom, attachments=attachments)
-            writer.open()
-            add_node_topics(writer, self._abs, self.actuated, markers=self.markers is not None)
+            self.recorder = Recording.open(
+                path, bag_data, self.actuated, self._abs, self.get_fully_qualified_name(),
+                markers=self.markers is not None, on_error=self._recording_failed)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
             self.recording_error = str(exc)
             self.recorder = None
             self.config.record = ''
-            if writer is not None:
-                try:
-                    writer.close()
-                except Exception:  # noqa: BLE001 - already reported above
-                    pass
-            return
-        self.recorder = writer
 
     def _abs(self, topic: str) -> str:
         """Fully qualified topic name (namespace applied), as it appears on the graph."""
         return self.resolve_topic_name(topic)
-
-    def _record(self, topic: str, stamp_ns: int, msg, serialized: bool = False) -> None:
-        if self.recorder is None:
-            return
-        if self._held_clock:
-            self._write_held_clock()            # first: the bag keeps the order of the steps
-            if self.recorder is None:
-                return
-        try:
-            if serialized:
-                self.recorder.write_serialized(topic, stamp_ns, msg)
-            else:
-                self.recorder.write(topic, stamp_ns, msg)
-        except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
-            self._recording_failed(f'writing {topic} failed: {exc}')
-
-    def _write_held_clock(self) -> None:
-        """The /clock messages a batch held back (_NodeOutput.clock), in one bag call."""
-        try:
-            self._held_clock.flush(self.recorder)
-        except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
-            self._recording_failed(f'writing {TOPIC_CLOCK} failed: {exc}')
 
     def _recording_failed(self, why: str) -> None:
         self.recording_error = why
@@ -727,12 +689,8 @@ class SimNode(Node):
         self._publish_diagnostics()
 
     def _flush_recorder(self) -> None:
-        if self.recorder is None:
-            return
-        try:
-            self.recorder.flush()
-        except Exception as exc:  # noqa: BLE001
-            self._recording_failed(f'flushing failed: {exc}')
+        if self.recorder is not None:
+            self.recorder.flush()           # a failure: _recording_failed
 
     def _close_recorder(self) -> None:
         recorder, self.recorder = self.recorder, None
@@ -804,21 +762,19 @@ class _NodeOutput(LoopOutput):
     def clock(self, t_ns: int) -> None:
         # /clock after every step: 12 bytes of CDR published and recorded as they are
         # (convert.ClockEncoder), serialised once instead of once per use. In a batch the
-        # recording is held back and written in one call (batch_end, or before any other
-        # message: SimNode._record), the same bytes in the same order.
+        # recording holds them back and writes them in one call (Recording.clock), the same
+        # bytes in the same order.
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
         if self._clock_subscribed:          # (always outside a batch: see batch_begin)
             node.clock_publish_raw(clock)
-        if node._held_clock.active:
-            node._held_clock.hold(t_ns, clock)
-        elif node.recorder is not None:
-            node._record(TOPIC_CLOCK, t_ns, clock, serialized=True)
+        if node.recorder is not None:
+            node.recorder.clock(t_ns, clock)
 
     def clocks(self, stamps_ns: list) -> None:
         # A run of a batch's steps with nothing but /clock to publish: encoded at once,
-        # published one by one (only when someone subscribes: see batch_begin) and held
-        # for the bag as `clock` holds them.
+        # published one by one (only when someone subscribes: see batch_begin) and recorded
+        # as `clock` records them.
         node = self.node
         if not self._clock_subscribed and node.recorder is None:
             return                          # nobody receives them, nothing records them
@@ -827,15 +783,13 @@ class _NodeOutput(LoopOutput):
             publish = node.clock_publish_raw
             for data in datas:
                 publish(data)
-        if node._held_clock.active:
-            node._held_clock.hold_many(stamps_ns, datas)
-        elif node.recorder is not None:
-            for t_ns, data in zip(stamps_ns, datas):
-                node._record(TOPIC_CLOCK, t_ns, data, serialized=True)
+        if node.recorder is not None:
+            node.recorder.clocks(stamps_ns, datas)
 
     def batch_begin(self) -> None:
         node = self.node
-        node._held_clock.active = node.recorder is not None
+        if node.recorder is not None:
+            node.recorder.batch_begin()
         # /clock is best effort with depth 1 (what Gazebo does): a message nobody receives
         # is lost whenever it is sent, so a batch's /clock is published only when a
         # subscriber is matched as the batch begins (the count is asked once per batch, not
@@ -846,8 +800,8 @@ class _NodeOutput(LoopOutput):
 
     def batch_end(self) -> None:
         self._clock_subscribed = True
-        self.node._write_held_clock()
-        self.node._held_clock.active = False
+        if self.node.recorder is not None:
+            self.node.recorder.batch_end()
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
         # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
@@ -855,7 +809,7 @@ class _NodeOutput(LoopOutput):
         data = node.joint_state_encoder.encode(t_ns, position, velocity, effort)
         node.joint_state_publish_raw(data)
         if node.recorder is not None:
-            node._record(node._joint_states_topic, t_ns, data, serialized=True)
+            node.recorder.joint_state(t_ns, data)
 
     markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
 
@@ -863,28 +817,20 @@ class _NodeOutput(LoopOutput):
         node = self.node
         node.marker_pub.publish(data)
         if node.recorder is not None:
-            node._record(node._abs(TOPIC_MARKERS), t_ns, data, serialized=True)
+            node.recorder.markers(t_ns, data)
 
     def applied(self, applied) -> None:
         if self.node.recorder is not None:
-            record_applied(self.node._record, self.node._abs, applied)
+            self.node.recorder.applied(applied)
 
     def restarted(self) -> None:
-        node = self.node
-        if node.recorder is not None:
-            node._write_held_clock()
-            if node.recorder is not None:
-                try:
-                    node.recorder.restart_time()    # log times keep increasing
-                except Exception as exc:  # noqa: BLE001 - keep simulating without the bag
-                    node._recording_failed(f'restarting the log time failed: {exc}')
+        if self.node.recorder is not None:
+            self.node.recorder.restarted()          # log times keep increasing
 
     def parameters(self, t_ns: int, changes) -> None:
-        node = self.node
-        if node.recorder is not None:
-            # Applies from the next step boundary on: log time = the current sim time.
-            node._record(node._abs(TOPIC_PARAMETER_EVENTS), t_ns, parameter_event_msg(
-                t_ns, node.get_fully_qualified_name(), changes))
+        # Applies from the next step boundary on: log time = the current sim time.
+        if self.node.recorder is not None:
+            self.node.recorder.parameters(t_ns, changes)
 
     def log(self, level: str, text: str, key=None) -> None:
         if key is not None and level == 'warn':

@@ -79,10 +79,6 @@ PARAMS: tuple[ParamSpec, ...] = (
 
 PARAMS_BY_NAME = {p.name: p for p in PARAMS}
 
-# Live parameters the node applies while running (the rest are read once at start).
-LIVE = frozenset(p.name for p in PARAMS if not p.read_only)
-
-
 @dataclass
 class SimConfig:
     """Validated parameter values (units as in :data:`PARAMS`)."""

@@ -20,11 +20,15 @@ re-creates exactly what the node published.
   replay can honour e.g. a live change of ``command_timeout``.
 * :func:`bag_custom_data` and :func:`add_node_topics`: the bag's custom data, attachments and
   topic list.
+* :class:`Recording`: the bag of a run, written in that layout by the node and by the
+  headless recorder alike (``/clock`` held back in a batch, commands as applied, parameter
+  changes).
 * :func:`markers_due`: the body markers (``ros/markers.py``) at ``marker_rate`` Hz of
   simulated time on their own grid, at most once per step, and at start and reset.
 
-Plain functions over a ``write(topic, stamp_ns, msg)`` callable: the node's writes stop the
-recording on failure, the headless recorder's count messages.
+The rules are plain functions over a ``write(topic, stamp_ns, msg)`` callable;
+:class:`Recording` is the one writer both use: a failed write stops the node's recording
+(``on_error``) and ends a headless run (raised).
 """
 from __future__ import annotations
 
@@ -35,11 +39,10 @@ import yaml
 
 from . import convert
 from .commands import Applied
-from .markers import TOPIC_MARKERS
 from .params import NODE_NAME, packaged_scenes_dir, SimConfig
-from .topics import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_ENABLE_ALL,  # noqa: F401 (re-exported)
-                     TOPIC_ENABLE_JOINT, TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
-                     TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY, TOPIC_TORQUE_JOINT, TOPICS)
+from .topics import (TOPIC_CLOCK, TOPIC_ENABLE_JOINT, TOPIC_JOINT_COMMANDS, TOPIC_JOINT_STATES,
+                     TOPIC_MARKERS, TOPIC_PARAMETER_EVENTS, TOPIC_TORQUE_ARRAY,
+                     TOPIC_TORQUE_JOINT, TOPICS)
 
 RECORDED_PARAMETERS = ('real_time_factor', 'publish_rate', 'command_timeout',
                        'effort_limits')
@@ -164,39 +167,154 @@ def joint_command_msg(t_ns: int, names, position=(), effort=()):
     return msg
 
 
-class HeldMessages:
-    """Serialized messages of one topic held back during a batch of steps and written with
-    one ``BagWriter.write_serialized_many`` call (sim_node's and the headless recorder's
-    /clock, one per step). The holder flushes before it writes any other message and at the
-    batch's end, so the bag gets the order and the bytes of one write per message."""
+class Recording:
+    """The bag of a run in sim_node's layout (``ros/topics.py``): what the node and the
+    headless recorder (``tools/sim.py``) hand it, written through one ``BagWriter``.
 
-    __slots__ = ('topic', 'active', '_stamps', '_datas')
+    In a batch of steps ``/clock`` (one per step) is held back and written with one
+    ``BagWriter.write_serialized_many`` call before any other message and at the batch's
+    end, so the bag gets the order and the bytes of one write per message; `counts` tells how many messages each topic got. A failed write closes
+    the bag and calls ``on_error(why)``, or raises when there is none. Open one with
+    :meth:`open`.
+    """
 
-    def __init__(self, topic: str) -> None:
-        self.topic = topic
-        self.active = False         #: in a batch: `hold` rather than write
-        self._stamps: list = []
-        self._datas: list = []
+    def __init__(self, writer: Any, resolve: Resolve, node_fqn: str,
+                 on_error: Optional[Callable[[str], None]] = None) -> None:
+        self.writer = writer            #: an open BagWriter with the node's topics; None: closed
+        self.resolve = resolve
+        self.node_fqn = node_fqn
+        self.on_error = on_error
+        self.counts: dict[str, int] = {}
+        self._clock = resolve(TOPIC_CLOCK)
+        self._joint_states = resolve(TOPIC_JOINT_STATES)
+        self._markers = resolve(TOPIC_MARKERS)
+        self._batching = False          # in a batch: /clock held back
+        self._held_stamps: list = []
+        self._held_datas: list = []
 
-    def __len__(self) -> int:
-        return len(self._stamps)
+    @classmethod
+    def open(cls, path: str, bag_data: tuple[dict[str, str], dict[str, bytes]],
+             actuated: Iterable[str], resolve: Resolve, node_fqn: str, markers: bool,
+             on_error: Optional[Callable[[str], None]] = None,
+             attachment_time_ns: Optional[int] = None) -> 'Recording':
+        """A new bag at `path` with `bag_data` (custom data and attachments:
+        :func:`bag_custom_data`) and the node's topics (:func:`add_node_topics`); the writer
+        is closed again if registering them fails. `attachment_time_ns`: as BagWriter's."""
+        from abd_joint_sim.record.bag import BagWriter
+        custom, attachments = bag_data
+        writer = BagWriter(path, custom_data=custom, attachments=attachments,
+                           attachment_time_ns=attachment_time_ns)
+        writer.open()
+        try:
+            add_node_topics(writer, resolve, actuated, markers=markers)
+        except BaseException:
+            writer.close()
+            raise
+        return cls(writer, resolve, node_fqn, on_error)
 
-    def hold(self, stamp_ns: int, data: bytes) -> None:
-        self._stamps.append(stamp_ns)
-        self._datas.append(data)
+    def write(self, topic: str, stamp_ns: int, msg: Any, serialized: bool = False) -> None:
+        """One message (`serialized`: its CDR bytes) on the resolved `topic`."""
+        if self._held_stamps:
+            self._write_held()              # first: the bag keeps the order of the steps
+        writer = self.writer
+        if writer is None:
+            return
+        try:
+            if serialized:
+                writer.write_serialized(topic, stamp_ns, msg)
+            else:
+                writer.write(topic, stamp_ns, msg)
+        except Exception as exc:  # noqa: BLE001 - BagError, OSError, ...
+            self._failed(f'writing {topic} failed: {exc}')
+            return
+        self.counts[topic] = self.counts.get(topic, 0) + 1
 
-    def hold_many(self, stamps_ns: list, datas: list) -> None:
-        """`hold` each pair in order."""
-        self._stamps += stamps_ns
-        self._datas += datas
+    def _write_held(self) -> None:
+        """The /clock messages a batch held back, in one call (dropped once the bag failed)."""
+        stamps, datas = self._held_stamps, self._held_datas
+        self._held_stamps, self._held_datas = [], []
+        if not stamps or self.writer is None:
+            return
+        try:
+            self.writer.write_serialized_many(self._clock, stamps, datas)
+        except Exception as exc:  # noqa: BLE001
+            self._failed(f'writing {self._clock} failed: {exc}')
+            return
+        self.counts[self._clock] = self.counts.get(self._clock, 0) + len(stamps)
 
-    def flush(self, writer: Any) -> int:
-        """Write what is held into `writer` (None: drop it); returns how many were held."""
-        stamps, datas = self._stamps, self._datas
-        self._stamps, self._datas = [], []
-        if stamps and writer is not None:
-            writer.write_serialized_many(self.topic, stamps, datas)
-        return len(stamps)
+    def _failed(self, why: str) -> None:
+        """Called in an `except` block: re-raises what it caught when there is no on_error."""
+        if self.on_error is None:
+            raise                                               # noqa: PLE0704
+        self.on_error(why)
+
+    # -- what the loop hands over -----------------------------------------------------
+    def clock(self, t_ns: int, data: bytes) -> None:
+        """/clock as CDR bytes; held back in a batch."""
+        if self._batching:
+            self._held_stamps.append(t_ns)
+            self._held_datas.append(data)
+        else:
+            self.write(self._clock, t_ns, data, serialized=True)
+
+    def clocks(self, stamps_ns: list, datas: list) -> None:
+        """`clock` for each pair, in order."""
+        if self._batching:
+            self._held_stamps += stamps_ns
+            self._held_datas += datas
+        else:
+            for t_ns, data in zip(stamps_ns, datas):
+                self.write(self._clock, t_ns, data, serialized=True)
+
+    def batch_begin(self) -> None:
+        self._batching = True
+
+    def batch_end(self) -> None:
+        try:
+            self._write_held()
+        finally:
+            self._batching = False
+
+    def joint_state(self, t_ns: int, data: bytes) -> None:
+        self.write(self._joint_states, t_ns, data, serialized=True)
+
+    def markers(self, t_ns: int, data: bytes) -> None:
+        self.write(self._markers, t_ns, data, serialized=True)
+
+    def applied(self, applied: Applied) -> None:
+        record_applied(self.write, self.resolve, applied)
+
+    def restarted(self) -> None:
+        """Simulated time restarts at 0 (reset): the held /clock first, then log times go on
+        increasing from the last one written (``BagWriter.restart_time``)."""
+        if self._held_stamps:
+            self._write_held()
+        if self.writer is None:
+            return
+        try:
+            self.writer.restart_time()
+        except Exception as exc:  # noqa: BLE001
+            self._failed(f'restarting the log time failed: {exc}')
+
+    def parameters(self, t_ns: int, changes: Mapping[str, Any]) -> None:
+        """Live changes, in force from `t_ns` (the current simulated time) on."""
+        self.write(self.resolve(TOPIC_PARAMETER_EVENTS), t_ns,
+                   parameter_event_msg(t_ns, self.node_fqn, changes))
+
+    def flush(self) -> None:
+        """Close the chunk in progress (a SIGKILL then loses at most the next one)."""
+        if self.writer is None:
+            return
+        try:
+            self.writer.flush()
+        except Exception as exc:  # noqa: BLE001
+            self._failed(f'flushing failed: {exc}')
+
+    def close(self) -> None:
+        """Finalise the bag (idempotent); held messages are dropped once the bag failed."""
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            writer.close()
 
 
 class PublishSchedule:

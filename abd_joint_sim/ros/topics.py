@@ -14,8 +14,6 @@ from __future__ import annotations
 import re
 from typing import NamedTuple
 
-from .markers import MARKER_TYPE, TOPIC_MARKERS
-
 RELIABLE = 'reliable'
 BEST_EFFORT = 'best_effort'
 
@@ -42,6 +40,7 @@ TOPIC_TORQUE_JOINT = 'joint_torque/{joint}'
 TOPIC_ENABLE_ALL = 'joint_torque_enable'
 TOPIC_ENABLE_JOINT = 'joint_torque_enable/{joint}'
 TOPIC_JOINT_COMMANDS = 'joint_commands'
+TOPIC_MARKERS = 'markers'
 
 TOPICS: tuple[TopicSpec, ...] = (
     TopicSpec(TOPIC_JOINT_STATES, 'sensor_msgs/msg/JointState', 'out', RELIABLE, 10, True,
@@ -62,7 +61,7 @@ TOPICS: tuple[TopicSpec, ...] = (
               'torque of one actuated joint'),
     TopicSpec(TOPIC_ENABLE_JOINT, 'std_msgs/msg/Bool', 'in', RELIABLE, 10, True,
               'enable/disable one joint\'s torque'),
-    TopicSpec(TOPIC_MARKERS, MARKER_TYPE, 'out', RELIABLE, 10, True,
+    TopicSpec(TOPIC_MARKERS, 'visualization_msgs/msg/MarkerArray', 'out', RELIABLE, 10, True,
               'one marker per body at marker_rate (recorded unless marker_rate is 0)'),
 )
 """In the order the bag registers them (per-joint ones once per actuated joint)."""

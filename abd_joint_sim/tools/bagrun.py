@@ -82,47 +82,12 @@ class RecordedRun:
 
 def _iter_file_order(path: str | os.PathLike[str], topics: Optional[list[str]] = None):
     """(topic, type, log_time, message) in the order the recorder wrote them (only
-    `topics`, when given)."""
-    from mcap.reader import make_reader
-    from rclpy.serialization import deserialize_message
-    from abd_joint_sim.record.read import mcap_file
-    from abd_joint_sim.record.msgdef import message_class
-    from abd_joint_sim.record import BagError
-    from abd_joint_sim.record.integrity import check
+    `topics`, when given); a bag that cannot be read: BagInputError."""
+    from abd_joint_sim.record import BagError, read_messages
     try:
-        file = mcap_file(path)
-        check(file, path)       # framing and every CRC: damage is named as damage
+        yield from read_messages(path, topics, log_time_order=False)
     except BagError as exc:
         raise BagInputError(str(exc)) from None
-    try:
-        handle = open(file, 'rb')
-    except OSError as exc:
-        raise BagInputError(f'bag file {str(file)!r}: {exc.strerror or exc}') from None
-    with handle:
-        try:
-            reader = make_reader(handle)
-            summary = reader.get_summary()
-        except Exception as exc:  # noqa: BLE001 - mcap raises many kinds on garbage
-            raise BagInputError(f'bag file {str(file)!r} is not a readable MCAP file '
-                                f'({type(exc).__name__}: {exc}); if the recorder was killed, '
-                                'run abd_joint_sim.record.recover() on the bag') from None
-        if summary is None:
-            raise BagInputError(f'bag file {str(file)!r} has no summary (recorder killed?); '
-                                'run abd_joint_sim.record.recover() on the bag')
-        classes: dict[str, Any] = {}
-        try:
-            for schema, channel, message in reader.iter_messages(topics=topics,
-                                                                 log_time_order=False):
-                if schema is None:
-                    continue
-                cls = classes.get(schema.name)
-                if cls is None:
-                    cls = classes[schema.name] = message_class(schema.name)
-                yield (channel.topic, schema.name, message.log_time,
-                       deserialize_message(message.data, cls))
-        except Exception as exc:  # noqa: BLE001
-            raise BagInputError(f'bag file {str(file)!r}: reading failed: '
-                                f'{type(exc).__name__}: {exc}') from None
 
 
 def _stored_text(custom: dict[str, str], attachments: dict[str, bytes], key: str,
@@ -222,7 +187,7 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
                                                  bool(msg.data), where))
     for seg, end in zip(segments, ends):
         seg.end_ns = end
-    plan = Plan(segments, {}, source=path, duration_given=True)
+    plan = Plan(segments, {}, source=path)
     return RecordedRun(path, custom, scene_text,
                        custom.get('abd_joint_sim.scene_path', '') or 'scene.yaml',
                        parameters, plan, states, counts)
@@ -230,7 +195,7 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
 
 def scene_from_text(text: str, source: str):
     """Parse stored scene YAML like ``Scene.from_yaml`` (SceneError names `source`)."""
-    from abd_joint_sim import Scene
+    from abd_joint_sim.scene import Scene
     from abd_joint_sim.errors import SceneError
     from abd_joint_sim.scene import load_yaml
     try:

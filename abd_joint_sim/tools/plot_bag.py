@@ -71,7 +71,8 @@ def mesh_boxes(bag: str | os.PathLike[str]) -> dict[str, tuple]:
     """Per body with mesh visuals, what :attr:`Run.mesh_boxes` holds, from the scene
     stored in the bag; {} when the bag stores none that parses (then meshes are crosses)."""
     from abd_joint_sim.record import read_custom_data
-    from abd_joint_sim.ros.markers import equal_inertia_box, rpy_to_matrix
+    from abd_joint_sim.geometry import rpy_matrix
+    from abd_joint_sim.ros.markers import equal_inertia_box
     from abd_joint_sim.tools.bagrun import scene_from_text
     try:
         text = read_custom_data(bag).get('abd_joint_sim.scene_yaml', '')
@@ -84,7 +85,7 @@ def mesh_boxes(bag: str | os.PathLike[str]) -> dict[str, tuple]:
         if not any(v.kind == 'mesh' for v in visuals) or body.shape.kind != 'inertial':
             continue
         sides, axes = equal_inertia_box(body.shape.mass, body.shape.inertia)
-        origins = {i: (np.asarray(v.origin_xyz, dtype=float), rpy_to_matrix(v.origin_rpy))
+        origins = {i: (np.asarray(v.origin_xyz, dtype=float), rpy_matrix(v.origin_rpy))
                    for i, v in enumerate(visuals)}
         out[body.name] = (origins, sides, np.asarray(body.shape.com, dtype=float), axes)
     return out

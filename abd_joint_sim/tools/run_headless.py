@@ -87,7 +87,7 @@ class _InputError(Exception):
 
 
 def _run(args) -> int:
-    from abd_joint_sim import Scene
+    from abd_joint_sim.scene import Scene
     from abd_joint_sim.errors import SceneError, SimulationError
     from abd_joint_sim.record import BagError
     from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns

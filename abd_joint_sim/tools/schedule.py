@@ -94,7 +94,19 @@ class Plan:
     segments: list[Segment]
     parameters: dict[str, Any] = field(default_factory=dict)
     source: str = ''
-    duration_given: bool = False
+
+
+def _per_joint(t_ns: int, where: str, mapping: dict, kind: str, value) -> list[Command]:
+    """The commands of a {joint: value} mapping at `where`, each value read by
+    `value(where, v)`."""
+    if not mapping:
+        raise _fail(where, 'empty mapping')
+    commands = []
+    for joint, v in mapping.items():
+        joint = _joint_name(where, joint)
+        commands.append(Command(t_ns, kind, joint, value(f'{where}.{joint}', v),
+                                f'{where}.{joint}'))
+    return commands
 
 
 def _fail(where: str, what: str) -> ScheduleError:
@@ -183,13 +195,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
         enable = event.get('enable')
         if 'enable' in event:
             if isinstance(enable, dict):
-                if not enable:
-                    raise _fail(f'{where}.enable', 'empty mapping')
-                for joint, flag in enable.items():
-                    joint = _joint_name(f'{where}.enable', joint)
-                    commands.append(Command(t_ns, 'enable', joint,
-                                            _flag(f'{where}.enable.{joint}', flag),
-                                            f'{where}.enable.{joint}'))
+                commands += _per_joint(t_ns, f'{where}.enable', enable, 'enable', _flag)
             else:
                 commands.append(Command(t_ns, 'enable_all', None,
                                         _flag(f'{where}.enable', enable), f'{where}.enable'))
@@ -199,13 +205,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
                 values = [_number(f'{where}.torque[{k}]', v) for k, v in enumerate(torque)]
                 commands.append(Command(t_ns, 'array', None, values, f'{where}.torque'))
             elif isinstance(torque, dict):
-                if not torque:
-                    raise _fail(f'{where}.torque', 'empty mapping')
-                for joint, value in torque.items():
-                    joint = _joint_name(f'{where}.torque', joint)
-                    commands.append(Command(t_ns, 'torque', joint,
-                                            _number(f'{where}.torque.{joint}', value),
-                                            f'{where}.torque.{joint}'))
+                commands += _per_joint(t_ns, f'{where}.torque', torque, 'torque', _number)
             else:
                 raise _fail(f'{where}.torque', f'expected {{joint: N m}} or a list in `joints` '
                                                f'order, got {torque!r}')
@@ -224,7 +224,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
         end_ns = seconds_to_ns(duration)
     else:
         end_ns = seconds_to_ns((last_t or 0.0) + DEFAULT_TAIL)
-    return Plan([Segment(commands, end_ns)], params, source, duration is not None)
+    return Plan([Segment(commands, end_ns)], params, source)
 
 
 def _joint_command(where: str, value: Any, t_ns: int) -> Command:

@@ -20,13 +20,9 @@ from typing import Any, Optional, Protocol
 from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.commands import Applied, CommandBuffer
 from abd_joint_sim.ros.loop import LoopOutput, queue_command, SimLoop, steps_until
-from abd_joint_sim.ros.markers import TOPIC_MARKERS
 from abd_joint_sim.ros.params import NODE_NAME, SimConfig
-from abd_joint_sim.ros.recording import (add_node_topics, bag_custom_data, HeldMessages,
-                                         parameter_event_msg,
-                                         record_applied, resolve_root, TOPIC_CLOCK,
-                                         TOPIC_DIAGNOSTICS, TOPIC_JOINT_STATES,
-                                         TOPIC_PARAMETER_EVENTS)
+from abd_joint_sim.ros.recording import bag_custom_data, Recording, resolve_root
+from abd_joint_sim.ros.topics import TOPIC_DIAGNOSTICS
 
 from .schedule import Command, Plan
 
@@ -159,104 +155,65 @@ class HeadlessSim:
 
 
 class BagRecorder(LoopOutput):
-    """Loop output writing sim_node's bag layout through ``abd_joint_sim.record.BagWriter``."""
+    """Loop output writing sim_node's bag layout (:class:`~abd_joint_sim.ros.recording.
+    Recording`, as the node does), plus ``/diagnostics`` once per simulated second."""
 
     markers_wanted = True
-
-    def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
-                 extra_custom: Optional[dict[str, str]] = None, urdf_text: str = '',
-                 attachment_time_ns: Optional[int] = None):
-        from abd_joint_sim.record import BagWriter
-        self.sim = sim
-        custom, attachments = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
-                                              sim.commands.order, extra_custom, urdf_text)
-        self.writer = BagWriter(path, custom_data=custom, attachments=attachments,
-                                attachment_time_ns=attachment_time_ns)
-        self.writer.open()
-        try:
-            add_node_topics(self.writer, resolve_root, sim.actuated,
-                            markers=sim.loop.markers is not None)
-        except BaseException:
-            self.writer.close()
-            raise
-        # One /diagnostics per simulated second, on the loop's grid.
-        sim.loop.diagnostics_period_ns = DIAGNOSTICS_PERIOD_NS
-        sim.loop.next_diagnostics_ns = DIAGNOSTICS_PERIOD_NS
-        self._joint_states = resolve_root(TOPIC_JOINT_STATES)
-        self._clock = convert.ClockEncoder()
-        self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
-        self._markers = resolve_root(TOPIC_MARKERS)
-        self._wall0 = time.monotonic()
-        self.counts: dict[str, int] = {}
-        self._held = HeldMessages(TOPIC_CLOCK)       # /clock held back in a batch
-
-    def _write(self, topic: str, t_ns: int, msg: Any) -> None:
-        if self._held:
-            self._write_held()
-        self.writer.write(topic, t_ns, msg)
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-
-    def _write_serialized(self, topic: str, t_ns: int, data: bytes) -> None:
-        if self._held:
-            self._write_held()
-        self.writer.write_serialized(topic, t_ns, data)
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-
-    def _write_held(self) -> None:
-        """The /clock messages a batch held back (clock), in one call, before anything else."""
-        self.counts[TOPIC_CLOCK] = self.counts.get(TOPIC_CLOCK, 0) + self._held.flush(self.writer)
-
-    # -- LoopOutput -----------------------------------------------------------------------
     # /clock, the joint states and the markers as the node records them: the same checked
     # CDR bytes (convert.ClockEncoder, JointStateEncoder, MarkerBuilder.build_serialized).
     markers_serialized = True
 
+    def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
+                 extra_custom: Optional[dict[str, str]] = None, urdf_text: str = '',
+                 attachment_time_ns: Optional[int] = None):
+        self.sim = sim
+        self._clock = convert.ClockEncoder()
+        self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
+        bag_data = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
+                                   sim.commands.order, extra_custom, urdf_text)
+        self.recording = Recording.open(path, bag_data, sim.actuated, resolve_root, NODE_FQN,
+                                        markers=sim.loop.markers is not None,
+                                        attachment_time_ns=attachment_time_ns)
+        self.counts = self.recording.counts
+        # One /diagnostics per simulated second, on the loop's grid.
+        sim.loop.diagnostics_period_ns = DIAGNOSTICS_PERIOD_NS
+        sim.loop.next_diagnostics_ns = DIAGNOSTICS_PERIOD_NS
+        self._wall0 = time.monotonic()
+
+    # -- LoopOutput -----------------------------------------------------------------------
     def clock(self, t_ns: int) -> None:
-        if self._held.active:               # in a batch: written in one call (as sim_node)
-            self._held.hold(t_ns, self._clock.encode(t_ns))
-        else:
-            self._write_serialized(TOPIC_CLOCK, t_ns, self._clock.encode(t_ns))
+        self.recording.clock(t_ns, self._clock.encode(t_ns))
 
     def clocks(self, stamps_ns: list) -> None:
-        datas = self._clock.encode_many(stamps_ns)
-        if self._held.active:
-            self._held.hold_many(stamps_ns, datas)
-        else:
-            for t_ns, data in zip(stamps_ns, datas):
-                self._write_serialized(TOPIC_CLOCK, t_ns, data)
+        self.recording.clocks(stamps_ns, self._clock.encode_many(stamps_ns))
 
     def batch_begin(self) -> None:
-        self._held.active = True
+        self.recording.batch_begin()
 
     def batch_end(self) -> None:
-        try:
-            self._write_held()
-        finally:
-            self._held.active = False
+        self.recording.batch_end()
 
     def markers(self, t_ns: int, data: bytes) -> None:
-        self._write_serialized(self._markers, t_ns, data)
+        self.recording.markers(t_ns, data)
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
-        self._write_serialized(self._joint_states, t_ns,
-                               self._joint_state.encode(t_ns, position, velocity, effort))
+        self.recording.joint_state(t_ns, self._joint_state.encode(t_ns, position, velocity,
+                                                                  effort))
 
     def applied(self, applied: Applied) -> None:
-        record_applied(self._write, resolve_root, applied)
+        self.recording.applied(applied)
 
     def restarted(self) -> None:
-        if self._held:
-            self._write_held()
-        self.writer.restart_time()      # log times keep increasing across the reset
+        self.recording.restarted()      # log times keep increasing across the reset
 
     def parameters(self, t_ns: int, changes) -> None:
-        self._write(TOPIC_PARAMETER_EVENTS, t_ns, parameter_event_msg(t_ns, NODE_FQN, changes))
+        self.recording.parameters(t_ns, changes)
 
     def diagnostics(self, t_ns: int) -> None:
         wall = max(time.monotonic() - self._wall0, 1e-9)
-        self._write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
+        self.recording.write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
             t_ns, f'{NODE_NAME}: solver', real_time_factor_requested=0.0,
             real_time_factor_achieved=float(self.sim.world.time) / wall, recording=True))
 
     def close(self) -> None:
-        self.writer.close()
+        self.recording.close()

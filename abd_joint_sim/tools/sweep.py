@@ -401,7 +401,7 @@ def _set_path(data: dict, path: str, value: Any) -> None:
 
 def case_scene(setup: Setup, values: dict):
     """The Scene of one case (SceneError naming the path on a refused value)."""
-    from abd_joint_sim import Scene
+    from abd_joint_sim.scene import Scene
     from abd_joint_sim.errors import SceneError
     from abd_joint_sim.scene import _Parser, _with_robot
     data = copy.deepcopy(setup.base)
