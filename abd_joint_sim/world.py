@@ -39,7 +39,7 @@ class World:
         self.scene = scene if isinstance(scene, Scene) else None
         self.model = scene if isinstance(scene, Model) else compile_scene(scene, dt)
         m = self.model
-        from .warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.warmup`)
+        from .jit.warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.jit.warmup`)
         ensure_compiled()                     # says so before a first-time compile
         self.solver = Solver(m)
         # the current state between one-step calls (solver/resident.py); `state` reads it

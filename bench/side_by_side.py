@@ -13,7 +13,7 @@ over rounds (and the minimum, the round least disturbed by other jobs) of the me
 steps in one call: the clean ones batched in compiled code). Torque on every joint (the
 scene's, else 1 N m), 3 warm-up steps first. `kuka` is the KUKA iiwa URDF of pybullet_data
 (gravity, joint limits; the torques swing it into its limits). Each checkout compiles into its
-own kernel cache directory (abd_joint_sim/cache.py keys it on the kernel sources; checkouts
+own kernel cache directory (abd_joint_sim/jit/cache.py keys it on the kernel sources; checkouts
 from before that share one and recompile over each other: give them ABD_KERNEL_CACHE).
 """
 from __future__ import annotations

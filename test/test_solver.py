@@ -693,11 +693,11 @@ def test_a_moderately_overloaded_joint_only_warns():
 
 # -- compile once, and layering ---------------------------------------------------------------
 def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
-    """`python -m abd_joint_sim.warmup` succeeds; the cache lives outside the source tree, in
+    """`python -m abd_joint_sim.jit.warmup` succeeds; the cache lives outside the source tree, in
     one directory keyed on the kernel sources, so an install (another copy of the same
     files) finds it (cache.py)."""
-    from abd_joint_sim import cache
-    proc = subprocess.run([sys.executable, '-m', 'abd_joint_sim.warmup'], cwd=REPO, capture_output=True,
+    from abd_joint_sim.jit import cache
+    proc = subprocess.run([sys.executable, '-m', 'abd_joint_sim.jit.warmup'], cwd=REPO, capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert 'physics kernels' in proc.stdout
@@ -706,7 +706,7 @@ def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
     copy = tmp_path / 'abd_joint_sim'
     import shutil
     shutil.copytree(REPO / 'abd_joint_sim', copy, ignore=shutil.ignore_patterns('__pycache__'))
-    code = ('import abd_joint_sim, abd_joint_sim.cache as c, sys; '
+    code = ('import abd_joint_sim, abd_joint_sim.jit.cache as c, sys; '
             'assert abd_joint_sim.__file__.startswith(sys.argv[1]), abd_joint_sim.__file__; '
             'print(c.marker())')
     out = subprocess.run([sys.executable, '-c', code, str(copy)], cwd=tmp_path, capture_output=True,
@@ -721,12 +721,12 @@ def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
     read each other's index (numba unpickles an index's signatures before checking its stamp:
     a type the running version lacks was an ImportError); `prune` keeps the KEEP newest."""
     import shutil
-    from abd_joint_sim import cache
+    from abd_joint_sim.jit import cache
     copy = tmp_path / 'pkg' / 'abd_joint_sim'
     shutil.copytree(REPO / 'abd_joint_sim', copy, ignore=shutil.ignore_patterns('__pycache__'))
     with open(copy / 'terms' / 'gravity.py', 'a') as f:
         f.write('\n# an edit\n')
-    code = ('import abd_joint_sim.cache as c; print(c.directory())')
+    code = ('import abd_joint_sim.jit.cache as c; print(c.directory())')
     env = dict(os.environ, PYTHONPATH=str(tmp_path / 'pkg'), ABD_KERNEL_CACHE=str(tmp_path / 'cache'))
     out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
                          timeout=120, env=env)
@@ -747,7 +747,7 @@ def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
         os.utime(d, (1000 + k, 1000 + k))
     (root / 'unfinished').mkdir()
     edited.mkdir(exist_ok=True)                 # (importing the package may have made it)
-    code = ('import abd_joint_sim.cache as c; c.mark_compiled()')
+    code = ('import abd_joint_sim.jit.cache as c; c.mark_compiled()')
     out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
                          timeout=120, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -813,7 +813,7 @@ def _layer_violations(files):
     for path, module in files:
         imported = _imports(path, module)
         up = {m for m in imported if m.startswith(('abd_joint_sim.world', 'abd_joint_sim.ros',
-                                                   'abd_joint_sim.tools', 'abd_joint_sim.warmup'))}
+                                                   'abd_joint_sim.tools', 'abd_joint_sim.jit.warmup'))}
         if module.startswith('abd_joint_sim.terms') or module in ('abd_joint_sim.angles', 'abd_joint_sim.smallmat'):
             up |= {m for m in imported if m.startswith('abd_joint_sim.solver')}
         if up:
@@ -841,7 +841,7 @@ def test_import_layer_check_can_fail(tmp_path):
 def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, capsys):
     """Without the compiled-marker, ensure_compiled prints its line to stderr BEFORE the
     kernels run (a first run never waits in silence); with it, nothing is printed."""
-    from abd_joint_sim import cache, warmup
+    from abd_joint_sim.jit import cache, warmup
     seen = []
 
     def fake_run():
@@ -1155,7 +1155,7 @@ import numpy as np
 import pybullet_data
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
-from abd_joint_sim.warmup import _loop_scene, _tiny_scene
+from abd_joint_sim.jit.warmup import _loop_scene, _tiny_scene
 scenes = {
     'chain': Scene.from_dict(chain_scene(6, torque=0.8)),
     'bdf2 drives limits': _tiny_scene(),

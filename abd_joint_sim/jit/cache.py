@@ -23,7 +23,7 @@ import platform
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parent
+PACKAGE = Path(__file__).resolve().parents[1]
 #: where the compiled kernels live; the files among them that define any (`njit(`) make the
 #: cache stamp, so editing pure-Python modules there does not force a recompile
 KERNEL_SOURCES = ('smallmat.py', 'angles.py', 'terms', 'solver')
@@ -40,7 +40,7 @@ def sources_hash() -> str:
             if b'njit(' in text:
                 h.update(f.relative_to(PACKAGE).as_posix().encode())
                 h.update(text)
-    from .solver import vectorize        # a build without the SLP vectoriser is another build
+    from ..solver import vectorize        # a build without the SLP vectoriser is another build
     h.update(b'slp' if vectorize.ENABLED else b'no-slp')
     return h.hexdigest()[:20]
 
