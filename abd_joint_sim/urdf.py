@@ -90,7 +90,7 @@ class _Joint:
 
 def rpy_matrix(rpy) -> np.ndarray:
     """URDF convention: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    from .model import rpy_matrix as _rpy
+    from .geometry import rpy_matrix as _rpy
     return _rpy(rpy)
 
 

@@ -21,7 +21,7 @@ from .solver.report import Status, StepReport
 from .solver.resident import Resident
 from .solver.solver import Solver
 from .state import Control, State
-from .terms import driving, limit, ortho, revolute, torque
+from .terms import ENERGY_TERMS, revolute, torque
 
 __all__ = ['World', 'StepReport', 'Status']
 
@@ -222,8 +222,9 @@ class World:
         return linear, angular
 
     def mechanical_energy(self) -> float:
-        """Kinetic + gravity + shape + joint energies [J] (the joint, driving and limit energies
-        carry no h² in Π, so their physical potentials are E/h²; the shape energy's h² cancels)."""
+        """Kinetic + gravity + the stored energies of the energy terms [J] (those with STORED:
+        shape, joint, driving, limit; the joint, driving and limit energies carry no h² in Π,
+        so their physical potentials are E/h²; the shape energy's h² cancels)."""
         m, s = self.model, self.state
         free = ~m.body_fixed
         kin = 0.5 * float(np.einsum('bi,bij,bj->', s.v[free], m.body_M[free], s.v[free]))
@@ -231,7 +232,7 @@ class World:
         grav = -float(np.sum(m.body_mass[free] * (com[free] @ m.gravity)))
         ctx = self.solver.context(s, self.control, m.dt)
         data = self.solver.data
-        pot = sum(term.energy(s.q, data, ctx) for term in (ortho, revolute, driving, limit))
+        pot = sum(term.energy(s.q, data, ctx) for term in ENERGY_TERMS if term.STORED)
         return kin + grav + pot / m.dt ** 2
 
     # -- stepping -----------------------------------------------------------------------

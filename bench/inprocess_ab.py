@@ -68,7 +68,8 @@ def solve_loop(mod):
     from numba import njit
     newton = sys.modules[mod.__name__ + '.solver.newton']
     linsolve = sys.modules[mod.__name__ + '.solver.linsolve']
-    subnormals = sys.modules[mod.__name__ + '.solver.subnormals']
+    subnormals = (sys.modules.get(mod.__name__ + '.jit.subnormals')
+                  or sys.modules[mod.__name__ + '.solver.subnormals'])
     assemble, solve, enter, leave = newton.assemble, linsolve.solve, subnormals.enter, subnormals.leave
 
     @njit

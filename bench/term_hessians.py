@@ -26,9 +26,10 @@ from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from abd_joint_sim import Scene, World, angles                 # noqa: E402
+from abd_joint_sim import Scene, World                         # noqa: E402
+from abd_joint_sim.terms import angle as angles               # noqa: E402
 from abd_joint_sim.builders import chain_scene                 # noqa: E402
-from abd_joint_sim.solver import vectorize                     # noqa: E402
+from abd_joint_sim.jit import slp as vectorize                 # noqa: E402
 from abd_joint_sim.terms import ortho                          # noqa: E402
 from abd_joint_sim.terms.ortho import _aat, _ata               # noqa: E402
 

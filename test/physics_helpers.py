@@ -55,8 +55,8 @@ def chain_dict(n_links, *, dt=0.001, torque=1.0, gravity=(0.0, 0.0, 0.0), link=0
 
 # -- calling the compiled terms from a test -----------------------------------------------
 def theta(world, q, joint=0) -> float:
-    """Wrapped joint angle θ of `joint` at q (abd_joint_sim/angles.py)."""
-    from abd_joint_sim import angles
+    """Wrapped joint angle θ of `joint` at q (abd_joint_sim/terms/angle.py)."""
+    from abd_joint_sim.terms import angle as angles
     return float(angles.theta(np.ascontiguousarray(q, dtype=float), world.solver.data, joint))
 
 

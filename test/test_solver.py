@@ -808,25 +808,28 @@ def _module(path: Path) -> str:
 
 def _layer_violations(files):
     """(file, bad imports) for modules below World that import World, the node, the tools or
-    the warm-up, and for terms/, angles, smallmat importing the solver."""
+    the warm-up, for terms/ and smallmat importing the solver, and for jit/ importing the rest."""
     bad = []
     for path, module in files:
         imported = _imports(path, module)
         up = {m for m in imported if m.startswith(('abd_joint_sim.world', 'abd_joint_sim.ros',
                                                    'abd_joint_sim.tools', 'abd_joint_sim.jit.warmup'))}
-        if module.startswith('abd_joint_sim.terms') or module in ('abd_joint_sim.angles', 'abd_joint_sim.smallmat'):
+        if module.startswith('abd_joint_sim.terms') or module == 'abd_joint_sim.smallmat':
             up |= {m for m in imported if m.startswith('abd_joint_sim.solver')}
+        if module.startswith('abd_joint_sim.jit'):          # the compiler machinery: the ground floor
+            up |= {m for m in imported if m.startswith('abd_joint_sim.') and not m.startswith('abd_joint_sim.jit')}
         if up:
             bad.append((path.name, up))
     return bad
 
 
 def test_physics_layers_import_downward_only():
-    """terms/ and angles know nothing of the solver, the solver nothing of World, and no
+    """terms/ knows nothing of the solver, jit/ (but the warm-up) nothing of the physics, the solver nothing of World, and no
     module below World imports it (or the node): no cycle, nothing reaches up."""
     pkg = REPO / 'abd_joint_sim'
     below_world = [*sorted((pkg / 'terms').glob('*.py')), *sorted((pkg / 'solver').glob('*.py')),
-                   pkg / 'angles.py', pkg / 'smallmat.py', pkg / 'model.py', pkg / 'state.py']
+                   *sorted(f for f in (pkg / 'jit').glob('*.py') if f.name != 'warmup.py'),
+                   pkg / 'smallmat.py', pkg / 'model.py', pkg / 'state.py']
     assert _layer_violations([(f, _module(f)) for f in below_world]) == []
 
 
@@ -1059,7 +1062,7 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
     x86 (docs/decisions.md). The step flushes them to zero while it runs, and only while it
     runs: numpy after a step still keeps a subnormal."""
     from abd_joint_sim.builders import chain_scene
-    from abd_joint_sim.solver import subnormals
+    from abd_joint_sim.jit import subnormals
     if not subnormals.X86:
         pytest.skip('FTZ/DAZ are set on x86-64 only')      # pragma: no cover
     w = World(Scene.from_dict(chain_scene(600)))
@@ -1075,9 +1078,9 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
 
 
 def test_flat_copies_and_fills_match_numpy_assignment():
-    """solver/flat.py's loops write what `dst[...] = src` and `dst[...] = value` write, on the
+    """jit/flat.py's loops write what `dst[...] = src` and `dst[...] = value` write, on the
     shapes the step uses (a copy into another array's memory, not a view of it)."""
-    from abd_joint_sim.solver import flat
+    from abd_joint_sim.jit import flat
     rng = np.random.default_rng(3)
     for shape in ((7,), (5, 12), (4, 12, 12), (2, 3, 5, 12)):
         src = rng.standard_normal(shape)
@@ -1095,7 +1098,7 @@ def test_flat_copies_and_fills_match_numpy_assignment():
 
 def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
     """forward_block12 and schur_update12 are written for LLVM's SLP vectoriser and always
-    compiled with it (vectorize.slp_vectorized; numba keeps it off by default after
+    compiled with it (jit.kernel, slp.vectorized; numba keeps it off by default after
     miscompilations). Against the same Python functions compiled without it, and against
     the loop forms they replace (forward_block; the lower-half loop of the Schur update),
     bit for bit; forward_vector12 against forward_block with one column too."""
@@ -1175,7 +1178,7 @@ for name, scene in scenes.items():
 
 
 def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
-    """The kernels are compiled with LLVM's SLP vectoriser (solver/vectorize.py), which numba
+    """The kernels are compiled with LLVM's SLP vectoriser (jit/slp.py), which numba
     keeps off because it once miscompiled. A build with ABD_SLP=0 (every kernel scalar,
     compiled afresh into its own cache) steps four scenes (tree and dense solves, BDF1 and
     BDF2, drives, limits, gravity, the KUKA arm into its limits) to the same bits."""

@@ -7,7 +7,8 @@ import pytest
 from numba import njit
 
 import oracle
-from abd_joint_sim import Scene, angles, compile_scene
+from abd_joint_sim import Scene, compile_scene
+from abd_joint_sim.terms import angle as angles
 from abd_joint_sim.solver import model_data
 from abd_joint_sim.terms import damping, driving, inertia, limit, ortho, revolute, torque
 from abd_joint_sim.terms.context import StepContext
@@ -228,7 +229,7 @@ def test_term_derivatives_match_finite_differences(name, seed):
 
 
 def test_joint_angle_matches_the_oracle():
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     for seed in range(5):
         q = _state(seed, scale=0.3)
         for j in range(MODEL.joint_count):
@@ -380,7 +381,7 @@ def test_oracle_comparison_can_fail(monkeypatch):
 def test_joint_angle_slope_is_the_directional_derivative():
     """angles.theta_and_slope_at (the joint velocity θ̇ = ∇θ·v and the predicted rotation)
     against a central difference of θ along the direction, on sheared states."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     rng = np.random.default_rng(5)
     zero = np.zeros((MODEL.body_count, 12))
     for seed in range(4):
@@ -400,7 +401,7 @@ def test_joint_angle_slope_is_the_directional_derivative():
 def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
     """Beyond GAUSS_NEWTON_RANGE from its target a drive's projected Hessian is E''∇θ∇θᵀ
     (rank one in the angle), its gradient unchanged; near the target it is the full one."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     q = _state(2, scale=0.05)
     j = int(MODEL.drive_joints[0])
     start = np.zeros(MODEL.joint_count)
@@ -430,7 +431,7 @@ def _reference_angle_projection(q, joints, d1s, d2s):
     QᵀHQ (12x12, Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])), eigen-decomposed by LAPACK;
     kept as is when every eigenvalue of the batch is ≥ 0, else negative ones clamped to 0.
     Returns the dense (12B, 12B) matrix."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     B = MODEL.body_count
     blocks, all_psd = [], True
     for j, d1, d2 in zip(joints, d1s, d2s):
@@ -458,7 +459,7 @@ def _reference_angle_projection(q, joints, d1s, d2s):
 
 
 def _projected_angle_hessian(q, joints, d1s, d2s):
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     B, J = MODEL.body_count, MODEL.joint_count
     grad, diag, pair = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
     angles.accumulate_angle_hessian(q, DATA, np.asarray(joints, np.int64), np.asarray(d1s, float),
@@ -508,7 +509,7 @@ def test_angle_projection_equals_the_12x12_eigen_projection(shape):
 
 
 def _raw_angle_hessian(q, joints, d1s, d2s):
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     B = MODEL.body_count
     out = np.zeros((12 * B, 12 * B))
     for j, d1, d2 in zip(joints, d1s, d2s):
@@ -524,7 +525,7 @@ def test_angle_hessian_has_the_structure_the_projection_uses():
     """QᵀHQ = I3 ⊗ E'M_θ + rank 2, M_θ with eigenvalues ±1/(2r): so ±E'/(2r) are eigenvalues
     at least 4 times each (what angles.angle_hessian_projected relies on), and H with E' ≠ 0
     is never PSD (why joint-by-joint projection equals the former batch rule)."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     for seed in range(4):
         q = _state(seed, 0.4)
         for j in range(MODEL.joint_count):
@@ -607,7 +608,7 @@ def test_angle_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite(
     closed form against theta_derivatives' ∇²θ); with a bound just below what the raw
     Hessian's most negative eigenvalue needs, the projection (the rule may not take it
     then); with a bound twice that, exact in most cases (the bound is not vacuous)."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     checked = taken = 0
     work = np.empty(angles.ANGLE_WORK_SHAPE)
     for seed in range(4):
@@ -662,7 +663,7 @@ def test_the_angle_budget_shares_a_quarter_of_each_body_inertia():
 def test_terms_project_like_the_12x12_eigen_projection(name):
     """Through the terms' own `accumulate` (the fused loops): drives near their target on
     either side (E'∇²θ kept) and limits active above and below, against the reference."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     term, signs = TERMS[name], set()
     exact = projected = 0
     j = int(MODEL.drive_joints[0])
@@ -900,3 +901,98 @@ def test_damping_is_the_implicit_torque_with_the_angle_linearised_at_newtons_sta
         exact = oracle.damping_energy(MODEL, q, Q_START, Q_PREV, start, h, bdf2, linear=False)
         gaps.append(abs(lin - exact))
     assert gaps[0] > 0.0 and 0.005 < gaps[1] / gaps[0] < 0.02, gaps   # second order: ×0.01
+
+
+# -- the list of terms, once ------------------------------------------------------------------
+def _term_calls(source, function):
+    """[(module, attribute, guard)] of the `<module>.<attribute>(...)` calls of terms/ modules in
+    `function` of `source`, in source order; guard: the names of the `if` tests around it."""
+    import ast
+    tree = next(n for n in ast.walk(ast.parse(source)) if isinstance(n, ast.FunctionDef) and n.name == function)
+    from abd_joint_sim.terms import TERMS as ALL
+    names = {t.__name__.rsplit('.', 1)[1] for t in ALL}
+    out = []
+
+    def visit(node, guards):
+        if isinstance(node, ast.If):
+            inner = guards + (ast.unparse(node.test),)
+            for child in node.body:
+                visit(child, inner)
+            for child in node.orelse:
+                visit(child, guards + ('not ' + ast.unparse(node.test),))
+            return
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) \
+                and isinstance(node.func.value, ast.Name) and node.func.value.id in names:
+            out.append((node.func.value.id, node.func.attr, ' and '.join(guards)))
+        for child in ast.iter_child_nodes(node):
+            visit(child, guards)
+    for statement in tree.body:
+        visit(statement, ())
+    return out
+
+
+def _list_disagreements(source):
+    """How newton.py's `potential` and `assemble` disagree with terms.ENERGY_TERMS: every energy
+    term called once in potential (`energy`) and in the main path of assemble (`accumulate`,
+    or `accumulate_gradient` for a CONSTANT_HESSIAN term), in the list's order, a term that a
+    scene may lack (its first field is its joints) only under a test of that field's size."""
+    from abd_joint_sim.terms import ENERGY_TERMS
+    wanted = [t.__name__.rsplit('.', 1)[1] for t in ENERGY_TERMS]
+    bad = []
+    potential = _term_calls(source, 'potential')
+    if [c[0] for c in potential] != wanted or {c[1] for c in potential} != {'energy'}:
+        bad.append(('potential', potential))
+    main = [c for c in _term_calls(source, 'assemble') if not c[2].startswith('not ')]   # (not k >= 0: another s)
+    if [c[0] for c in main] != wanted:
+        bad.append(('assemble', main))
+    for term in ENERGY_TERMS:
+        name = term.__name__.rsplit('.', 1)[1]
+        kind = 'accumulate_gradient' if term.CONSTANT_HESSIAN else 'accumulate'
+        if any(c[0] == name and c[1] != kind for c in main):
+            bad.append(('assemble calls', name))
+        optional = term.FIELDS and term.FIELDS[0][0].endswith('_joints')
+        for calls in (potential, main):
+            guards = [c[2] for c in calls if c[0] == name]
+            if optional and not all(f'm.{term.FIELDS[0][0]}.size' in g for g in guards):
+                bad.append(('guard', name, guards))
+    return bad
+
+
+def test_newtons_sums_follow_the_list_of_terms():
+    """newton.potential and newton.assemble call exactly terms.ENERGY_TERMS, in its order, each
+    as its CONSTANT_HESSIAN says, each optional term under its guard."""
+    import inspect
+    from abd_joint_sim.solver import newton
+    assert _list_disagreements(inspect.getsource(newton)) == []
+
+
+def test_the_list_check_can_fail():
+    """A term left out, two swapped, and a guard missing are each reported."""
+    import inspect
+    from abd_joint_sim.solver import newton
+    source = inspect.getsource(newton)
+    dropped = source.replace('        E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)\n', '')
+    swapped = source.replace('E = inertia.energy(q, m, ctx)\n    E += ortho.energy(q, m, ctx)',
+                             'E = ortho.energy(q, m, ctx)\n    E += inertia.energy(q, m, ctx)')
+    unguarded = source.replace('    if m.damping_joints.size:\n        E += damping.accumulate(',
+                               '    if True:\n        E += damping.accumulate(')
+    for broken in (dropped, swapped, unguarded):
+        assert broken != source
+        assert _list_disagreements(broken) != []
+
+
+def test_the_compiled_model_is_its_terms_fields():
+    """ModelData's fields are the base fields and every term's FIELDS, each built by its term
+    (build returns exactly its FIELDS), and Solver.terms names the terms the scene uses."""
+    from abd_joint_sim.solver.solver import Solver
+    from abd_joint_sim.terms import TERMS
+    assert [n for n, _ in model_data.FIELDS] == [n for n, _ in model_data.BASE_FIELDS] + [
+        n for t in TERMS for n, _ in t.FIELDS]
+    values = {name: DATA.__dict__[name] for name, _ in model_data.BASE_FIELDS}
+    for term in TERMS:
+        built = term.build(MODEL, values)
+        assert sorted(built) == sorted(n for n, _ in term.FIELDS), term.__name__
+        values.update(built)
+    assert Solver(MODEL).terms == ('ortho_potential', 'revolute_joint', 'driving', 'limit',
+                                   'joint_damping', 'external_torque')
+

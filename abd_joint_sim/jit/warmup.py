@@ -95,9 +95,7 @@ def ensure_compiled(verbose: bool = True) -> dict:
               file=sys.stderr, flush=True)
     _done = True
     try:
-        from ..solver import vectorize
-        with vectorize.enabled():
-            _run_kernels()
+        _run_kernels()
     except BaseException:
         _done = False
         raise

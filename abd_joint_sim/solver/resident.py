@@ -19,12 +19,11 @@ the unknown ones by identity (`State.known_history`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 from numba.core import types
 from numba.experimental import structref
 
+from ..jit import kernel, refcounts
 from ..state import State
-from . import borrowed
 
 #: what one compiled `World.step()` reads and writes (step.step_resident), in one struct, its
 #: only argument: a structref argument is unboxed in about the time of one array, and these
@@ -83,7 +82,7 @@ class Resident:
                       drive_passive=c.drive_passive, **solver)
         io = ResidentIO(*(values[name] for name in IO_FIELDS))
         io.__dict__.update(values)
-        self.io, self.io_key = borrowed.borrow(io), key
+        self.io, self.io_key = refcounts.borrow(io), key
         return io
 
     def set(self, state: State) -> None:
@@ -146,13 +145,13 @@ class Resident:
         self.clock[0], self.clock[1] = s.time, s.history_dt
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def load_ring(ring, angles, q, v, w, q_prev, v_prev, w_prev, w_prev2, joint_angle, joint_velocity):
     """Resident.load's copies in one compiled call (numpy's nine assignments cost ~2x more):
     slot 2 = (q, v, w), slot 1 = (q_prev, v_prev, w_prev), slot 0's warm start = w_prev2,
     angle slot 2 = (joint_angle, joint_velocity). False, copying nothing, unless every array
     has the ring's shape."""
-    B, J = ring.shape[2], angles.shape[2]
+    B, J = ring.shape[2], angle.shape[2]
     for x in (q.shape, v.shape, w.shape, q_prev.shape, v_prev.shape, w_prev.shape, w_prev2.shape):
         if x != (B, 12):
             return False

@@ -19,16 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import angles
 from ..errors import SimulationError
 from ..model import axis_inertia
 from ..state import Control, State
-from ..terms import damping, limit
+from ..terms import TERMS, angle, damping, limit
 from ..terms.context import StepContext
-from ..terms.revolute import joint_separation
+from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
 from ..terms.torque import SINGULAR_RATIO
 from . import model_data, step as kernel, workspace
-from .model_data import SEPARATION_FAULT, SEPARATION_WARN
 from .report import STATUS_BY_CODE, Status, StepReport
 from .resident import Resident
 
@@ -143,11 +141,7 @@ class Solver:
         self._dt = model.dt
         self._may_split = model.newton.max_substep_depth > 0
         # the terms this model uses (energy terms, then forces), named as in World.terms
-        uses = (('ortho_potential', B > int(model.body_fixed.sum())), ('revolute_joint', J > 0),
-                ('driving', len(model.drive_joints) > 0), ('limit', len(model.limit_joints) > 0),
-                ('joint_damping', len(model.damping_joints) > 0),
-                ('gravity', model.has_gravity), ('external_torque', len(model.torque_joints) > 0))
-        self.terms = tuple(name for name, used in uses if used)
+        self.terms = tuple(term.NAME for term in TERMS if term.NAME and term.used(model))
 
     def context(self, state: State, control: Control, h: float, q_tilde=None) -> StepContext:
         """The StepContext of a step from `state` (q̃ = state.q unless given), for the energy
@@ -160,7 +154,7 @@ class Solver:
         return StepContext(float(h), 1.0, state.q if q_tilde is None else q_tilde, start,
                            np.ascontiguousarray(target, dtype=float),
                            np.ascontiguousarray(control.drive_enabled, dtype=bool),
-                           np.empty(angles.ANGLE_WORK_SHAPE),
+                           np.empty(angle.ANGLE_WORK_SHAPE),
                            self._angle_ref(state, start, h))
 
     def _angle_ref(self, state: State, start, h):
@@ -168,7 +162,7 @@ class Solver:
         ref = np.empty(damping.reference_shape(self.model))
         if len(self.model.damping_joints):
             damping.references(self.data, state.q, state.q_prev, start, float(h), False,
-                               np.empty(angles.ANGLE_WORK_SHAPE), ref)
+                               np.empty(angle.ANGLE_WORK_SHAPE), ref)
         return limit.references(self.data, start, ref)
 
     # -- one step, with recovery ---------------------------------------------------------

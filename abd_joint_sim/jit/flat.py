@@ -3,16 +3,19 @@
 numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through its n-d
 iterator, one index computation per element; a loop over the flat array is what the compiler
 turns into vector moves. On the 13 12x12 blocks of a robot's Newton matrix the flat copy
-took 0.18 µs against 0.66 (docs/speed-rounds.md, "The twelfth round"). Same values, bit for bit:
+took 0.18 µs against 0.66. Same values, bit for bit:
 a copy is a copy. `a.flat[i]` rather than a reshaped view: numba's reshape calls a C helper,
-~20 ns a time, as much as copying a small robot's q.
+~20 ns a time, as much as copying a small robot's q. `array` makes the copies the
+kernels are compiled for.
 """
 from __future__ import annotations
 
-from numba import njit
+import numpy as np
+
+from . import kernel
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def copy(dst, src):
     """dst[...] = src (the same size and C order)."""
     d, s = dst.flat, src.flat
@@ -20,9 +23,15 @@ def copy(dst, src):
         d[i] = s[i]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def fill(dst, value):
     """dst[...] = value."""
     d = dst.flat
     for i in range(dst.size):
         d[i] = value
+
+
+def array(x, dtype):
+    """A writable C-contiguous copy of x: the layout the kernels are compiled for (a read-only
+    or strided array is another numba type, and would compile them again)."""
+    return np.ascontiguousarray(np.array(x, dtype=dtype, copy=True))
