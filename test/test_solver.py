@@ -824,8 +824,9 @@ def _layer_violations(files):
 
 
 def test_physics_layers_import_downward_only():
-    """terms/ knows nothing of the solver, jit/ (but the warm-up) nothing of the physics, the solver nothing of World, and no
-    module below World imports it (or the node): no cycle, nothing reaches up."""
+    """terms/ knows nothing of the solver, jit/ (but the warm-up) nothing of the physics, the
+    solver nothing of World, and no module below World imports it (or the node): no cycle,
+    nothing reaches up."""
     pkg = REPO / 'abd_joint_sim'
     below_world = [*sorted((pkg / 'terms').glob('*.py')), *sorted((pkg / 'solver').glob('*.py')),
                    *sorted(f for f in (pkg / 'jit').glob('*.py') if f.name != 'warmup.py'),
