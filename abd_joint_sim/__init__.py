@@ -4,7 +4,7 @@ The physics core (this package minus `ros/` and `record/`) is numpy plus numba-c
 kernels (docs/physics-code.md) and never imports rclpy. Start with `Scene.from_yaml(path)`
 and `World(scene)`.
 """
-from . import cache  # noqa: F401  (first: numba's cache locator must precede every kernel)
+from .jit import cache  # noqa: F401  (first: numba's cache locator must precede every kernel)
 from .errors import SceneError, SimulationError
 from .model import Model, compile_scene
 from .scene import Scene

@@ -18,6 +18,7 @@ import numpy as np
 from .errors import SceneError
 from .geometry import point_jacobian, rpy_matrix, skew
 from .scene import Scene, check_dt
+from .terms.revolute import stiffness
 
 #: largest h d / I of a damped joint (I: the lighter body's moment about the axis): beyond it
 #: the damper outweighs the body's inertia by more than double precision resolves in Newton's
@@ -109,8 +110,7 @@ class Model:
     joint_child: np.ndarray         #: (J,) body index j (right)
     joint_anchor0: np.ndarray       #: [m] (J,2,3) x̄0 in the parent's, child's rest frame
     joint_anchor1: np.ndarray       #: [m] (J,2,3) x̄1 likewise (same order on both bodies)
-    joint_K: np.ndarray             #: [kg] (J,) gamma (m_i + m_j)
-    joint_hessian: np.ndarray       #: (J,24,24) constant Hessian of the UID 18 energy
+    joint_K: np.ndarray             #: [kg] (J,) UID 18 stiffness gamma (m_i + m_j)
     joint_nbar: np.ndarray          #: (J,2,3) n̄ in parent, child frames
     joint_bbar: np.ndarray          #: (J,2,3) b̄ in parent, child frames
     joint_init_angle: np.ndarray    #: [rad] (J,)
@@ -119,7 +119,7 @@ class Model:
     torque_enabled0: np.ndarray     #: (T,) bool
     torque_effort_limit: np.ndarray  #: [N m] (T,) inf = none
     drive_joints: np.ndarray        #: (D,) joints with UID 19
-    drive_K: np.ndarray             #: (D,)
+    drive_K: np.ndarray             #: [kg] (D,) UID 19 stiffness gamma (m_i + m_j)
     drive_aim0: np.ndarray          #: [rad] (D,)
     drive_passive0: np.ndarray      #: (D,) bool
     drive_enabled0: np.ndarray      #: (D,) bool
@@ -169,22 +169,16 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
     anchor0, anchor1 = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
     nbar, bbar = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
     K = np.zeros(J)
-    H = np.zeros((J, 24, 24))
     for k, j in enumerate(scene.joints):
         P0, P1 = np.array(j.p0), np.array(j.p1)
         t = (P1 - P0) / np.linalg.norm(P1 - P0)
         n, bvec = joint_basis(t)
-        D = []
         for side, body in enumerate((parent[k], child[k])):
             R, p = R0[body], q0[body][:3]
             anchor0[k, side] = R.T @ (P0 - p)       # x̄ = T⁻¹ P for a rigid initial pose
             anchor1[k, side] = R.T @ (P1 - p)
             nbar[k, side], bbar[k, side] = R.T @ n, R.T @ bvec
-        K[k] = j.strength_ratio * (mass[parent[k]] + mass[child[k]])
-        for anchors in (anchor0[k], anchor1[k]):
-            Dk = np.hstack([point_jacobian(anchors[0]), -point_jacobian(anchors[1])])  # (3,24)
-            D.append(Dk)
-        H[k] = K[k] * sum(Dk.T @ Dk for Dk in D)
+        K[k] = stiffness(j.strength_ratio, mass[parent[k]], mass[child[k]])
 
     def sel(pred):
         return np.array([k for k, j in enumerate(scene.joints) if pred(j)], dtype=np.int64)
@@ -205,14 +199,14 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
         body_kappa=np.array([b.kappa for b in scene.bodies], float), body_corners=corners,
         body_size=size, body_q0=np.array(q0), body_v0=np.array(v0),
         joint_names=scene.joint_names, joint_parent=parent, joint_child=child,
-        joint_anchor0=anchor0, joint_anchor1=anchor1, joint_K=K, joint_hessian=H,
+        joint_anchor0=anchor0, joint_anchor1=anchor1, joint_K=K,
         joint_nbar=nbar, joint_bbar=bbar,
         joint_init_angle=np.array([j.init_angle for j in scene.joints], float),
         torque_joints=tj, torque_value0=np.array([j.external_torque.torque for j in jt], float),
         torque_enabled0=np.array([j.external_torque.enabled for j in jt], bool),
         torque_effort_limit=np.array([j.external_torque.effort_limit for j in jt], float),
         drive_joints=dj,
-        drive_K=np.array([j.driving.strength_ratio * (mass[index[j.parent]] + mass[index[j.child]])
+        drive_K=np.array([stiffness(j.driving.strength_ratio, mass[index[j.parent]], mass[index[j.child]])
                           for j in jd], float),
         drive_aim0=np.array([j.driving.aim_angle for j in jd], float),
         drive_passive0=np.array([j.driving.passive for j in jd], bool),

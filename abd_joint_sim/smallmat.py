@@ -10,17 +10,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from .jit import kernel
 
 # Jacobi sweeps stop once Σ off-diagonal² ≤ JACOBI_TOL · Σ diagonal². The rotations leave
-# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 was often never
-# met: every call ran to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12 eigenproblem,
-# measured 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
+# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 is often never
+# met: every call would run to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12
+# eigenproblem, 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
 # n ≤ 12 and still means off-diagonals ≤ ~1e-15 relative: the results change by rounding.
 JACOBI_TOL = 1e-30
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def svd3(A, U, S, V):
     """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
     AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
@@ -28,7 +29,7 @@ def svd3(A, U, S, V):
     svd3_in(A, U, S, V, np.empty((2, 3, 3)))
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def svd3_in(A, U, S, V, work):
     """svd3 with its work array (2,3,3) given (a per-body loop allocates it once)."""
     Bm = work[0]
@@ -119,7 +120,7 @@ def svd3_in(A, U, S, V, work):
     S[0], S[1], S[2] = s0, s1, s2
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def jacobi_eigh(S, w, V):
     """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi
     (S is destroyed). Accurate to round-off like LAPACK's syevd, and cheap to compile."""
@@ -165,7 +166,7 @@ def jacobi_eigh(S, w, V):
         w[p] = S[p, p]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def cholesky(A, n):
     """Lower Cholesky factor of A[:n,:n] in place (upper part untouched); False if not PD."""
     for j in range(n):
@@ -184,7 +185,7 @@ def cholesky(A, n):
     return True
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def lower_solve(L, x, n):
     """Solve L y = x in place (L lower triangular, the first n rows)."""
     for i in range(n):
@@ -194,7 +195,7 @@ def lower_solve(L, x, n):
         x[i] = s / L[i, i]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def upper_solve(L, x, n):
     """Solve Lᵀ y = x in place."""
     for i in range(n - 1, -1, -1):
@@ -204,7 +205,7 @@ def upper_solve(L, x, n):
         x[i] = s / L[i, i]
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def adjugate3(a):
     """(adj a, det a) of a 3x3 matrix held as a row-major 9-tuple of scalars: adj a = A⁻¹ det A
     as a 9-tuple, entry (i, j) the cofactor a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1]
@@ -218,7 +219,7 @@ def adjugate3(a):
     return adj, a00 * adj[0] + a01 * adj[3] + a02 * adj[6]
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def product3(a, b):
     """a b of two 3x3 matrices held as row-major 9-tuples, each entry summed from 0.0 over
     the inner index in order (the rounding of the loop `acc = 0.0; acc += a_ic b_cj`)."""
@@ -232,7 +233,7 @@ def product3(a, b):
             0.0 + a20 * b02 + a21 * b12 + a22 * b22)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def eigh_ql(S, w, V):
     """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
     Householder reduction to tridiagonal form, then implicit QL with Wilkinson shifts
@@ -242,7 +243,7 @@ def eigh_ql(S, w, V):
     return eigh_ql_in(S, w, V, np.empty(S.shape[0]))
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def eigh_ql_in(S, w, V, e):
     """eigh_ql with its scratch vector e (n,) from the caller: no allocation (the angle
     terms' 4x4 eigenproblem, once per joint and Newton iteration)."""
@@ -360,13 +361,13 @@ def eigh_ql_in(S, w, V, e):
     return True
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _eigh_fallback(S, w, V):
     jacobi_eigh(S, w, V)
     return False
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def nearest_rotation_in(A, R, work):
     """R = the rotation nearest the 3x3 A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ
     from svd3. work: (5, 3, 3) scratch."""
@@ -385,7 +386,7 @@ def nearest_rotation_in(A, R, work):
             R[r, c] = U[r, 0] * V[c, 0] + U[r, 1] * V[c, 1] + flip * U[r, 2] * V[c, 2]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def quaternion_in(R, out):
     """out[:4] = (x, y, z, w) of the rotation R, w ≥ 0, by Shepperd's method (the largest of
     w, x, y, z first, so no division by a small number)."""
@@ -411,7 +412,7 @@ def quaternion_in(R, out):
     out[0], out[1], out[2], out[3] = x, y, z, w
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def frame_poses(P, A, body, t, Rv, ends_body, ends, poses, points):
     """Poses of frames attached to affine bodies (x = A x̄ + p per body: P (B,3), A (B,3,3)):
     poses[i] = (x, y, z, qx, qy, qz, qw) of frame i on body[i] at body-frame offset t[i] (3,)

@@ -21,7 +21,7 @@ from .solver.report import Status, StepReport
 from .solver.resident import Resident
 from .solver.solver import Solver
 from .state import Control, State
-from .terms import driving, limit, ortho, revolute, torque
+from .terms import ENERGY_TERMS, revolute, torque
 
 __all__ = ['World', 'StepReport', 'Status']
 
@@ -39,7 +39,7 @@ class World:
         self.scene = scene if isinstance(scene, Scene) else None
         self.model = scene if isinstance(scene, Model) else compile_scene(scene, dt)
         m = self.model
-        from .warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.warmup`)
+        from .jit.warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.jit.warmup`)
         ensure_compiled()                     # says so before a first-time compile
         self.solver = Solver(m)
         # the current state between one-step calls (solver/resident.py); `state` reads it
@@ -222,8 +222,9 @@ class World:
         return linear, angular
 
     def mechanical_energy(self) -> float:
-        """Kinetic + gravity + shape + joint energies [J] (the joint, driving and limit energies
-        carry no h² in Π, so their physical potentials are E/h²; the shape energy's h² cancels)."""
+        """Kinetic + gravity + the stored energies of the energy terms [J] (those with STORED:
+        shape, joint, driving, limit; the joint, driving and limit energies carry no h² in Π,
+        so their physical potentials are E/h²; the shape energy's h² cancels)."""
         m, s = self.model, self.state
         free = ~m.body_fixed
         kin = 0.5 * float(np.einsum('bi,bij,bj->', s.v[free], m.body_M[free], s.v[free]))
@@ -231,7 +232,7 @@ class World:
         grav = -float(np.sum(m.body_mass[free] * (com[free] @ m.gravity)))
         ctx = self.solver.context(s, self.control, m.dt)
         data = self.solver.data
-        pot = sum(term.energy(s.q, data, ctx) for term in (ortho, revolute, driving, limit))
+        pot = sum(term.energy(s.q, data, ctx) for term in ENERGY_TERMS if term.STORED)
         return kin + grav + pot / m.dt ** 2
 
     # -- stepping -----------------------------------------------------------------------

@@ -38,7 +38,7 @@ fi
 # before it starts; ~1 s after: the cache is keyed on the sources, so the source tree's
 # compile serves the install too). Run from / : `python -m` puts the current directory first
 # on sys.path, and from the repository root that would load the source tree's copy.
-(cd / && python -m abd_joint_sim.warmup) >&2 || { echo "[run_default] the physics kernels failed to compile" >&2; exit 1; }
+(cd / && python -m abd_joint_sim.jit.warmup) >&2 || { echo "[run_default] the physics kernels failed to compile" >&2; exit 1; }
 
 # `ros2 run abd_joint_sim sim_node`: <prefix>/lib/<pkg>/<exe> found through the ament index.
 EXE="$(python -c 'import os; from ament_index_python.packages import get_package_prefix as p

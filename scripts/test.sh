@@ -10,7 +10,7 @@ source scripts/env.sh "$ROOT/requirements-test.txt" || { echo "[test] environmen
 export PYTHONDONTWRITEBYTECODE=1
 # Compile the physics kernels once per machine (~1 min, announced before it starts; ~1 s from
 # the cache after), so no test pays for it. The cache is shared with the install space.
-python -m abd_joint_sim.warmup >&2 || { echo "[test] the physics kernels failed to compile" >&2; exit 1; }
+python -m abd_joint_sim.jit.warmup >&2 || { echo "[test] the physics kernels failed to compile" >&2; exit 1; }
 # The live page's browser test (test/test_live_browser.py) needs Debian's chromium: installed
 # here when missing and running as root (CI); otherwise that test fails saying how to install
 # it. Its three.js comes from abd_joint_sim/live/web/package-lock.json (npm ci, in the test).

@@ -27,7 +27,7 @@ def backend_note(used=()):
     """One line naming the implementation, for the summaries."""
     import numba
     return (f'Physics: the compiled step (numba {numba.__version__}; '
-            '`python -m abd_joint_sim.warmup` compiles it once per machine).')
+            '`python -m abd_joint_sim.jit.warmup` compiles it once per machine).')
 
 
 def pyplot():

@@ -1,6 +1,6 @@
 """A small, independent test oracle: the energies, the joint angle and the UID 668 force
 written densely in numpy straight from docs/physics.md, unoptimised and without the
-compiled code's helpers. The compiled terms (abd_joint_sim/terms/, angles.py) are checked
+compiled code's helpers. The compiled terms (abd_joint_sim/terms/, terms/angle.py) are checked
 against it; it is not a second simulator (no Hessians, no Newton, no step)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The compiled step's borrowed arrays (abd_joint_sim/solver/borrowed.py): every array field
+"""The compiled step's borrowed arrays (abd_joint_sim/jit/refcounts.py): every array field
 of a Solver's ModelData and Workspace has a null MemInfo in compiled code (no reference
 counting), the same array object comes back when compiled code hands a field to Python,
 and building and dropping Worlds leaks no MemInfo."""

@@ -94,7 +94,7 @@ def test_a_cache_file_writable_by_others_is_not_loaded(tmp_path):
 def test_the_default_cache_is_created_private(tmp_path):
     home = tmp_path / 'home'
     home.mkdir()
-    code = 'from abd_joint_sim import cache; print(cache.directory())'
+    code = 'from abd_joint_sim.jit import cache; print(cache.directory())'
     env = dict(os.environ, PYTHONPATH=str(REPO), HOME=str(home))
     env.pop('ABD_KERNEL_CACHE', None)
     env.pop('XDG_CACHE_HOME', None)

@@ -22,13 +22,12 @@ ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 #: The floors, lowest first: a module may import from its own floor and the floors below.
 #: A module belongs to the floor of the longest prefix that names it.
 LAYERS = (
-    ('foundation', ('errors', 'ranges', 'geometry', 'builders', 'smallmat', 'cache', 'jit',
-                    'solver.borrowed', 'solver.flat', 'solver.vectorize', 'solver.subnormals')),
+    ('foundation', ('errors', 'ranges', 'geometry', 'builders', 'smallmat', 'jit')),
     ('urdf', ('urdf',)),               # the URDF reader: below the scene, which calls it
     ('scene', ('scene',)),
     ('model', ('model',)),
     ('state', ('state',)),
-    ('solver', ('angles', 'terms', 'solver', 'warmup')),
+    ('solver', ('terms', 'solver', 'jit.warmup')),   # the warm-up runs the solver's kernels
     ('world', ('world', '')),          # '': the package's __init__, which re-exports World
     ('record', ('record',)),
     ('ros', ('ros', 'runtime', 'live')),   # live: the live view, served by the node and the tools
@@ -184,6 +183,6 @@ def test_a_function_level_import_counts(tmp_path):
     source = tmp_path / 'inner.py'
     source.write_text('def f():\n    from . import scene\n')
     assert imports(f'{PACKAGE}.inner', source, {f'{PACKAGE}.scene'}) == [(f'{PACKAGE}.scene', 2)]
-    assert layer_of(f'{PACKAGE}.solver.flat') == 'foundation'
+    assert layer_of(f'{PACKAGE}.jit.flat') == 'foundation'
     assert layer_of(PACKAGE) == 'world'
     assert ORDER[layer_of(f'{PACKAGE}.scene')] > ORDER[layer_of(f'{PACKAGE}.urdf')]

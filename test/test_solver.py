@@ -693,11 +693,11 @@ def test_a_moderately_overloaded_joint_only_warns():
 
 # -- compile once, and layering ---------------------------------------------------------------
 def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
-    """`python -m abd_joint_sim.warmup` succeeds; the cache lives outside the source tree, in
+    """`python -m abd_joint_sim.jit.warmup` succeeds; the cache lives outside the source tree, in
     one directory keyed on the kernel sources, so an install (another copy of the same
     files) finds it (cache.py)."""
-    from abd_joint_sim import cache
-    proc = subprocess.run([sys.executable, '-m', 'abd_joint_sim.warmup'], cwd=REPO, capture_output=True,
+    from abd_joint_sim.jit import cache
+    proc = subprocess.run([sys.executable, '-m', 'abd_joint_sim.jit.warmup'], cwd=REPO, capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert 'physics kernels' in proc.stdout
@@ -706,7 +706,7 @@ def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
     copy = tmp_path / 'abd_joint_sim'
     import shutil
     shutil.copytree(REPO / 'abd_joint_sim', copy, ignore=shutil.ignore_patterns('__pycache__'))
-    code = ('import abd_joint_sim, abd_joint_sim.cache as c, sys; '
+    code = ('import abd_joint_sim, abd_joint_sim.jit.cache as c, sys; '
             'assert abd_joint_sim.__file__.startswith(sys.argv[1]), abd_joint_sim.__file__; '
             'print(c.marker())')
     out = subprocess.run([sys.executable, '-c', code, str(copy)], cwd=tmp_path, capture_output=True,
@@ -721,12 +721,12 @@ def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
     read each other's index (numba unpickles an index's signatures before checking its stamp:
     a type the running version lacks was an ImportError); `prune` keeps the KEEP newest."""
     import shutil
-    from abd_joint_sim import cache
+    from abd_joint_sim.jit import cache
     copy = tmp_path / 'pkg' / 'abd_joint_sim'
     shutil.copytree(REPO / 'abd_joint_sim', copy, ignore=shutil.ignore_patterns('__pycache__'))
     with open(copy / 'terms' / 'gravity.py', 'a') as f:
         f.write('\n# an edit\n')
-    code = ('import abd_joint_sim.cache as c; print(c.directory())')
+    code = ('import abd_joint_sim.jit.cache as c; print(c.directory())')
     env = dict(os.environ, PYTHONPATH=str(tmp_path / 'pkg'), ABD_KERNEL_CACHE=str(tmp_path / 'cache'))
     out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
                          timeout=120, env=env)
@@ -747,7 +747,7 @@ def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
         os.utime(d, (1000 + k, 1000 + k))
     (root / 'unfinished').mkdir()
     edited.mkdir(exist_ok=True)                 # (importing the package may have made it)
-    code = ('import abd_joint_sim.cache as c; c.mark_compiled()')
+    code = ('import abd_joint_sim.jit.cache as c; c.mark_compiled()')
     out = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True, text=True,
                          timeout=120, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -808,25 +808,29 @@ def _module(path: Path) -> str:
 
 def _layer_violations(files):
     """(file, bad imports) for modules below World that import World, the node, the tools or
-    the warm-up, and for terms/, angles, smallmat importing the solver."""
+    the warm-up, for terms/ and smallmat importing the solver, and for jit/ importing the rest."""
     bad = []
     for path, module in files:
         imported = _imports(path, module)
         up = {m for m in imported if m.startswith(('abd_joint_sim.world', 'abd_joint_sim.ros',
-                                                   'abd_joint_sim.tools', 'abd_joint_sim.warmup'))}
-        if module.startswith('abd_joint_sim.terms') or module in ('abd_joint_sim.angles', 'abd_joint_sim.smallmat'):
+                                                   'abd_joint_sim.tools', 'abd_joint_sim.jit.warmup'))}
+        if module.startswith('abd_joint_sim.terms') or module == 'abd_joint_sim.smallmat':
             up |= {m for m in imported if m.startswith('abd_joint_sim.solver')}
+        if module.startswith('abd_joint_sim.jit'):          # the compiler machinery: the ground floor
+            up |= {m for m in imported if m.startswith('abd_joint_sim.') and not m.startswith('abd_joint_sim.jit')}
         if up:
             bad.append((path.name, up))
     return bad
 
 
 def test_physics_layers_import_downward_only():
-    """terms/ and angles know nothing of the solver, the solver nothing of World, and no
-    module below World imports it (or the node): no cycle, nothing reaches up."""
+    """terms/ knows nothing of the solver, jit/ (but the warm-up) nothing of the physics, the
+    solver nothing of World, and no module below World imports it (or the node): no cycle,
+    nothing reaches up."""
     pkg = REPO / 'abd_joint_sim'
     below_world = [*sorted((pkg / 'terms').glob('*.py')), *sorted((pkg / 'solver').glob('*.py')),
-                   pkg / 'angles.py', pkg / 'smallmat.py', pkg / 'model.py', pkg / 'state.py']
+                   *sorted(f for f in (pkg / 'jit').glob('*.py') if f.name != 'warmup.py'),
+                   pkg / 'smallmat.py', pkg / 'model.py', pkg / 'state.py']
     assert _layer_violations([(f, _module(f)) for f in below_world]) == []
 
 
@@ -841,7 +845,7 @@ def test_import_layer_check_can_fail(tmp_path):
 def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, capsys):
     """Without the compiled-marker, ensure_compiled prints its line to stderr BEFORE the
     kernels run (a first run never waits in silence); with it, nothing is printed."""
-    from abd_joint_sim import cache, warmup
+    from abd_joint_sim.jit import cache, warmup
     seen = []
 
     def fake_run():
@@ -1059,7 +1063,7 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
     x86 (docs/decisions.md). The step flushes them to zero while it runs, and only while it
     runs: numpy after a step still keeps a subnormal."""
     from abd_joint_sim.builders import chain_scene
-    from abd_joint_sim.solver import subnormals
+    from abd_joint_sim.jit import subnormals
     if not subnormals.X86:
         pytest.skip('FTZ/DAZ are set on x86-64 only')      # pragma: no cover
     w = World(Scene.from_dict(chain_scene(600)))
@@ -1075,9 +1079,9 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
 
 
 def test_flat_copies_and_fills_match_numpy_assignment():
-    """solver/flat.py's loops write what `dst[...] = src` and `dst[...] = value` write, on the
+    """jit/flat.py's loops write what `dst[...] = src` and `dst[...] = value` write, on the
     shapes the step uses (a copy into another array's memory, not a view of it)."""
-    from abd_joint_sim.solver import flat
+    from abd_joint_sim.jit import flat
     rng = np.random.default_rng(3)
     for shape in ((7,), (5, 12), (4, 12, 12), (2, 3, 5, 12)):
         src = rng.standard_normal(shape)
@@ -1095,7 +1099,7 @@ def test_flat_copies_and_fills_match_numpy_assignment():
 
 def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
     """forward_block12 and schur_update12 are written for LLVM's SLP vectoriser and always
-    compiled with it (vectorize.slp_vectorized; numba keeps it off by default after
+    compiled with it (jit.kernel, slp.vectorized; numba keeps it off by default after
     miscompilations). Against the same Python functions compiled without it, and against
     the loop forms they replace (forward_block; the lower-half loop of the Schur update),
     bit for bit; forward_vector12 against forward_block with one column too."""
@@ -1155,7 +1159,7 @@ import numpy as np
 import pybullet_data
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
-from abd_joint_sim.warmup import _loop_scene, _tiny_scene
+from abd_joint_sim.jit.warmup import _loop_scene, _tiny_scene
 scenes = {
     'chain': Scene.from_dict(chain_scene(6, torque=0.8)),
     'bdf2 drives limits': _tiny_scene(),
@@ -1175,7 +1179,7 @@ for name, scene in scenes.items():
 
 
 def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
-    """The kernels are compiled with LLVM's SLP vectoriser (solver/vectorize.py), which numba
+    """The kernels are compiled with LLVM's SLP vectoriser (jit/slp.py), which numba
     keeps off because it once miscompiled. A build with ABD_SLP=0 (every kernel scalar,
     compiled afresh into its own cache) steps four scenes (tree and dense solves, BDF1 and
     BDF2, drives, limits, gravity, the KUKA arm into its limits) to the same bits."""
@@ -1190,3 +1194,23 @@ def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
     assert len(vectorised) == 4
     assert any((tmp_path / 'cache').rglob('*.nbi'))          # it did compile its own build
     assert vectorised == scalar
+
+
+def test_every_kernel_is_compiled_by_the_one_decorator():
+    """No kernel of the package is compiled by a bare `njit`: each goes through `jit.kernel`,
+    which gives it the on-disk cache, numpy's error model and the SLP vectoriser."""
+    import re
+    from numba.core.registry import CPUDispatcher
+    from abd_joint_sim.jit import slp
+    from abd_joint_sim.solver import newton, step
+    from abd_joint_sim.terms import TERMS
+    pkg = REPO / 'abd_joint_sim'
+    bare = [str(f.relative_to(pkg)) for f in pkg.rglob('*.py')
+            if f.parent.name != 'jit' and re.search(r'\bnjit\b', f.read_text())]
+    assert bare == []
+    kernels = [getattr(mod, name) for mod in (newton, step, *TERMS) for name in dir(mod)
+               if isinstance(getattr(mod, name), CPUDispatcher)]
+    assert len(kernels) > 40
+    for k in kernels:
+        assert k.targetoptions['error_model'] == 'numpy' and k._cache.__class__.__name__ != 'NullCache'
+        assert k.compile.__qualname__ == slp.vectorized.__qualname__ + '.<locals>.compile', k

@@ -1,6 +1,6 @@
 """Reduced versions of the studies (study/): convergence orders and stability criteria.
 
-Budget: ~5 s once the physics kernels are compiled (`python -m abd_joint_sim.warmup`)
+Budget: ~5 s once the physics kernels are compiled (`python -m abd_joint_sim.jit.warmup`)
 on 2 shared cores. The full studies run from the command line (docs/studies.md).
 Open physics-core issues would be strict xfails here (docs/studies.md section 3); there are
 none at present: the last one (stiff-kappa drift) is test_stiff_kappa_does_not_drift.

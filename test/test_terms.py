@@ -7,12 +7,13 @@ import pytest
 from numba import njit
 
 import oracle
-from abd_joint_sim import Scene, angles, compile_scene
+from abd_joint_sim import Scene, compile_scene
+from abd_joint_sim.terms import angle as angles
 from abd_joint_sim.solver import model_data
 from abd_joint_sim.terms import damping, driving, inertia, limit, ortho, revolute, torque
 from abd_joint_sim.terms.context import StepContext
 
-from physics_helpers import box, random_rotation
+from physics_helpers import box, generalized_force, random_rotation, theta_and_slope_at, theta_derivatives
 
 TERMS = {'inertia': inertia, 'ortho': ortho, 'revolute': revolute, 'driving': driving, 'limit': limit,
          'damping': damping}
@@ -228,7 +229,7 @@ def test_term_derivatives_match_finite_differences(name, seed):
 
 
 def test_joint_angle_matches_the_oracle():
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     for seed in range(5):
         q = _state(seed, scale=0.3)
         for j in range(MODEL.joint_count):
@@ -241,7 +242,7 @@ def test_torque_force_matches_the_oracle():
         taus = np.array([2.5, -1.5])
         F = np.zeros((MODEL.body_count, 12))
         skipped = np.zeros(4, dtype=np.int64)
-        n = torque.generalized_force(q, DATA, taus, np.ones(2, bool), F, skipped)
+        n = generalized_force(q, DATA, taus, np.ones(2, bool), F, skipped)
         assert n == 0
         np.testing.assert_allclose(F, oracle.torque_force(MODEL, q, taus), rtol=1e-12, atol=1e-14)
 
@@ -380,7 +381,7 @@ def test_oracle_comparison_can_fail(monkeypatch):
 def test_joint_angle_slope_is_the_directional_derivative():
     """angles.theta_and_slope_at (the joint velocity θ̇ = ∇θ·v and the predicted rotation)
     against a central difference of θ along the direction, on sheared states."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     rng = np.random.default_rng(5)
     zero = np.zeros((MODEL.body_count, 12))
     for seed in range(4):
@@ -388,19 +389,19 @@ def test_joint_angle_slope_is_the_directional_derivative():
         d = rng.normal(size=q.shape)
         for j in range(MODEL.joint_count):
             args = (DATA.joint_parent, DATA.joint_child, DATA.joint_nbar, DATA.joint_bbar, j)
-            th, slope = angles.theta_and_slope_at(q, d, zero, *args)
+            th, slope = theta_and_slope_at(q, d, zero, *args)
             eps = 1e-6
             fd = (angles.theta(q + eps * d, DATA, j) - angles.theta(q - eps * d, DATA, j)) / (2 * eps)
             assert th == pytest.approx(angles.theta(q, DATA, j), abs=1e-15)
             assert slope == pytest.approx(fd, rel=1e-7, abs=1e-9)
             # the direction as a difference of two arrays gives the same
-            assert angles.theta_and_slope_at(q, q + d, q, *args)[1] == pytest.approx(slope, rel=1e-9)
+            assert theta_and_slope_at(q, q + d, q, *args)[1] == pytest.approx(slope, rel=1e-9)
 
 
 def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
     """Beyond GAUSS_NEWTON_RANGE from its target a drive's projected Hessian is E''∇θ∇θᵀ
     (rank one in the angle), its gradient unchanged; near the target it is the full one."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     q = _state(2, scale=0.05)
     j = int(MODEL.drive_joints[0])
     start = np.zeros(MODEL.joint_count)
@@ -412,7 +413,7 @@ def test_far_drive_uses_the_gauss_newton_hessian_and_keeps_the_gradient():
         _, g_raw, _ = dense(driving, q, ctx, project=False)
         np.testing.assert_array_equal(g, g_raw)
         grad = np.zeros(18)
-        angles.theta_derivatives(q, DATA, j, grad, np.zeros((18, 18)), False)
+        theta_derivatives(q, DATA, j, grad, np.zeros((18, 18)), False)
         K = float(MODEL.drive_K[0])
         i_b, j_b = MODEL.joint_parent[j], MODEL.joint_child[j]
         idx = np.r_[12 * i_b + 3:12 * i_b + 12, 12 * j_b + 3:12 * j_b + 12]
@@ -430,12 +431,12 @@ def _reference_angle_projection(q, joints, d1s, d2s):
     QᵀHQ (12x12, Q = diag(I3 ⊗ [n̄_i b̄_i], I3 ⊗ [n̄_j b̄_j])), eigen-decomposed by LAPACK;
     kept as is when every eigenvalue of the batch is ≥ 0, else negative ones clamped to 0.
     Returns the dense (12B, 12B) matrix."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     B = MODEL.body_count
     blocks, all_psd = [], True
     for j, d1, d2 in zip(joints, d1s, d2s):
         g, hh = np.zeros(18), np.zeros((18, 18))
-        angles.theta_derivatives(q, DATA, j, g, hh, True)
+        theta_derivatives(q, DATA, j, g, hh, True)
         gauss_newton = abs(d1) > angles.GAUSS_NEWTON_RANGE * d2
         H = d2 * np.outer(g, g) + (0.0 if gauss_newton else d1) * hh
         Q = np.zeros((18, 12))
@@ -458,11 +459,14 @@ def _reference_angle_projection(q, joints, d1s, d2s):
 
 
 def _projected_angle_hessian(q, joints, d1s, d2s):
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     B, J = MODEL.body_count, MODEL.joint_count
     grad, diag, pair = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
-    angles.accumulate_angle_hessian(q, DATA, np.asarray(joints, np.int64), np.asarray(d1s, float),
-                                    np.asarray(d2s, float), len(joints), grad, diag, pair, True)
+    work = np.empty(angles.ANGLE_WORK_SHAPE)
+    for j, d1, d2 in zip(joints, d1s, d2s):
+        angles.accumulate_angle_joint(q, DATA.joint_parent, DATA.joint_child, DATA.joint_nbar,
+                                      DATA.joint_bbar, int(j), float(d1), float(d2), grad, diag, pair,
+                                      True, work, 0.0)
     H = np.zeros((12 * B, 12 * B))
     for b in range(B):
         H[12 * b:12 * b + 12, 12 * b:12 * b + 12] += diag[b]
@@ -508,12 +512,12 @@ def test_angle_projection_equals_the_12x12_eigen_projection(shape):
 
 
 def _raw_angle_hessian(q, joints, d1s, d2s):
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     B = MODEL.body_count
     out = np.zeros((12 * B, 12 * B))
     for j, d1, d2 in zip(joints, d1s, d2s):
         g, hh = np.zeros(18), np.zeros((18, 18))
-        angles.theta_derivatives(q, DATA, j, g, hh, True)
+        theta_derivatives(q, DATA, j, g, hh, True)
         idx = np.r_[12 * MODEL.joint_parent[j] + 3:12 * MODEL.joint_parent[j] + 12,
                     12 * MODEL.joint_child[j] + 3:12 * MODEL.joint_child[j] + 12]
         out[np.ix_(idx, idx)] += d2 * np.outer(g, g) + d1 * hh
@@ -524,12 +528,12 @@ def test_angle_hessian_has_the_structure_the_projection_uses():
     """QᵀHQ = I3 ⊗ E'M_θ + rank 2, M_θ with eigenvalues ±1/(2r): so ±E'/(2r) are eigenvalues
     at least 4 times each (what angles.angle_hessian_projected relies on), and H with E' ≠ 0
     is never PSD (why joint-by-joint projection equals the former batch rule)."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     for seed in range(4):
         q = _state(seed, 0.4)
         for j in range(MODEL.joint_count):
             g, hh = np.zeros(18), np.zeros((18, 18))
-            angles.theta_derivatives(q, DATA, j, g, hh, True)
+            theta_derivatives(q, DATA, j, g, hh, True)
             Q = np.zeros((18, 12))
             for side in range(2):
                 F = np.stack([DATA.joint_nbar[j, side], DATA.joint_bbar[j, side]], axis=1)
@@ -607,7 +611,7 @@ def test_angle_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite(
     closed form against theta_derivatives' ∇²θ); with a bound just below what the raw
     Hessian's most negative eigenvalue needs, the projection (the rule may not take it
     then); with a bound twice that, exact in most cases (the bound is not vacuous)."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     checked = taken = 0
     work = np.empty(angles.ANGLE_WORK_SHAPE)
     for seed in range(4):
@@ -658,11 +662,32 @@ def test_the_angle_budget_shares_a_quarter_of_each_body_inertia():
         assert sum(terms) <= share * mu[b] * (1 + 1e-12)
 
 
+def _active_angle_terms(name, q, ctx):
+    """(joints, E', E'', n) of the enabled drives or the active limits at q."""
+    out = []
+    if name == 'driving':
+        for k, j in enumerate(MODEL.drive_joints):
+            if ctx.drive_on[k]:
+                x = angles.unwrap(angles.theta(q, DATA, j), ctx.angle_start[j])
+                K = DATA.drive_K[k]
+                out.append((j, K * (x - ctx.drive_target[k]), K))
+    else:
+        for k, j in enumerate(MODEL.limit_joints):
+            x = angles.unwrap(angles.theta(q, DATA, j), ctx.angle_start[j])
+            lower, upper = DATA.limit_lower[k], DATA.limit_upper[k]
+            if limit.active(x, lower, upper):
+                out.append((j, *limit.phi(x, lower, upper, DATA.limit_strength[k])[1:]))
+    if not out:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), 0
+    joints, d1s, d2s = zip(*out)
+    return np.array(joints), np.array(d1s), np.array(d2s), len(out)
+
+
 @pytest.mark.parametrize('name', ['driving', 'limit'])
 def test_terms_project_like_the_12x12_eigen_projection(name):
     """Through the terms' own `accumulate` (the fused loops): drives near their target on
     either side (E'∇²θ kept) and limits active above and below, against the reference."""
-    from abd_joint_sim import angles
+    from abd_joint_sim.terms import angle as angles
     term, signs = TERMS[name], set()
     exact = projected = 0
     j = int(MODEL.drive_joints[0])
@@ -674,7 +699,7 @@ def test_terms_project_like_the_12x12_eigen_projection(name):
             start = np.array([offset, -offset]) if name == 'limit' else np.zeros(MODEL.joint_count)
             ctx = StepContext(0.01, 1.0, q.copy(), start, np.array([theta - offset]), np.array([True]),
                              np.empty(angles.ANGLE_WORK_SHAPE), _angle_ref(start))
-            joints, d1s, d2s, n = term.active_joints(q, DATA, ctx)
+            joints, d1s, d2s, n = _active_angle_terms(name, q, ctx)
             if n == 0:
                 continue
             signs |= set(np.sign(d1s[:n]))
@@ -786,7 +811,7 @@ def test_torque_acceleration_is_bit_identical_to_dense_inverse_mass():
         q = _state(seed)
         taus, on = np.array([2.5, -1.5]), np.ones(2, bool)
         F = np.zeros((B, 12))
-        assert torque.generalized_force(q, DATA, taus, on, F, np.zeros(4, np.int64)) == 0
+        assert generalized_force(q, DATA, taus, on, F, np.zeros(4, np.int64)) == 0
         expected = np.full((B, 12), 0.25)
         _dense_apply(MODEL.body_Minv, F, expected)
         acc = np.full((B, 12), 0.25)
@@ -808,7 +833,7 @@ def test_torque_singular_guard_lists_each_skipped_side_in_order():
         for k in singular:
             q[k, 9:12] = q[k, 3:6] + 1e-9 * q[k, 6:9]          # a3 ≈ a1: det A ≈ 0
         F, skipped = np.zeros((MODEL.body_count, 12)), np.zeros(4, np.int64)
-        n = torque.generalized_force(q, DATA, taus, on, F, skipped)
+        n = generalized_force(q, DATA, taus, on, F, skipped)
         assert skipped[:n].tolist() == listed
         assert np.all(F[singular] == 0.0)
         acc, skipped2 = np.zeros((MODEL.body_count, 12)), np.zeros(4, np.int64)
@@ -900,3 +925,99 @@ def test_damping_is_the_implicit_torque_with_the_angle_linearised_at_newtons_sta
         exact = oracle.damping_energy(MODEL, q, Q_START, Q_PREV, start, h, bdf2, linear=False)
         gaps.append(abs(lin - exact))
     assert gaps[0] > 0.0 and 0.005 < gaps[1] / gaps[0] < 0.02, gaps   # second order: ×0.01
+
+
+# -- the list of terms, once ------------------------------------------------------------------
+def _term_calls(source, function):
+    """[(module, attribute, guard)] of the `<module>.<attribute>(...)` calls of terms/ modules in
+    `function` of `source`, in source order; guard: the names of the `if` tests around it."""
+    import ast
+    tree = next(n for n in ast.walk(ast.parse(source)) if isinstance(n, ast.FunctionDef) and n.name == function)
+    from abd_joint_sim.terms import TERMS as ALL
+    names = {t.__name__.rsplit('.', 1)[1] for t in ALL}
+    out = []
+
+    def visit(node, guards):
+        if isinstance(node, ast.If):
+            inner = guards + (ast.unparse(node.test),)
+            for child in node.body:
+                visit(child, inner)
+            for child in node.orelse:
+                visit(child, guards + ('not ' + ast.unparse(node.test),))
+            return
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) \
+                and isinstance(node.func.value, ast.Name) and node.func.value.id in names:
+            out.append((node.func.value.id, node.func.attr, ' and '.join(guards)))
+        for child in ast.iter_child_nodes(node):
+            visit(child, guards)
+    for statement in tree.body:
+        visit(statement, ())
+    return out
+
+
+def _list_disagreements(source):
+    """How newton.py's `potential` and `assemble` disagree with terms.ENERGY_TERMS: every energy
+    term called once in potential (`energy`) and in the main path of assemble (`accumulate`,
+    or `accumulate_gradient` for a CONSTANT_HESSIAN term), in the list's order, a term that a
+    scene may lack (its first field is its joints) only under a test of that field's size."""
+    from abd_joint_sim.terms import ENERGY_TERMS
+    wanted = [t.__name__.rsplit('.', 1)[1] for t in ENERGY_TERMS]
+    bad = []
+    potential = _term_calls(source, 'potential')
+    if [c[0] for c in potential] != wanted or {c[1] for c in potential} != {'energy'}:
+        bad.append(('potential', potential))
+    main = [c for c in _term_calls(source, 'assemble') if not c[2].startswith('not ')]   # (not k >= 0: another s)
+    if [c[0] for c in main] != wanted:
+        bad.append(('assemble', main))
+    for term in ENERGY_TERMS:
+        name = term.__name__.rsplit('.', 1)[1]
+        kind = 'accumulate_gradient' if term.CONSTANT_HESSIAN else 'accumulate'
+        if any(c[0] == name and c[1] != kind for c in main):
+            bad.append(('assemble calls', name))
+        optional = term.FIELDS and term.FIELDS[0][0].endswith('_joints')
+        for calls in (potential, main):
+            guards = [c[2] for c in calls if c[0] == name]
+            if optional and not all(f'm.{term.FIELDS[0][0]}.size' in g for g in guards):
+                bad.append(('guard', name, guards))
+    return bad
+
+
+def test_newtons_sums_follow_the_list_of_terms():
+    """newton.potential and newton.assemble call exactly terms.ENERGY_TERMS, in its order, each
+    as its CONSTANT_HESSIAN says, each optional term under its guard."""
+    import inspect
+    from abd_joint_sim.solver import newton
+    assert _list_disagreements(inspect.getsource(newton)) == []
+
+
+def test_the_list_check_can_fail():
+    """A term left out, two swapped, and a guard missing are each reported."""
+    import inspect
+    from abd_joint_sim.solver import newton
+    source = inspect.getsource(newton)
+    dropped = source.replace('        E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)\n',
+                             '        pass\n')
+    swapped = source.replace('E = inertia.energy(q, m, ctx)\n    E += ortho.energy(q, m, ctx)',
+                             'E = ortho.energy(q, m, ctx)\n    E += inertia.energy(q, m, ctx)')
+    unguarded = source.replace('    if m.damping_joints.size:\n        E += damping.accumulate(',
+                               '    if True:\n        E += damping.accumulate(')
+    for broken in (dropped, swapped, unguarded):
+        assert broken != source
+        assert _list_disagreements(broken) != []
+
+
+def test_the_compiled_model_is_its_terms_fields():
+    """ModelData's fields are the base fields and every term's FIELDS, each built by its term
+    (build returns exactly its FIELDS), and Solver.terms names the terms the scene uses."""
+    from abd_joint_sim.solver.solver import Solver
+    from abd_joint_sim.terms import TERMS
+    assert [n for n, _ in model_data.FIELDS] == [n for n, _ in model_data.BASE_FIELDS] + [
+        n for t in TERMS for n, _ in t.FIELDS]
+    values = {name: DATA.__dict__[name] for name, _ in model_data.BASE_FIELDS}
+    for term in TERMS:
+        built = term.build(MODEL, values)
+        assert sorted(built) == sorted(n for n, _ in term.FIELDS), term.__name__
+        values.update(built)
+    assert Solver(MODEL).terms == ('ortho_potential', 'revolute_joint', 'driving', 'limit',
+                                   'joint_damping', 'external_torque')
+

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ..jit import kernel
+
 
 BETA_BDF2 = 4.0 / 9.0
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def force_point(q, q_prev, bdf2, out):
     """out = where the explicit forces are evaluated: qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2)."""
     for b in range(q.shape[0]):
@@ -26,7 +27,7 @@ def force_point(q, q_prev, bdf2, out):
             out[b, r] = 2 * q[b, r] - q_prev[b, r] if bdf2 else q[b, r]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde):
     """Fills q_tilde (B,12); returns s, the inertia term's scale (1 or 1/β)."""
     fixed = m.body_fixed
@@ -47,7 +48,7 @@ def predict(m, q, v, q_prev, v_prev, acc, h, bdf2, q_tilde):
     return 1.0 / BETA_BDF2 if bdf2 else 1.0
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def velocity(m, q_new, q, q_prev, h, bdf2, v_new):
     """Fills v_new (B,12) from the solved q_new (0 on fixed bodies); returns whether every
     entry is finite."""

@@ -17,11 +17,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from ..jit import flat, kernel
 from ..smallmat import cholesky, lower_solve, upper_solve
-from . import flat
-from .vectorize import slp_vectorized
 
 DENSE, TREE = 0, 1
 DENSE_MAX_DOF = 12 * 64     # a loop of 64 free bodies: ~10⁸ flops per Newton iteration
@@ -117,7 +115,7 @@ def structure(model, force_dense: bool = False) -> Structure:
     return Structure(TREE, order, parent, edge_ptr, np.array(edge_joints, dtype=np.int64), slot, between)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def solve(m, diag, pair, grad, dq, ws):
     """dq = −H⁻¹ grad on the free bodies (NaN if H is not positive definite), working in
     ws (workspace.Workspace); diag may be overwritten."""
@@ -127,7 +125,7 @@ def solve(m, diag, pair, grad, dq, ws):
         solve_dense(m, diag, pair, grad, dq, ws)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def solve_dense(m, diag, pair, grad, dq, ws):
     """Dense path: H over the free bodies, Cholesky; NaN if not PD."""
     free_idx, jp, jc = m.free_bodies, m.joint_parent, m.joint_child
@@ -162,7 +160,7 @@ def solve_dense(m, diag, pair, grad, dq, ws):
             dq[free_idx[s], r] = x[12 * s + r]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def factor_block(blocks, b, inv_ds, slot):
     """Lower Cholesky factor of the 12x12 W = blocks[b] in place, with inv_d = inv_ds[slot] =
     1/diag(L) so the triangular solves multiply instead of divide. False if W is not PD.
@@ -172,7 +170,7 @@ def factor_block(blocks, b, inv_ds, slot):
     textbook (every entry it reads is done before it), so the bits are that loop's
     (test_solver.py); but the compiler unrolls these three small loop nests completely,
     into straight-line code with constant indices, where it kept the single nest as loops:
-    twice as fast (docs/speed-rounds.md, the seventeenth round). (The block kernels take an array
+    twice as fast. (The block kernels take an array
     and an index, not a view made by the caller: a view made in a loop costs two atomic
     reference-count operations that numba cannot remove, docs/speed.md.)"""
     W, inv_d = blocks[b], inv_ds[slot]
@@ -211,7 +209,7 @@ def factor_block(blocks, b, inv_ds, slot):
     return True
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def forward_block(L, inv_d, X, ncol):
     """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor), all columns at once: the
     loop form of forward_vector12 and forward_block12, which the tree solve calls (the
@@ -226,7 +224,7 @@ def forward_block(L, inv_d, X, ncol):
             X[i, c] *= di
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def forward_vector12(blocks, b, inv_ds, ys, slot):
     """y = L⁻¹ y for the 12-vector y = ys[slot], L = blocks[b] factored by factor_block (its
     inv_ds[slot]): forward_block(L, inv_d, y.reshape((12, 1)), 1) with the loop bounds known
@@ -239,15 +237,14 @@ def forward_vector12(blocks, b, inv_ds, ys, slot):
         y[i] = acc * inv_d[i]
 
 
-@slp_vectorized
-@njit(cache=True, error_model='numpy')
+@kernel
 def forward_block12(blocks, b, inv_ds, Xs, slot, src, j, transposed):
     """X = L⁻¹ U into X = Xs[slot], for U = src[j] (or its transpose), L = blocks[b] and
     inv_d = inv_ds[slot] (factor_block): U copied into X, then forward_block(L, inv_d, X, 12),
     in one pass (row i of U is read as the row is solved: the joint's block goes into the
     solve without a copy of its own; src may be Xs itself, j = slot, transposed False).
     Written out over the 12 columns: row i is held in 12 locals while the rows above are
-    subtracted, so the SLP vectoriser (vectorize.py) makes each run of 4 columns one vector
+    subtracted, so the SLP vectoriser (jit/slp.py) makes each run of 4 columns one vector
     operation. The same operations in the same order as the copy (0.0 + U: a −0.0 becomes
     +0.0) and forward_block: the same bits (test_solver.py checks)."""
     L, inv_d, X, U = blocks[b], inv_ds[slot], Xs[slot], src[j]
@@ -289,14 +286,13 @@ def forward_block12(blocks, b, inv_ds, Xs, slot, src, j, transposed):
         X[i, 11] = x11 * di
 
 
-@slp_vectorized
-@njit(cache=True, error_model='numpy')
+@kernel
 def schur_update12(Xs, ys, slot, blocks, bp, p):
     """W −= XᵀX (its lower half) and b −= Xᵀy for the 12x12 X = Xs[slot], y = ys[slot],
     W = blocks[bp], b = ys[p] (the elimination of a child block into its parent). Only the
     lower half is updated, the only half the factorisation and the solves read: rows 0–3
     over columns 0–3, rows 4–7 over 0–7, rows 8–11 over all 12, runs of 4 columns that the
-    SLP vectoriser (vectorize.py) makes one vector operation each (a third of the work of
+    SLP vectoriser (jit/slp.py) makes one vector operation each (a third of the work of
     the full square). Each row's entries are held in locals while the rows k of X are
     subtracted (X[k, r] times row k), then stored once. Every entry gets its subtractions in
     the order of k, as a loop over it: the same bits. The upper half keeps stale values."""
@@ -355,7 +351,7 @@ def schur_update12(Xs, ys, slot, blocks, bp, p):
         b[r] = br
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def solve_tree(m, diag, pair, grad, dq, ws):
     """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,

@@ -14,17 +14,17 @@ tolerance costs in the mass metric. A decrement below ROUNDOFF·|Π| is converge
 the tolerances (double precision can do no better). Max iterations, a failed line search
 and a non-finite value are returned as a status, never hidden.
 
-`potential` and `assemble` are the step's list of terms: a new energy term is one line in
-each (and its module in terms/).
+`potential` and `assemble` call terms.ENERGY_TERMS one by one in the list's order (numba
+cannot loop over modules); test_terms.py checks them against the list.
 """
 from __future__ import annotations
 
 import math
 
-from numba import njit
 
+from ..jit import flat, kernel
 from ..terms import damping, driving, inertia, limit, ortho, revolute
-from . import flat, linsolve
+from . import linsolve
 from .retraction import retract
 
 # Every term of Π is nonnegative and computed without cancellation, so Π's rounding error
@@ -34,7 +34,7 @@ ROUNDOFF = 1e-12
 CONVERGED, MAX_ITERATIONS, LINE_SEARCH_FAILED, NONFINITE = 0, 1, 2, 3
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def potential(q, m, ctx):
     """Π(q)."""
     E = inertia.energy(q, m, ctx)
@@ -51,14 +51,14 @@ def potential(q, m, ctx):
     return E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
     (joint blocks, Π(q)). The joint blocks are `pair`, or m.constant_pair itself in a model
     without angle terms (drives, limits, dampers: then only UID 18 has joint blocks, and
     copying them would be a pass over memory for nothing). The constant Hessians, UID 18's
-    and the inertia term's s·M, are summed once per model (model_data: constant_diag_inertia,
-    one per BDF scale s); their terms add only their gradients here. Each term returns its
+    and the inertia term's s·M, are summed once per model (model_data.constant_blocks, one
+    per BDF scale s); their terms (CONSTANT_HESSIAN) add only their gradients here. Each term returns its
     energy from the quantities its gradient needs, with the bits of its `energy`, summed in
     `potential`'s order: Π(q) comes with the assembly for the price of a few flops."""
     flat.fill(grad, 0.0)
@@ -85,7 +85,7 @@ def assemble(q, m, ctx, grad, diag, pair):
     return pair, E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def all_finite(x):
     for b in range(x.shape[0]):
         for r in range(x.shape[1]):
@@ -94,7 +94,7 @@ def all_finite(x):
     return True
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def step_within_tolerance(dq, m, h):
     """libuipc's tests: the largest bounding-box corner displacement under Δq ≤ velocity_tol·h
     and max |Δq[3:12]| ≤ transrate_tol·h."""
@@ -119,7 +119,7 @@ def step_within_tolerance(dq, m, h):
     return math.sqrt(disp2) <= m.velocity_tol * h and rate <= m.transrate_tol * h
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def minimize(m, ctx, q, ws, try_alt):
     """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (a
     warm start never starts Newton above the plain prediction). With `try_alt`, q is an

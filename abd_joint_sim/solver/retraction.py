@@ -29,8 +29,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from ..jit import kernel
 from ..smallmat import adjugate3, product3
 
 SCREW_STRAIN = 1e-2   # max |A Aᵀ − I| up to which a body's step is applied as a screw
@@ -73,7 +73,7 @@ def floating_groups_and_shares(model):
     return group, share, groups
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def screw_coefficients(th):
     """(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ), accurate at θ → 0 (series below SMALL_ANGLE)."""
     th2 = th * th
@@ -85,14 +85,13 @@ def screw_coefficients(th):
     return math.sin(th) / th, (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / th
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def retract(q, dq, alpha, m, ws, out):
     """out = q ⊕ α·dq: each free body moved along the screw motion of its step, the floating
     groups' mean turn translation removed. Works in ws (workspace.Workspace, its group_mean).
     Each body's 3x3 matrices are 9-tuples of locals (smallmat.product3 and adjugate3): the
-    compiler keeps them in registers, where planes of a work array went through memory
-    (docs/speed-rounds.md, the twentieth round); the same operations in the same order, the same
-    bits."""
+    compiler keeps them in registers, where planes of a work array would go through
+    memory; the same operations in the same order as the plain loops, the same bits."""
     free_idx, group, share, ngroups = m.free_bodies, m.body_group, m.group_share, m.group_count
     mean = ws.group_mean
     nf = len(free_idx)

@@ -21,11 +21,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-from .. import angles
-from ..terms import damping, gravity, limit, revolute, torque
-from . import bdf, borrowed, flat, newton, subnormals
+from ..jit import flat, kernel, refcounts, subnormals
+from ..terms import angle, damping, gravity, limit, revolute, torque
+from . import bdf, newton
 
 # columns of a step's outcome row
 OUT_STATUS = 0           #: newton status code
@@ -41,13 +40,13 @@ OUT_COLUMNS = 9
 FAIL_NONE, FAIL_NEWTON_NONFINITE, FAIL_STEP_NONFINITE, FAIL_PREDICTED_ROTATION, FAIL_JOINT_APART = 0, 1, 2, 3, 4
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def predicted_rotation(m, q, q_tilde):
     """max_j |∇θ_j(qⁿ)·(q̃ − qⁿ)_j| (NaN wins, and then no split is asked)."""
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     out = 0.0
     for j in range(parent.size):
-        x = abs(angles.cos_sin_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[2])
+        x = abs(angle.cos_sin_slope_at(q, q_tilde, q, parent, child, nbar, bbar, j)[2])
         if x != x:
             out = np.nan
         elif out == out:
@@ -55,7 +54,7 @@ def predicted_rotation(m, q, q_tilde):
     return out
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
     """Section 1: ws.acc = g_q + M⁻¹F, the torque at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2, ws.q_force,
     formed only when a torque acts); returns the number of bodies the torque skipped."""
@@ -71,7 +70,7 @@ def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
     return torque.add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, ws.torque_axes)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
     """Section 4's joint angles: new_angles (2,J) = unwrapped θ + init_angle, θ̇ = ∇θ·v; returns
     (the largest |θ − θ_start| or |θ̇| h, NaN wins; whether every θ is finite)."""
@@ -80,9 +79,9 @@ def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
     rotation = 0.0
     finite = True
     for j in range(parent.size):
-        c, s, rate = angles.cos_sin_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
+        c, s, rate = angle.cos_sin_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
         th = math.atan2(s, c)
-        rel = angles.unwrap(th, angle_start[j])
+        rel = angle.unwrap(th, angle_start[j])
         new_angles[0, j] = rel + init_angle[j]
         new_angles[1, j] = rate
         if not math.isfinite(rel):
@@ -95,7 +94,7 @@ def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
     return rotation, finite
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def store(q_new, q_tilde, cw, new_qvw):
     """new_qvw[0] = q, new_qvw[2] = the next warm start (q − q̃)/(c h²) (cw = c h²)."""
     for b in range(q_new.shape[0]):
@@ -104,7 +103,7 @@ def store(q_new, q_tilde, cw, new_qvw):
             new_qvw[2, b, r] = (q_new[b, r] - q_tilde[b, r]) / cw
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
          torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
          may_split, ws, new_qvw, new_angles, skipped, outcome):
@@ -112,7 +111,7 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     warm_start; new_angles (2,J) = joint angle, joint velocity; skipped[:outcome[OUT_SKIPPED]]
     = bodies without torque. `order` (State.extrapolation_order): Newton starts from the warm
     start extrapolated over the last three steps (2), the last two (1), or from warm_start
-    alone (0). Subnormal numbers are flushed to zero while it runs (subnormals.py)."""
+    alone (0). Subnormal numbers are flushed to zero while it runs (jit/subnormals.py)."""
     saved = subnormals.enter()
     step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
@@ -120,21 +119,21 @@ def step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
     subnormals.leave(saved)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
                  may_split, ws, new_qvw, new_angles, skipped, outcome):
     """`step`, for a caller that has flushed subnormals already (subnormals.enter: `steps`
     sets the flags once for all its steps, not once per step)."""
-    # the caller keeps these alive: no reference counts below (borrowed.py)
-    m, ws = borrowed.struct(m), borrowed.struct(ws)
-    q, v, q_prev, v_prev = borrowed.array(q), borrowed.array(v), borrowed.array(q_prev), borrowed.array(v_prev)
-    warm_start, warm_start_prev = borrowed.array(warm_start), borrowed.array(warm_start_prev)
-    warm_start_prev2, joint_angle = borrowed.array(warm_start_prev2), borrowed.array(joint_angle)
-    torque_value, torque_enabled = borrowed.array(torque_value), borrowed.array(torque_enabled)
-    drive_aim, drive_enabled = borrowed.array(drive_aim), borrowed.array(drive_enabled)
-    drive_passive, skipped = borrowed.array(drive_passive), borrowed.array(skipped)
-    new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
+    # the caller keeps these alive: no reference counts below (refcounts.py)
+    m, ws = refcounts.struct(m), refcounts.struct(ws)
+    q, v, q_prev, v_prev = refcounts.array(q), refcounts.array(v), refcounts.array(q_prev), refcounts.array(v_prev)
+    warm_start, warm_start_prev = refcounts.array(warm_start), refcounts.array(warm_start_prev)
+    warm_start_prev2, joint_angle = refcounts.array(warm_start_prev2), refcounts.array(joint_angle)
+    torque_value, torque_enabled = refcounts.array(torque_value), refcounts.array(torque_enabled)
+    drive_aim, drive_enabled = refcounts.array(drive_aim), refcounts.array(drive_enabled)
+    drive_passive, skipped = refcounts.array(drive_passive), refcounts.array(skipped)
+    new_qvw, new_angles, outcome = refcounts.array(new_qvw), refcounts.array(new_angles), refcounts.array(outcome)
     B, J = q.shape[0], m.joint_parent.size
     flat.fill(outcome, 0.0)
     outcome[OUT_APART_JOINT] = -1.0
@@ -197,7 +196,7 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
     limit.references(m, angle_start, ws.angle_ref)
     # the Workspace's context (over q_tilde, angle_start, drive_target, angle_ref and its own
     # drive_on): a reference where a context built here would be copied into every term call
-    ctx = borrowed.struct(ws.ctx)
+    ctx = refcounts.struct(ws.ctx)
     ctx.h, ctx.scale = h, scale
     drive_on = ctx.drive_on
     for k in range(drive_joints.size):
@@ -235,24 +234,7 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
     store(q_new, q_tilde, cw, new_qvw)
 
 
-@njit(cache=True, error_model='numpy')
-def step_in_ring(m, ring, angles, cur, torque_value, torque_enabled, drive_aim, drive_enabled,
-                 drive_passive, h, bdf2, order, may_split, ws, skipped, outcome):
-    """`step` on a state held in ring buffers (solver/resident.py): ring (4,3,B,12) holds
-    (q, v, warm_start) per slot, angles (4,2,J) (joint angle, joint velocity). The state is
-    slot `cur`, its history the slots before it (cur − 1: q_prev, v_prev, warm_start_prev;
-    cur − 2: warm_start_prev2, modulo 4), and the step writes slot cur + 1. The same call as
-    `step` on a State's arrays: the same bits. (Unboxing 2 arrays and a slot number instead
-    of a State's 8 arrays and the 2 new ones is most of what a one-step call saves,
-    docs/speed.md.)"""
-    prev, prev2, nxt = (cur + 3) % 4, (cur + 2) % 4, (cur + 1) % 4
-    ring, angles = borrowed.array(ring), borrowed.array(angles)
-    step(m, ring[cur, 0], ring[cur, 1], ring[prev, 0], ring[prev, 1], ring[cur, 2], ring[prev, 2],
-         ring[prev2, 2], angles[cur, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
-         drive_passive, h, bdf2, order, may_split, ws, ring[nxt], angles[nxt], skipped, outcome)
-
-
-@njit(cache=True, error_model='numpy')
+@kernel
 def clean(o, clean_rotation):
     """Whether the step of outcome row o is clean: no failure, Newton converged, no torque
     skipped, no joint turned more than `clean_rotation` (the accuracy warning's threshold) and
@@ -261,7 +243,7 @@ def clean(o, clean_rotation):
             and o[OUT_ROTATION] <= clean_rotation and o[OUT_OVERLOADED] == 0.0)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def kept(o, keep_rotation):
     """Whether the step of outcome row o is kept as it is, needing no sub-steps (only, where
     it is not `clean`, warnings: a joint turned more than the accuracy threshold, a joint
@@ -275,28 +257,31 @@ def kept(o, keep_rotation):
 KEPT_WITH_WARNINGS = -2
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def step_resident(io):
-    """`World.step()`: `step_in_ring` on a Resident's ring (io: resident.ResidentIO, which
-    also holds the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome
-    rows and its settings), and when the step is `clean`, the Resident advanced to it: slot
-    cur + 1 becomes the current state, the clock moves by h, and the past warm starts count
-    only across steps of one size (solver._history's rule: known + 1, at most 2, if the last
-    step had size h, else 0). If the step was not clean it returns 0, and nothing but the
-    ring's slot cur + 1 and the outcome row changed: the Solver recovers from there. A clean
-    step returns its Newton iterations (≥ 1), or −1 if its line search halved the step (the
-    outcome row has the count): the caller builds the step's report without converting
-    the row's floats. A step that is not clean but `kept` (it only warns) advances the
-    Resident as a clean one and returns KEPT_WITH_WARNINGS: the caller words the warnings
-    from the outcome row."""
-    io = borrowed.struct(io)
+    """`World.step()`: `step` on a Resident's ring (io: resident.ResidentIO, which also holds
+    the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome rows and its
+    settings), and when the step is `clean`, the Resident advanced to it: slot cur + 1 becomes
+    the current state, the clock moves by h, and the past warm starts count only across steps
+    of one size (solver._history's rule: known + 1, at most 2, if the last step had size h,
+    else 0). If the step was not clean it returns 0, and nothing but the ring's slot cur + 1
+    and the outcome row changed: the Solver recovers from there. A clean step returns its
+    Newton iterations (≥ 1), or −1 if its line search halved the step (the outcome row has the
+    count): the caller builds the step's report without converting the row's floats. A step
+    that is not clean but `kept` (it only warns) advances the Resident as a clean one and
+    returns KEPT_WITH_WARNINGS: the caller words the warnings from the outcome row."""
+    io = refcounts.struct(io)
     slots, clock, h = io.slots, io.clock, io.h
     cur, known = slots[0], slots[1]
     uniform = clock[1] == h
     outcome = io.outcome
-    step_in_ring(io.model, io.ring, io.angles, cur, io.torque_value, io.torque_enabled, io.drive_aim,
-                 io.drive_enabled, io.drive_passive, h, io.bdf2 and uniform, known if uniform else 0,
-                 io.may_split, io.work, io.skipped, outcome)
+    # the state is slot cur of the ring, its history the slots before it (modulo 4)
+    prev, prev2, nxt = (cur + 3) % 4, (cur + 2) % 4, (cur + 1) % 4
+    ring, angles = refcounts.array(io.ring), refcounts.array(io.angles)
+    step(io.model, ring[cur, 0], ring[cur, 1], ring[prev, 0], ring[prev, 1], ring[cur, 2], ring[prev, 2],
+         ring[prev2, 2], angles[cur, 0], io.torque_value, io.torque_enabled, io.drive_aim,
+         io.drive_enabled, io.drive_passive, h, io.bdf2 and uniform, known if uniform else 0,
+         io.may_split, io.work, ring[nxt], angles[nxt], io.skipped, outcome)
     if clean(outcome, io.clean_rotation):
         code = int(outcome[OUT_NEWTON]) if outcome[OUT_LINE_SEARCH] == 0.0 else -1
     elif kept(outcome, io.keep_rotation):
@@ -311,7 +296,7 @@ def step_resident(io):
     return code
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
           torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
           bdf2_next, uniform_first, order_first, may_split, n, clean_rotation, keep_rotation, ws,
@@ -325,12 +310,12 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
     the Solver's rule (solver._history): the input's counts only where it was made by steps
     of size h (`uniform_first`: its last step was; `order_first`: its extrapolation_order),
     and every step here has size h."""
-    # the caller keeps these alive: no reference counts for them or their views (borrowed.py)
-    q, v, q_prev, v_prev = borrowed.array(q), borrowed.array(v), borrowed.array(q_prev), borrowed.array(v_prev)
-    warm_start, warm_start_prev = borrowed.array(warm_start), borrowed.array(warm_start_prev)
-    new_qvw, new_angles, outcome = borrowed.array(new_qvw), borrowed.array(new_angles), borrowed.array(outcome)
+    # the caller keeps these alive: no reference counts for them or their views (refcounts.py)
+    q, v, q_prev, v_prev = refcounts.array(q), refcounts.array(v), refcounts.array(q_prev), refcounts.array(v_prev)
+    warm_start, warm_start_prev = refcounts.array(warm_start), refcounts.array(warm_start_prev)
+    new_qvw, new_angles, outcome = refcounts.array(new_qvw), refcounts.array(new_angles), refcounts.array(outcome)
     done = 0
-    saved = subnormals.enter()              # once for all n steps (subnormals.py)
+    saved = subnormals.enter()              # once for all n steps (jit/subnormals.py)
     for k in range(n):
         if k == 0:
             step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,

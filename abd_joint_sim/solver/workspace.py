@@ -1,7 +1,7 @@
 """`Workspace`: the arrays one step works in, allocated once per Solver (a numba structref,
 like ModelData). An array allocated inside a compiled kernel costs as much as a few hundred
-flops, and a step used to allocate some forty of them: at a few bodies that was a large
-share of the step. The kernels only write these arrays before reading them; nothing in them
+flops, and a step needs some forty of them: at a few bodies, allocating them would be a
+large share of the step. The kernels only write these arrays before reading them; nothing in them
 carries from one step to the next (a step with a fresh Workspace gives the same result).
 """
 from __future__ import annotations
@@ -10,10 +10,10 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from .. import angles
-from ..terms import damping
+from ..jit import refcounts
+from ..terms import angle, damping
 from ..terms.context import StepContext
-from . import borrowed, linsolve
+from . import linsolve
 
 #: (name, meaning) of every field; the shapes come from `build`.
 FIELDS = (
@@ -39,7 +39,7 @@ FIELDS = (
     ('zero', '(B,12) zeros, never written (a direction d = d_plus − 0)'),
     ('torque_axes', '(T+2,3) UID 668 torque axes ê of the T torque joints, and 2 rows of scratch'),
     ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
-    ('angle_work', '(25,18) angles.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
+    ('angle_work', '(25,18) angle.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
     ('drive_on', '(D,) bool: which drives are on in this step (StepContext.drive_on)'),
     ('ctx', "the step's StepContext over q_tilde, angle_start, drive_target, drive_on, angle_work "
             'and angle_ref (the step sets h and scale in it)'),
@@ -70,11 +70,11 @@ def build(model, data) -> Workspace:
                   trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
                   dense_H=(n, n), dense_x=(n,), zero=(B, 12),
                   torque_axes=(len(model.torque_joints) + 2, 3),
-                  group_mean=(max(int(data.group_count), 1), 3), angle_work=angles.ANGLE_WORK_SHAPE)
+                  group_mean=(max(int(data.group_count), 1), 3), angle_work=angle.ANGLE_WORK_SHAPE)
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS if name in shapes}
     values['drive_on'] = np.zeros(D, dtype=np.bool_)
-    values['ctx'] = borrowed.borrow(StepContext(0.0, 1.0, *(values[name] for name in (
+    values['ctx'] = refcounts.borrow(StepContext(0.0, 1.0, *(values[name] for name in (
         'q_tilde', 'angle_start', 'drive_target', 'drive_on', 'angle_work', 'angle_ref'))))
     ws = Workspace(*(values[name] for name, _ in FIELDS))
     ws.__dict__.update(values)
-    return borrowed.borrow(ws)
+    return refcounts.borrow(ws)

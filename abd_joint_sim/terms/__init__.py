@@ -1,17 +1,33 @@
-"""The constitutions, one module each, compiled (docs/physics.md):
+"""The constitutions, one module each, compiled (docs/physics.md). `TERMS` lists them once.
 
-- energy terms of the incremental potential Π (`energy(q, m, ctx)` and
-  `accumulate(q, m, ctx, grad, diag, pair, project)`): `inertia` (the kinetic part),
-  `ortho` (UID 1), `revolute` (UID 18), `driving` (UID 19), `limit` (UID 670), `damping`
-  (joint damping, not a libuipc term). `accumulate` returns E(q) with the bits of `energy`,
-  from the quantities its gradient needs: Newton's first assembly gives Π at its start;
-- forces without energy, which enter only the prediction q̃ (`add_acceleration`):
-  `gravity`, `torque` (UID 668).
+Every term module holds:
+- NAME (as `Solver.terms` lists it; None for the inertia, which every scene has), `used(model)`;
+- FIELDS, the fields of the compiled model (solver/model_data.py) it owns, as (name, meaning),
+  and `build(model, data)`, their values for a Model;
+- energy terms of the incremental potential Π: `energy(q, m, ctx)` and
+  `accumulate(q, m, ctx, grad, diag, pair, project)`, which returns E(q) with the bits of
+  `energy`, from the quantities its gradient needs (Newton's first assembly gives Π at its
+  start); CONSTANT_HESSIAN (Newton's assembly then adds only `accumulate_gradient`: the
+  Hessian is summed into its constant blocks once per model) and STORED (its E/h² is stored
+  mechanical energy, World.mechanical_energy);
+- forces without energy, which enter only the prediction q̃: `add_acceleration`.
 
 `m` is the compiled model (solver/model_data.py), `ctx` the step's `StepContext`
 (terms/context.py). Hessians are accumulated as 12x12 blocks: `diag` (B,12,12) per body
 and `pair` (J,12,12) per joint for its (parent row, child column) block, the block
 pattern the linear solver factorises. `project` asks for the PSD-projected Hessian (Newton
-always does; the derivative tests also check the raw one). The step's list of terms is
-solver/newton.py `potential` and `assemble`.
+always does; the derivative tests also check the raw one). angle.py is the joint angle the
+angle terms (driving, limit, damping) share.
+
+numba cannot loop over modules: solver/newton.py `potential` and `assemble` call the energy
+terms one by one, in ENERGY_TERMS' order (the order Π is summed in), and
+test_terms.py checks them against this list.
 """
+from . import damping, driving, gravity, inertia, limit, ortho, revolute, torque
+
+#: the terms of the incremental potential Π, in the order Newton sums them
+ENERGY_TERMS = (inertia, ortho, revolute, driving, limit, damping)
+#: the forces without energy, which enter only the prediction
+FORCE_TERMS = (gravity, torque)
+#: every term
+TERMS = ENERGY_TERMS + FORCE_TERMS

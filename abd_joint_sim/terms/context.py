@@ -1,9 +1,9 @@
 """What the energy terms read besides q and the model: fixed for the duration of one step.
 
 A numba structref, passed by reference. Every term call of a step takes the context (a
-dozen calls per Newton iteration on a chain, more on an arm), and as a namedtuple of six
-arrays it was copied onto the stack at each of them: ~300 bytes per call, and stalls where
-the callee read back what had just been written (docs/speed-rounds.md, "The nineteenth round").
+dozen calls per Newton iteration on a chain, more on an arm): a namedtuple of six arrays
+would be copied onto the stack at each of them, ~300 bytes per call, with stalls where the
+callee reads back what has just been written.
 The step itself does not build one: its Workspace holds a context over the workspace's own
 arrays, and the step sets h, scale and drive_on in place (solver/step.py).
 
@@ -13,7 +13,7 @@ Fields:
 - angle_start [rad] (J,) unwrapped joint angle minus init_angle at the start of the step;
 - drive_target [rad] (D,) UID 19 target relative to init_angle (the aim, or angle_start
   when passive); drive_on (D,) bool;
-- angle_work: scratch of angles.ANGLE_WORK_SHAPE the drives and limits work in (no
+- angle_work: scratch of angle.ANGLE_WORK_SHAPE the drives and limits work in (no
   allocation in the step);
 - angle_ref (L + P, ≥ 3) the angle terms' references for the step: row k < L what
   limit.inside reads for limit k (limit.references, from angle_start), row L + k damper k's
@@ -22,8 +22,10 @@ Fields:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.experimental import structref
+
+from ..jit import kernel
 
 @structref.register
 class StepContextType(types.StructRef):
@@ -41,7 +43,7 @@ CONTEXT_TYPE = StepContextType([
 FIELDS = tuple(CONTEXT_TYPE.field_dict)     #: the field names, in the constructor's order
 
 
-@njit(cache=True)
+@kernel
 def _new(h, scale, q_tilde, angle_start, drive_target, drive_on, angle_work, angle_ref):
     ctx = structref.new(CONTEXT_TYPE)
     ctx.h = h

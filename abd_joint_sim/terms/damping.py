@@ -27,13 +27,33 @@ acts along its axis at the step's explicit point, which is farther away (docs/de
 Where the answer's own angle shows the linearisation missed it by more than LINEAR_TOL (a
 start far from the answer: a torque the damper undoes within the step), the step linearises
 again at the answer and Newton goes on from there (`linearisation_holds`, solver/step.py).
-θ is the unwrapped joint angle relative to init_angle (angles.py), as for UID 19.
+θ is the unwrapped joint angle relative to init_angle (angle.py), as for UID 19.
 """
 from __future__ import annotations
 
-from numba import njit
+import numpy as np
 
-from .. import angles
+from ..jit import flat, kernel
+from . import angle
+
+NAME = 'joint_damping'      #: in Solver.terms
+STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = False
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('damping_joints', '(P,) joints with viscous damping'),
+    ('damping_coeff', '[N m s/rad] (P,) their damping coefficients d'),
+)
+
+
+def used(model) -> bool:
+    return len(model.damping_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return dict(damping_joints=flat.array(model.damping_joints, np.int64),
+                damping_coeff=flat.array(model.damping_coeff, np.float64))
 
 BDF2_RATE = 2.0 / 3.0       # c of BDF2: θ̇ = (3θ − 4θⁿ + θⁿ⁻¹)/(2h) = (θ − θ*)/(c h)
 #: a damper's row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, ∇θ₀ over [vec A_parent, vec A_child],
@@ -54,12 +74,12 @@ def reference_shape(model):
     return (L + P, ROW if P else 3)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
     """Rows L + k of out (angle_ref, L limits): per damped joint k, K = h d / c, θ₀ − θ*,
     ∇θ₀·q₀, ∇θ₀ and θ* for a step of size h whose Newton starts at q0, from the angles at the
     start of the step, angle_start (θⁿ, relative to init_angle), and, with bdf2, the bodies
-    one step back, q_prev (for θⁿ⁻¹). `work`: an angles.ANGLE_WORK_SHAPE array. Returns out."""
+    one step back, q_prev (for θⁿ⁻¹). `work`: an angle.ANGLE_WORK_SHAPE array. Returns out."""
     joints, d = m.damping_joints, m.damping_coeff
     L = m.limit_joints.size
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
@@ -68,11 +88,11 @@ def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
         j = joints[k]
         now = angle_start[j]
         if bdf2:
-            before = angles.unwrap(angles.theta_at(q_prev, parent, child, nbar, bbar, j), now)
+            before = angle.unwrap(angle.theta_at(q_prev, parent, child, nbar, bbar, j), now)
             target, rate = (4.0 * now - before) / 3.0, BDF2_RATE
         else:
             target, rate = now, 1.0
-        theta0 = angles.theta_derivatives_at(q0, parent, child, nbar, bbar, j, G, work[0:8], False,
+        theta0 = angle.theta_derivatives_at(q0, parent, child, nbar, bbar, j, G, work[0:8], False,
                                              work[0:8])
         i_body, j_body = parent[j], child[j]
         dot = 0.0
@@ -82,13 +102,13 @@ def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
         for a in range(18):
             out[row, 3 + a] = G[a]
         out[row, 0] = h * d[k] / rate
-        out[row, 1] = angles.unwrap(theta0, now) - target
+        out[row, 1] = angle.unwrap(theta0, now) - target
         out[row, 2] = dot
         out[row, TARGET] = target
     return out
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def linearisation_holds(m, q, angle, ref, floor):
     """Whether at Newton's answer q every damper's linearised angle is within LINEAR_TOL of
     its exact one, `angle` (J,): θ(q) relative to init_angle, unwrapped as the step reports
@@ -105,7 +125,7 @@ def linearisation_holds(m, q, angle, ref, floor):
     return True
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def _excess(q, ref, k, i_body, j_body):
     """e = θ₀ − θ* + ∇θ₀·(q − q₀) of the damper whose row of ref is k."""
     dot = 0.0
@@ -114,7 +134,7 @@ def _excess(q, ref, k, i_body, j_body):
     return ref[k, 1] + (dot - ref[k, 2])
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def energy(q, m, ctx):
     joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.angle_ref
     L = m.limit_joints.size
@@ -126,7 +146,7 @@ def energy(q, m, ctx):
     return E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and ∇²E (exact, PSD: `project` changes nothing); returns E (the bits of `energy`)."""
     joints, parent, child, ref = m.damping_joints, m.joint_parent, m.joint_child, ctx.angle_ref

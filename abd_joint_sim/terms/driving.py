@@ -3,21 +3,40 @@ angle toward a target,
 
     E = K/2 (θ − θ_target)²,   K = γ (m_i + m_j),   E' = K (θ − θ_target),   E'' = K
 
-for each enabled drive; θ is the unwrapped angle relative to init_angle (angles.py) and
+for each enabled drive; θ is the unwrapped angle relative to init_angle (angle.py) and
 θ_target the aim (relative to init_angle), or the angle at the start of the step when the
 drive is passive. Like UID 18 it carries no h² (physical potential E/h²). Gradient and
-Hessian via angles.accumulate_angle_joint (PSD-projected, or exact where the bodies' inertia
+Hessian via angle.accumulate_angle_joint (PSD-projected, or exact where the bodies' inertia
 keeps Newton's matrix positive definite).
 """
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from .. import angles
+from ..jit import flat, kernel
+from . import angle
+
+NAME = 'driving'            #: in Solver.terms
+STORED = True               #: E/h² is stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = False
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('drive_joints', '(D,) joints with UID 19'),
+    ('drive_K', '(D,) UID 19 stiffness γ (m_i + m_j)'),
+)
 
 
-@njit(cache=True, error_model='numpy')
+def used(model) -> bool:
+    return len(model.drive_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return dict(drive_joints=flat.array(model.drive_joints, np.int64),
+                drive_K=flat.array(model.drive_K, np.float64))
+
+
+@kernel
 def energy(q, m, ctx):
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
@@ -27,37 +46,16 @@ def energy(q, m, ctx):
     for k in range(joints.size):
         if on[k]:
             j = joints[k]
-            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+            x = angle.unwrap(angle.theta_at(q, parent, child, nbar, bbar, j), start[j])
             e = x - target[k]
             E += 0.5 * K[k] * e * e
     return E
 
 
-@njit(cache=True, error_model='numpy')
-def active_joints(q, m, ctx):
-    """(joints, E', E'', n): the n enabled drives at q."""
-    drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
-    D = drive_joints.size
-    joints = np.empty(D, dtype=np.int64)
-    d1s = np.empty(D)
-    d2s = np.empty(D)
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    n = 0
-    for k in range(D):
-        if on[k]:
-            j = drive_joints[k]
-            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
-            joints[n] = j
-            d1s[n] = K[k] * (x - target[k])
-            d2s[n] = K[k]
-            n += 1
-    return joints, d1s, d2s, n
-
-
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the enabled drives (active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work.
+    """∇E and the (projected) Hessian of the enabled drives (E', E'' and
+    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
     Returns E (the bits of `energy`)."""
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start
@@ -68,9 +66,9 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     for k in range(drive_joints.size):
         if on[k]:
             j = drive_joints[k]
-            x = angles.unwrap(angles.theta_at(q, parent, child, nbar, bbar, j), start[j])
+            x = angle.unwrap(angle.theta_at(q, parent, child, nbar, bbar, j), start[j])
             e = x - target[k]
             E += 0.5 * K[k] * e * e
-            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * e, K[k],
+            angle.accumulate_angle_joint(q, parent, child, nbar, bbar, j, K[k] * e, K[k],
                                           grad, diag, pair, project, work, ctx.scale * budget[j])
     return E

@@ -3,10 +3,29 @@ prediction q̃ only. In q-space its acceleration M⁻¹F is exactly [g, 0, ..., 
 body (the generalized force of ρg over the body is M [g, 0...])."""
 from __future__ import annotations
 
-from numba import njit
+import numpy as np
+
+from ..jit import flat, kernel
+
+NAME = 'gravity'            #: in Solver.terms
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('gravity', '[m/s²] (3,)'),
+    ('has_gravity', 'bool'),
+)
 
 
-@njit(cache=True, error_model='numpy')
+def used(model) -> bool:
+    return model.has_gravity
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return dict(gravity=flat.array(model.gravity, np.float64), has_gravity=bool(model.has_gravity))
+
+
+
+@kernel
 def add_acceleration(q, m, acc):
     if not m.has_gravity:
         return

@@ -10,13 +10,42 @@ four entries [p_k, A_k0, A_k1, A_k2] through the 4x4 M̄ = [[m, m c̄ᵀ], [m c�
 (m.body_Mbar), so (M d)_r is a 4-term sum instead of 12, 48 of the 144 entries of M are
 nonzero, and those are all the Hessian adds. The sums run over the same nonzero products in
 the same order as the dense 12x12 product: the results are bit-identical to it.
+
+Its Hessian s M is constant for each s: `add_hessian` adds it into Newton's constant blocks
+once per model, for both scales (model_data.constant_blocks), and the step adds only the
+gradient (`accumulate_gradient`).
 """
 from __future__ import annotations
 
-from numba import njit
+import numpy as np
+
+from ..jit import kernel
+
+NAME = None                 #: not listed in Solver.terms (every scene has it)
+STORED = False              #: World.mechanical_energy counts the kinetic energy itself
+CONSTANT_HESSIAN = True     #: Newton adds only the gradient (accumulate_gradient)
+#: the fields of the compiled model (solver/model_data.py) this term owns: none (it reads the
+#: bodies' body_Mbar and free_bodies)
+FIELDS = ()
 
 
-@njit(cache=True, error_model='numpy')
+def used(model) -> bool:
+    return True
+
+
+def min_eigenvalue(Mbar):
+    """(B,) μ_min(M̄) per body: the least the inertia term s M gives any direction of a body
+    in Newton's matrix (per unit s), which the unprojected Hessians may draw on."""
+    return np.linalg.eigvalsh(Mbar)[:, 0] if len(Mbar) else np.zeros(0)
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return {}
+
+
+
+@kernel
 def _row_products(q, q_tilde, b, k, Mb):
     """(d, M̄d) of spatial row k of body b, d = (q − q̃)[p_k, A_k0, A_k1, A_k2], as 8 scalars."""
     d0 = q[b, k] - q_tilde[b, k]
@@ -30,7 +59,7 @@ def _row_products(q, q_tilde, b, k, Mb):
     return d0, d1, d2, d3, m0, m1, m2, m3
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def _add_body_energy(E, r0, r1, r2):
     """E + (M d)ᵀd of one body from its three spatial rows' `_row_products`, summed in q's
     order r = 0..11 (the positions' rows, then A's: the same sum as the dense product)."""
@@ -44,7 +73,7 @@ def _add_body_energy(E, r0, r1, r2):
     return E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def energy(q, m, ctx):
     q_tilde, Mbar = ctx.q_tilde, m.body_Mbar
     E = 0.0
@@ -55,14 +84,19 @@ def energy(q, m, ctx):
     return 0.5 * ctx.scale * E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E and s·M; returns E (the bits of `energy`)."""
-    q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
-    E = 0.0
-    for b in m.free_bodies:
+    E = accumulate_gradient(q, m, ctx, grad)
+    add_hessian(m.free_bodies, m.body_Mbar, ctx.scale, diag)
+    return E
+
+
+@kernel
+def add_hessian(free_bodies, Mbar, s, diag):
+    """s M of every free body added into its block of diag (its 48 nonzero entries)."""
+    for b in free_bodies:
         Mb = Mbar[b]
-        E = _body_gradient(q, q_tilde, b, Mb, s, grad, E)
         s00, s01, s02, s03 = s * Mb[0, 0], s * Mb[0, 1], s * Mb[0, 2], s * Mb[0, 3]
         s10, s11, s12, s13 = s * Mb[1, 0], s * Mb[1, 1], s * Mb[1, 2], s * Mb[1, 3]
         s20, s21, s22, s23 = s * Mb[2, 0], s * Mb[2, 1], s * Mb[2, 2], s * Mb[2, 3]
@@ -86,13 +120,12 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             D[a2, a0] += s31
             D[a2, a1] += s32
             D[a2, a2] += s33
-    return 0.5 * s * E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate_gradient(q, m, ctx, grad):
     """∇E only: Newton's assembly starts from s·M summed into the constant blocks once per
-    model (model_data.constant_diag_inertia). Returns E (the bits of `energy`)."""
+    model (add_hessian). Returns E (the bits of `energy`)."""
     q_tilde, Mbar, s = ctx.q_tilde, m.body_Mbar, ctx.scale
     E = 0.0
     for b in m.free_bodies:
@@ -100,7 +133,7 @@ def accumulate_gradient(q, m, ctx, grad):
     return 0.5 * s * E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _body_gradient(q, q_tilde, b, Mb, s, grad, E):
     """grad[b] += s M (q − q̃)_b, row block by row block; returns E plus the body's (M d)ᵀd."""
     r0 = _row_products(q, q_tilde, b, 0, Mb)

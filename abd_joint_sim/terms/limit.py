@@ -4,7 +4,7 @@
     x > u:  E = s ((x − u)/w)³          x < l:  E = s ((l − x)/w)³          inside: E = 0
     w = 0:  E = s |x − l|³ (a locked joint)
 
-E' and E'' follow; gradient and Hessian via angles.accumulate_angle_joint (PSD-projected, or
+E' and E'' follow; gradient and Hessian via angle.accumulate_angle_joint (PSD-projected, or
 exact where the bodies' inertia keeps Newton's matrix positive definite).
 
 Most limits are inside their range most of the time, where they contribute nothing: `inside`
@@ -17,12 +17,36 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-from .. import angles
+from ..jit import flat, kernel
+from . import angle
+
+NAME = 'limit'              #: in Solver.terms
+STORED = True               #: E/h² is stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = False
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('limit_joints', '(L,) joints with UID 670'),
+    ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),
+    ('limit_upper', '[rad] (L,) upper bound relative to init_angle'),
+    ('limit_strength', '(L,) s of UID 670'),
+)
 
 
-@njit(cache=True, error_model='numpy')
+def used(model) -> bool:
+    return len(model.limit_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    lj, init = model.limit_joints, model.joint_init_angle
+    return dict(limit_joints=flat.array(lj, np.int64),
+                limit_lower=flat.array(model.limit_lower - init[lj], np.float64),
+                limit_upper=flat.array(model.limit_upper - init[lj], np.float64),
+                limit_strength=flat.array(model.limit_strength, np.float64))
+
+
+@kernel
 def phi(x, lower, upper, s):
     """(E, E', E'') of the limit at angle x."""
     w = upper - lower
@@ -38,31 +62,23 @@ def phi(x, lower, upper, s):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def active(x, lower, upper):
     """Outside the range, or off a zero-width limit."""
     return x > upper or x < lower or (lower == upper and x != lower)
 
 
-@njit(cache=True, error_model='numpy')
-def angle(q, m, ctx, k):
-    """The unwrapped angle x of limit k's joint at q (relative to init_angle). [rad]"""
-    j = m.limit_joints[k]
-    return angle_of(*angles.cos_sin_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j),
-                    ctx.angle_start[j])
-
-
-@njit(cache=True, error_model='numpy')
+@kernel
 def angle_of(c, s, start):
     """x from the joint frames' (c, s): atan2 unwrapped about the step's start angle. [rad]"""
-    return angles.unwrap(math.atan2(s, c), start)
+    return angle.unwrap(math.atan2(s, c), start)
 
 
 #: [rad] `inside` answers "inside" only this far within both bounds (x's rounding is ~1e-12)
 INSIDE_SAFETY = 1e-9
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def references(m, angle_start, ref):
     """ref (≥ L, ≥ 3) for `inside`, per limit k (row k): cos x₀, sin x₀ of its joint's angle at the step's
     start x₀ = angle_start[j], and an upper bound T of cos μ, μ = min(x₀ − l, u − x₀) −
@@ -86,7 +102,7 @@ def references(m, angle_start, ref):
     return ref
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def inside(c, s, ref, k):
     """Whether limit k's joint angle x, atan2(s, c) from its frames' (c, s) unwrapped about the
     step's start x₀, is shown strictly inside [l, u] without atan2: x = x₀ + δ, |δ| ≤ π as
@@ -105,7 +121,7 @@ def inside(c, s, ref, k):
     return d >= 0.0 or d * d < t
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def energy(q, m, ctx):
     lower, upper, strength = m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
@@ -113,7 +129,7 @@ def energy(q, m, ctx):
     E = 0.0
     for k in range(lower.size):
         j = m.limit_joints[k]
-        c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
+        c, s = angle.cos_sin_at(q, parent, child, nbar, bbar, j)
         if inside(c, s, ref, k):
             continue
         x = angle_of(c, s, start[j])
@@ -122,30 +138,10 @@ def energy(q, m, ctx):
     return E
 
 
-@njit(cache=True, error_model='numpy')
-def active_joints(q, m, ctx):
-    """(joints, E', E'', n): the n limits outside their range at q, with their slopes."""
-    limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
-    L = limit_joints.size
-    joints = np.empty(L, dtype=np.int64)
-    d1s = np.empty(L)
-    d2s = np.empty(L)
-    n = 0
-    for k in range(L):
-        x = angle(q, m, ctx, k)
-        if active(x, lower[k], upper[k]):
-            _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
-            joints[n] = limit_joints[k]
-            d1s[n] = d1
-            d2s[n] = d2
-            n += 1
-    return joints, d1s, d2s, n
-
-
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the active limits (active_joints and
-    angles.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work.
+    """∇E and the (projected) Hessian of the active limits (E', E'' from `phi` and
+    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
     Returns E (the bits of `energy`)."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
@@ -154,13 +150,13 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     E = 0.0
     for k in range(limit_joints.size):
         j = limit_joints[k]
-        c, s = angles.cos_sin_at(q, parent, child, nbar, bbar, j)
+        c, s = angle.cos_sin_at(q, parent, child, nbar, bbar, j)
         if inside(c, s, ref, k):
             continue
         x = angle_of(c, s, start[j])
         if active(x, lower[k], upper[k]):
             e, d1, d2 = phi(x, lower[k], upper[k], strength[k])
             E += e
-            angles.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
+            angle.accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair,
                                           project, work, ctx.scale * budget[j])
     return E

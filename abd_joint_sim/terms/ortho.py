@@ -21,25 +21,61 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from ..jit import flat, kernel
 from ..smallmat import svd3_in
+from . import inertia
+
+NAME = 'ortho_potential'    #: in Solver.terms
+STORED = True               #: stored energy (World.mechanical_energy; its h² cancels there)
+CONSTANT_HESSIAN = False
+# The share of a body's smallest inertia, s μ_min(M̄), that the unprojected shape Hessian may
+# take away from Newton's matrix (docs/decisions.md).
+ORTHO_EXACT_SHARE = 0.5
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('ortho_weight', '(B,) κ v̄ of UID 1 [Pa m³]'),
+    ('ortho_exact_bound', '(B,) UID 1\'s Hessian is used unprojected while h² ‖AAᵀ − I‖_F ≤ s × this '
+                          '(Newton\'s matrix then keeps 1 − ORTHO_EXACT_SHARE of the body\'s '
+                          'smallest inertia)'),
+)
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+def used(model) -> bool:
+    return model.body_count > int(model.body_fixed.sum())
+
+
+def exact_bound(Mbar, weight):
+    """(B,) ORTHO_EXACT_SHARE μ_min(M̄) / (4 κv̄) per body (inf without a shape term): where
+    h² ‖AAᵀ − I‖_F is below s times it, the unprojected shape Hessian, whose eigenvalues are
+    ≥ −4h²κv̄ ‖AAᵀ − I‖_F, takes at most that share of the inertia term's s μ_min(M̄) away from
+    any direction of Newton's matrix."""
+    mu = inertia.min_eigenvalue(Mbar)
+    with np.errstate(divide='ignore'):
+        return np.where(weight > 0.0, ORTHO_EXACT_SHARE * mu / (4.0 * weight), np.inf)
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    weight = flat.array(model.body_kappa * model.body_volume, np.float64)
+    return dict(ortho_weight=weight,
+                ortho_exact_bound=flat.array(exact_bound(data['body_Mbar'], weight), np.float64))
+
+
+@kernel(inline='always')
 def _aat(q, b, r, c):
     """(A Aᵀ)_rc of body b, A = q[b, 3:12] row-major."""
     return (q[b, 3 + 3 * r] * q[b, 3 + 3 * c] + q[b, 4 + 3 * r] * q[b, 4 + 3 * c]
             + q[b, 5 + 3 * r] * q[b, 5 + 3 * c])
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def _ata(q, b, l, k):
     """(Aᵀ A)_lk of body b."""
     return q[b, 3 + l] * q[b, 3 + k] + q[b, 6 + l] * q[b, 6 + k] + q[b, 9 + l] * q[b, 9 + k]
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def energy(q, m, ctx):
     weight = m.ortho_weight
     E = 0.0
@@ -55,7 +91,7 @@ def energy(q, m, ctx):
     return ctx.h * ctx.h * E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
     """∇E into grad; into diag the exact Hessian, or with `project` (Newton) a Hessian that
     keeps Newton's matrix positive definite: the exact one where the body's inertia
@@ -89,8 +125,8 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         # Row (i, k) of the A-block, columns (j, l) = 3j + l: x = A_il A_jk, + (AᵀA)_lk where
         # j = i, + C_ij where l = k (the module docstring's sum, in that order), held in
         # locals and written out as one run of 9 columns, which the SLP vectoriser
-        # (solver/vectorize.py) makes vector operations: half the time of the 4-deep loop
-        # nest, the same bits (docs/speed-rounds.md "The eighteenth round")
+        # (jit/slp.py) makes vector operations: half the time of the 4-deep loop nest, the
+        # same bits
         for i in range(3):
             a0, a1, a2 = q[b, 3 + 3 * i], q[b, 4 + 3 * i], q[b, 5 + 3 * i]        # A_il
             c0, c1, c2 = C[3 * i], C[3 * i + 1], C[3 * i + 2]                      # C_ij
@@ -125,7 +161,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
     return hh * E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _add_projected_hessian(q, b, w, diag):
     """The PSD projection of body b's Hessian (w = 4h²κv̄; module docstring) added to diag[b],
     from the SVD of A."""
@@ -165,7 +201,7 @@ def _add_projected_hessian(q, b, w, diag):
         lam[n + 1] = sq - S[i] * S[j]
         n += 2
     # Σ_k max(λ_k, 0) v_k v_kᵀ, skipping the clamped eigenvalues; v_k held in locals and
-    # each row of the A-block written out, so the SLP vectoriser (solver/vectorize.py)
+    # each row of the A-block written out, so the SLP vectoriser (jit/slp.py)
     # makes it vector operations: the same bits
     for k in range(9):
         if not lam[k] > 0.0:

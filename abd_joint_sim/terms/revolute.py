@@ -7,16 +7,83 @@ are pulled together by
 
 computed from the separations (no cancellation, docs/decisions.md). ∇E = K Σ_a D_aᵀ d_a
 with d_a = x_i^a − x_j^a, D_a = [J(x̄_i^a), −J(x̄_j^a)]; the Hessian K Σ_a D_aᵀD_a is
-constant and PSD (model.joint_hessian). It carries no h²: its physical potential is E/h².
+constant and PSD (`constant_hessian`, summed into Newton's constant blocks once per model
+by `add_constant_hessian`). It carries no h²: its physical potential is E/h².
 """
 from __future__ import annotations
 
 import math
 
-from numba import njit
+import numpy as np
+
+from ..jit import flat, kernel
+
+NAME = 'revolute_joint'     #: in Solver.terms
+STORED = True               #: E/h² is stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = True     #: Newton adds only the gradient (accumulate_gradient)
+# Joint anchors further apart than SEPARATION_WARN x the smaller body's size: the step warns
+# (an overloaded joint: torque or speed too large for strength_ratio and dt). Further than
+# SEPARATION_FAULT x the larger body's size, the joint has come apart: no joint force of
+# UID 18 is stiff enough to make that a valid state, so the step fails.
+SEPARATION_WARN = 0.01
+SEPARATION_FAULT = 1e3
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('joint_x_bar', '[m] (J,2,2,3) anchors x̄: [joint, side (i, j), anchor (P0, P1), xyz]'),
+    ('joint_K', '[kg] (J,) UID 18 stiffness K = γ (m_i + m_j)'),
+    ('joint_hessian', '(J,24,24) constant Hessian of the UID 18 energy'),
+    ('joint_warn_separation', '[m] (J,) anchor separation above which a step warns (overloaded joint)'),
+    ('joint_fault_separation', '[m] (J,) anchor separation above which a joint has come apart (a fault)'),
+)
 
 
-@njit(cache=True, error_model='numpy')
+def used(model) -> bool:
+    return model.joint_count > 0
+
+
+def stiffness(strength_ratio, mass_i, mass_j):
+    """K = γ (m_i + m_j) [kg] of a joint between bodies of masses m_i, m_j (UID 18; UID 19's
+    drive stiffness is the same formula with its own γ)."""
+    return strength_ratio * (mass_i + mass_j)
+
+
+def point_jacobian(xbar) -> np.ndarray:
+    """J(x̄) = [I3 | I3 ⊗ x̄ᵀ], shape (..., 3, 12): x = J(x̄) q."""
+    xbar = np.asarray(xbar, dtype=float)
+    J = np.zeros(xbar.shape[:-1] + (3, 12))
+    for r in range(3):
+        J[..., r, r] = 1.0
+        J[..., r, 3 + 3 * r:6 + 3 * r] = xbar
+    return J
+
+
+def constant_hessian(K, anchor0, anchor1) -> np.ndarray:
+    """(J,24,24) K Σ_a D_aᵀD_a per joint, D_a = [J(x̄_i^a), −J(x̄_j^a)] (anchors (J,2,3):
+    parent side, child side)."""
+    H = np.zeros((len(K), 24, 24))
+    for k in range(len(K)):
+        D = [np.hstack([point_jacobian(anchors[0]), -point_jacobian(anchors[1])])   # (3,24)
+             for anchors in (anchor0[k], anchor1[k])]
+        H[k] = K[k] * sum(Dk.T @ Dk for Dk in D)
+    return H
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    m = model
+    J = m.joint_count
+    size, parent, child = m.body_size, m.joint_parent, m.joint_child
+    return dict(
+        joint_x_bar=flat.array(np.stack([m.joint_anchor0, m.joint_anchor1], axis=2).reshape(J, 2, 2, 3),
+                               np.float64),
+        joint_K=flat.array(m.joint_K, np.float64),
+        joint_hessian=flat.array(constant_hessian(m.joint_K, m.joint_anchor0, m.joint_anchor1), np.float64),
+        joint_warn_separation=flat.array(SEPARATION_WARN * np.minimum(size[parent], size[child]), np.float64),
+        joint_fault_separation=flat.array(SEPARATION_FAULT * np.maximum(size[parent], size[child]), np.float64))
+
+
+
+@kernel
 def separation(q, i_body, j_body, x_bar, j, a):
     """x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body, as a
     tuple (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor; a tuple,
@@ -25,7 +92,7 @@ def separation(q, i_body, j_body, x_bar, j, a):
             _gap(q, i_body, j_body, x_bar, j, a, 2))
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def _gap(q, i_body, j_body, x_bar, j, a, r):
     """Row r of separation."""
     xi = q[i_body, r]
@@ -36,13 +103,13 @@ def _gap(q, i_body, j_body, x_bar, j, a, r):
     return xi - xj
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def joint_separation(q, m, j):
     """max_a |x_i^a − x_j^a| of joint j (NaN wins). [m]"""
     return _separation_norm(q, m.joint_parent[j], m.joint_child[j], m.joint_x_bar, j)
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def _separation_norm(q, i_body, j_body, x_bar, j):
     """max_a |x_i^a − x_j^a| of joint j (NaN wins). [m]"""
     out = 0.0
@@ -54,7 +121,7 @@ def _separation_norm(q, i_body, j_body, x_bar, j):
     return out
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def max_separation(q, m):
     """The largest joint separation over all joints (0 without joints; NaN wins). [m]"""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
@@ -66,7 +133,7 @@ def max_separation(q, m):
     return out
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def check_separations(q, m):
     """(largest separation, whether a joint exceeds m.joint_warn_separation, the first joint
     beyond m.joint_fault_separation or -1). [m]"""
@@ -86,7 +153,7 @@ def check_separations(q, m):
     return largest, overloaded, apart
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def energy(q, m, ctx):
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     if parent.size == 0:
@@ -101,10 +168,16 @@ def energy(q, m, ctx):
     return 0.5 * E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
     E = accumulate_gradient(q, m, ctx, grad)
-    parent, child, H = m.joint_parent, m.joint_child, m.joint_hessian
+    add_constant_hessian(m.joint_parent, m.joint_child, m.joint_hessian, diag, pair)
+    return E
+
+
+@kernel
+def add_constant_hessian(parent, child, H, diag, pair):
+    """The joints' constant Hessians H (J,24,24) added into the blocks diag and pair."""
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         for r in range(12):
@@ -112,13 +185,12 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                 diag[i_body, r, c] += H[j, r, c]
                 diag[j_body, r, c] += H[j, 12 + r, 12 + c]
                 pair[j, r, c] += H[j, r, 12 + c]
-    return E
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate_gradient(q, m, ctx, grad):
     """∇E only: Newton's assembly starts from the constant Hessian blocks
-    (model_data.constant_hessian), so the step adds just this. Returns E (the bits of
+    (model_data.constant_blocks), so the step adds just this. Returns E (the bits of
     `energy`)."""
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     if parent.size == 0:

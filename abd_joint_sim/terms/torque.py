@@ -17,22 +17,54 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from ..jit import flat, kernel
 from ..smallmat import adjugate3
 
-
+NAME = 'external_torque'    #: in Solver.terms
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('torque_joints', '(T,) joints with UID 668'),
+    ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
+    ('torque_body_ptr', '(Tb+1,) CSR pointer into torque_body_entries per torque body'),
+    ('torque_body_entries', '(E,) 2 k + side per torque joint k on the body: parent sides, then child'),
+)
 SINGULAR_RATIO = 1e-6
 AXIS_EPS = 1e-12
 
 
-@njit(cache=True, error_model='numpy')
+def used(model) -> bool:
+    return len(model.torque_joints) > 0
+
+
+def incidence(torque_joints, parent, child):
+    """(torque_bodies, torque_body_ptr, torque_body_entries): per body, the torque joints acting
+    on it in the order `add_acceleration` sums their forces (parent sides, then child sides)."""
+    per_body = {}
+    for side, ends in enumerate((parent, child)):
+        for k, j in enumerate(torque_joints):
+            per_body.setdefault(int(ends[j]), []).append(2 * k + side)
+    bodies = sorted(per_body)
+    ptr = np.cumsum([0] + [len(per_body[b]) for b in bodies])
+    entries = [e for b in bodies for e in per_body[b]]
+    return np.array(bodies, np.int64), np.array(ptr, np.int64), np.array(entries, np.int64)
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    bodies, ptr, entries = incidence(model.torque_joints, model.joint_parent, model.joint_child)
+    return dict(torque_joints=flat.array(model.torque_joints, np.int64),
+                torque_bodies=flat.array(bodies, np.int64), torque_body_ptr=flat.array(ptr, np.int64),
+                torque_body_entries=flat.array(entries, np.int64))
+
+
+@kernel
 def axis(q, m, j, e):
     """e = ê_j (3,) of joint j, the child's torque axis (0 when neither raw axis is usable)."""
     axis_at(q, m.joint_parent, m.joint_child, m.joint_x_bar, j, e, np.empty((2, 3)))
 
 
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def axis_at(q, parent, child, x_bar, j, e, es):
     """axis() on the model's arrays, es (2,3) a work array (it runs once per joint)."""
     usable = 0
@@ -57,14 +89,14 @@ def axis_at(q, parent, child, x_bar, j, e, es):
         e[r] = half * (es[0, r] + es[1, r])
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def clamp_command(value, effort_limit):
     """A commanded torque clamped to [−effort_limit, effort_limit] (World.set_torque; the one
     place of this rule)."""
     return min(max(value, -effort_limit), effort_limit)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def clamp_commands(values, effort_limit, out):
     """out[k] = values[k] clamped to [−effort_limit[k], effort_limit[k]], the torques a
     controller commands (World.set_torques: one compiled call costs a fifth of numpy's checks
@@ -78,13 +110,13 @@ def clamp_commands(values, effort_limit, out):
     return -1
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def any_active(m, torque_value, torque_enabled):
     """Whether some joint's torque is enabled and nonzero (else F = 0)."""
     return _any_active(torque_value, torque_enabled)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _any_active(torque_value, torque_enabled):
     for k in range(torque_value.size):
         if torque_enabled[k] and torque_value[k] != 0.0:
@@ -92,7 +124,7 @@ def _any_active(torque_value, torque_enabled):
     return False
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _inverse_if_regular(q, b):
     """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.adjugate3 / det, on scalars (it runs
     per body); regular is False (no torque on the body) if |det A| ≤ SINGULAR_RATIO
@@ -108,7 +140,7 @@ def _inverse_if_regular(q, b):
             c00 / det, c01 / det, c02 / det, c10 / det, c11 / det, c12 / det, c20 / det, c21 / det, c22 / det)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
     """(status, F_b[3:12] as 9 scalars): Σ over the torque joints k of body b (entries[ptr0:ptr1]
     of m.torque_body_entries, 2 k + side) of (τ_k/2) [±ê_k]× A_b^{−T}, in that order (A_b⁻¹
@@ -145,7 +177,7 @@ def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
     return 1, f0, f1, f2, f3, f4, f5, f6, f7, f8
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled, e):
     """e[:T] = ê of the active torque joints (rows of the others unset), e (T+2,3): its last
     two rows are scratch."""
@@ -156,7 +188,7 @@ def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled, 
             axis_at(q, parent, child, x_bar, torque_joints[k], e[k], es)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled, skipped):
     """The bodies the singular guard skips, once per (side, joint) in that order (parent side
     of every joint first); returns their count. Runs only when some body was skipped."""
@@ -174,39 +206,7 @@ def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled,
     return n_skipped
 
 
-@njit(cache=True, error_model='numpy')
-def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
-    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
-    written to `skipped` (parent side of every joint first, then child side); returns their
-    count."""
-    if not _any_active(torque_value, torque_enabled):
-        return 0
-    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
-    e = np.empty((tj.size + 2, 3))
-    _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)
-    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
-    any_skipped = False
-    for t in range(bodies.size):
-        b = bodies[t]
-        f = _body_force(q, b, ptr[t], ptr[t + 1], entries, e, torque_value, torque_enabled)
-        if f[0] == 0:
-            any_skipped = True
-        elif f[0] == 1:
-            F[b, 3] += f[1]
-            F[b, 4] += f[2]
-            F[b, 5] += f[3]
-            F[b, 6] += f[4]
-            F[b, 7] += f[5]
-            F[b, 8] += f[6]
-            F[b, 9] += f[7]
-            F[b, 10] += f[8]
-            F[b, 11] += f[9]
-    if not any_skipped:
-        return 0
-    return _list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
-
-
-@njit(cache=True, error_model='numpy')
+@kernel
 def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
     """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
     only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k

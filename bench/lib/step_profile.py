@@ -32,7 +32,8 @@ from abd_joint_sim import Scene, World                          # noqa: E402
 from abd_joint_sim.builders import chain_scene                  # noqa: E402
 from abd_joint_sim.solver import linsolve, newton, step as kernel  # noqa: E402
 from abd_joint_sim.solver.retraction import retract             # noqa: E402
-from abd_joint_sim.solver import bdf, subnormals                 # noqa: E402
+from abd_joint_sim.jit import subnormals                         # noqa: E402
+from abd_joint_sim.solver import bdf                             # noqa: E402
 from abd_joint_sim.terms import inertia, ortho, revolute, torque  # noqa: E402
 
 PARTS = ('potential', 'assemble', 'ortho', 'revolute', 'inertia', 'solve', 'retract',

@@ -32,10 +32,10 @@ import stat
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parent
-#: where the compiled kernels live; the files among them that define any (`njit(`) make the
+PACKAGE = Path(__file__).resolve().parents[1]
+#: where the compiled kernels live; the files among them that define any (`@kernel`) make the
 #: cache stamp, so editing pure-Python modules there does not force a recompile
-KERNEL_SOURCES = ('smallmat.py', 'angles.py', 'terms', 'solver')
+KERNEL_SOURCES = ('smallmat.py', 'terms', 'solver', 'jit')
 
 
 @functools.lru_cache(maxsize=None)
@@ -46,11 +46,11 @@ def sources_hash() -> str:
         files = sorted(path.glob('*.py')) if path.is_dir() else [path]
         for f in files:
             text = f.read_bytes()
-            if b'njit(' in text:
+            if b'@kernel' in text:
                 h.update(f.relative_to(PACKAGE).as_posix().encode())
                 h.update(text)
-    from .solver import vectorize        # a build without the SLP vectoriser is another build
-    h.update(b'slp' if vectorize.ENABLED else b'no-slp')
+    from . import slp        # a build without the SLP vectoriser is another build
+    h.update(b'slp' if slp.ENABLED else b'no-slp')
     return h.hexdigest()[:20]
 
 

@@ -1,4 +1,4 @@
-"""Compile the physics kernels once per install: `python -m abd_joint_sim.warmup`.
+"""Compile the physics kernels once per install: `python -m abd_joint_sim.jit.warmup`.
 
 Every kernel is `njit(cache=True)`: numba compiles it on first use (about a minute for the
 whole step on a small machine) and stores machine code on disk; later processes load it
@@ -22,7 +22,7 @@ _done = False
 
 
 def _tiny_scene():
-    from .scene import Scene
+    from ..scene import Scene
     box = dict(box=[0.2, 0.1, 0.1], density=1000.0)
     return Scene.from_dict(dict(
         dt=0.01, gravity=[0.0, 0.0, -9.81], integrator='bdf2',
@@ -40,7 +40,7 @@ def _tiny_scene():
 def _loop_scene():
     """Three free bodies in a closed loop: the dense linear solve."""
     box = dict(box=[0.2, 0.1, 0.1], density=1000.0)
-    from .scene import Scene
+    from ..scene import Scene
     bodies = [dict(name='base', position=[0.0, 0.0, 0.0], fixed=True, **box)]
     bodies += [dict(name=n, position=[0.2 * (k + 1), 0.0, 0.0], **box) for k, n in enumerate('abc')]
     pairs = [('base', 'a'), ('a', 'b'), ('b', 'c'), ('c', 'a')]
@@ -51,11 +51,11 @@ def _loop_scene():
 
 def _run_kernels():
     """Call every kernel entry point the simulator calls from Python, on both linear solves."""
-    from .model import compile_scene
-    from .solver.resident import Resident
-    from .solver.solver import Solver
-    from .state import Control, State
-    from .terms import driving, limit, ortho, revolute, torque
+    from ..model import compile_scene
+    from ..solver.resident import Resident
+    from ..solver.solver import Solver
+    from ..state import Control, State
+    from ..terms import driving, limit, ortho, revolute, torque
     for scene in (_tiny_scene(), _loop_scene()):
         model = compile_scene(scene)
         solver = Solver(model)
@@ -75,7 +75,7 @@ def _run_kernels():
             term.energy(state.q, solver.data, ctx)
     # the body markers' poses (ros/markers.py)
     import numpy as np
-    from .smallmat import frame_poses
+    from ..smallmat import frame_poses
     one = np.zeros(1, dtype=np.intp)
     frame_poses(np.zeros((1, 3)), np.eye(3)[None], one, np.zeros((1, 3)), np.eye(3)[None], one,
                 np.zeros((1, 3)), np.empty((1, 7)), np.empty((1, 3)))
@@ -95,9 +95,7 @@ def ensure_compiled(verbose: bool = True) -> dict:
               file=sys.stderr, flush=True)
     _done = True
     try:
-        from .solver import vectorize
-        with vectorize.enabled():
-            _run_kernels()
+        _run_kernels()
     except BaseException:
         _done = False
         raise
@@ -106,7 +104,7 @@ def ensure_compiled(verbose: bool = True) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='python -m abd_joint_sim.warmup', description=__doc__.split('\n\n')[0])
+    ap = argparse.ArgumentParser(prog='python -m abd_joint_sim.jit.warmup', description=__doc__.split('\n\n')[0])
     ap.parse_args(argv)
     try:
         out = ensure_compiled()

@@ -1,5 +1,4 @@
-"""The compiled step without numba's reference counts (docs/decisions.md, docs/speed-rounds.md
-"The eleventh round").
+"""The compiled step without numba's reference counts (docs/decisions.md).
 
 numba counts a reference (an atomic add and subtract on a MemInfo, ~20 cycles each here) for
 every array read out of a structref, every array argument, every view and every structref
@@ -22,7 +21,7 @@ never counted.
 """
 from __future__ import annotations
 
-from numba import njit
+from . import kernel
 from numba.core import cgutils, types
 from numba.core.datamodel import models
 from numba.experimental.structref import _Utils, define_attributes
@@ -61,7 +60,7 @@ def array(typingctx, array_type):
     return array_type(array_type), codegen
 
 
-@njit(cache=True)
+@kernel
 def _borrow(struct):
     _null_array_meminfos(struct)
 

