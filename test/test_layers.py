@@ -23,11 +23,12 @@ ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 #: A module belongs to the floor of the longest prefix that names it.
 LAYERS = (
     ('foundation', ('errors', 'ranges', 'geometry', 'builders', 'smallmat', 'jit')),
+    ('terms', ('terms',)),             # the constitutions: compiled kernels over given arrays
     ('urdf', ('urdf',)),               # the URDF reader: below the scene, which calls it
     ('scene', ('scene',)),
     ('model', ('model',)),
     ('state', ('state',)),
-    ('solver', ('terms', 'solver', 'jit.warmup')),   # the warm-up runs the solver's kernels
+    ('solver', ('solver', 'jit.warmup')),   # the warm-up runs the solver's kernels   # the warm-up runs the solver's kernels
     ('world', ('world', '')),          # '': the package's __init__, which re-exports World
     ('record', ('record',)),
     ('ros', ('ros', 'runtime', 'live')),   # live: the live view, served by the node and the tools
@@ -35,7 +36,7 @@ LAYERS = (
 )
 
 #: The physics core: these floors never import ROS (:func:`is_ros`).
-CORE = ('foundation', 'urdf', 'scene', 'model', 'state', 'solver', 'world')
+CORE = ('foundation', 'terms', 'urdf', 'scene', 'model', 'state', 'solver', 'world')
 ROS_PACKAGES = ('rclpy', 'rosidl_runtime_py', 'rosidl_parser', 'builtin_interfaces',
                 'rcl_interfaces')
 
