@@ -161,6 +161,8 @@ def test_start_line_and_initial_state(hinge):
     out = hinge.output()
     assert 'hinge.yaml' in out and "actuated ['hinge']" in out and 'paused' in out
     assert '/joint_torque_commands' in out and 'recording off' in out
+    # what is not simulated, up front: the hinge scene has no gravity, and no body collides
+    assert '| no gravity |' in out and 'not simulated: contact and collision' in out
     msg = hinge.states[0]
     assert list(msg.name) == ['hinge']
     assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 1

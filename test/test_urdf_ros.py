@@ -157,6 +157,9 @@ def test_sim_node_from_robot_description(tmp_path, how):
     out = node.output()
     assert ('scene robot_description' if how == 'robot_description' else 'demo_arm.urdf') in out
     assert 'clamped to 15' in out
+    # the start-up line's gravity, and the ignored speed limits said once, as a warning
+    assert 'gravity (0, 0, -9.81) m/s²' in out
+    assert out.count('<limit velocity> is not enforced') == 1, out[-3000:]
     from abd_joint_sim.record import read_custom_data
     assert read_custom_data(str(bag))['abd_joint_sim.urdf'] == DEMO.read_text()
     env = ros_env(domain, tmp_path)
