@@ -848,6 +848,7 @@ def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, ca
         seen.append(capsys.readouterr().err)      # what was printed before compiling
     monkeypatch.setattr(warmup, '_run_kernels', fake_run)
     monkeypatch.setattr(warmup, '_done', False)
+    monkeypatch.setenv('ABD_COMPILE_JOBS', '1')         # (no second compiling process)
     monkeypatch.setattr(cache, 'marker', lambda: tmp_path / 'compiled-marker')
     monkeypatch.setattr(cache, 'mark_compiled', lambda: (tmp_path / 'compiled-marker').write_text(''))
     out = warmup.ensure_compiled()
