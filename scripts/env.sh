@@ -22,7 +22,7 @@ if [ ! -f "$_abd_req" ]; then
   echo "[env] requirements file not found: $_abd_req" >&2
   _abd_ok=0
 elif [ ! -x "$ABD_VENV/bin/python" ]; then
-  echo "[env] creating the virtual environment $ABD_VENV" >&2
+  echo "[env] creating the virtual environment $ABD_VENV (about 10 s)" >&2
   python3 -m venv "$ABD_VENV" || { echo "[env] python3 -m venv failed" >&2; _abd_ok=0; }
 fi
 if [ "$_abd_ok" = 1 ]; then

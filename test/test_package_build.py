@@ -54,6 +54,7 @@ def test_install_layout(install):
     assert set(params) <= {p.name for p in PARAMS}, set(params) - {p.name for p in PARAMS}
 
 
+@pytest.mark.slow
 def test_ros2_run_resolution_and_joint_states(install, tmp_path):
     prefix = install / PKG
     domain = next_domain_id()
@@ -129,6 +130,7 @@ def _run_default(args, ws: Path, tmp_path: Path, name: str) -> str:
     return node.output()
 
 
+@pytest.mark.slow
 def test_run_default_builds_only_when_needed_and_records_only_when_asked(tmp_path):
     """The README's first command: colcon builds the install space the first time and not
     again while nothing changed; `--no-record` runs without a bag, `-p record:=DIR` records

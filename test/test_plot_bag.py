@@ -36,6 +36,7 @@ def _png_size(path):
     return int.from_bytes(data[16:20], 'big'), int.from_bytes(data[20:24], 'big')
 
 
+@pytest.mark.slow
 def test_fresh_bag_to_pngs(tmp_path, capsys):
     bag = _bag(tmp_path / 'run', marker_joint_axes=True)
     out = tmp_path / 'png'

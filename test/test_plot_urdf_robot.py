@@ -18,6 +18,7 @@ def _module():
     return mod
 
 
+@pytest.mark.slow
 def test_picture_from_the_committed_csv(tmp_path, capsys):
     pytest.importorskip('matplotlib', reason='matplotlib not installed (requirements-test.txt)')
     mod = _module()
