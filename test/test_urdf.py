@@ -120,6 +120,7 @@ def test_limits_switch_and_overrides():
     assert scene.joints[0].external_torque is None and scene.joints[0].limit.upper == 0.5
 
 
+@pytest.mark.slow
 def test_sign_and_inertia_against_the_analytic_rotation():
     """+τ about the URDF axis turns the link by +τ t²/(2 I_axis) (no gravity): the reported
     angle and velocity follow the URDF joint position's sign."""
