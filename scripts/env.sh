@@ -1,7 +1,7 @@
 # Sourced by the scripts: creates/updates .venv with the pinned wheels, and sets the
 # environment every ROS process here needs. Idempotent and quiet when nothing changed; says
-# what it installs before it does, with pip's own progress and a line every 10 s while pip is
-# otherwise silent (scripts/heartbeat.py).
+# what it installs before it does, with pip's own progress and a line whenever venv or pip
+# has been silent for 8 s (scripts/heartbeat.py), so a line comes at least every 10 s.
 # Usage: source scripts/env.sh [requirements*.txt]   (default: requirements-test.txt)
 #   requirements.txt: what the node needs (scripts/run_default.sh);
 #   requirements-test.txt: that and what the tests need (scripts/test.sh).
@@ -23,7 +23,8 @@ if [ ! -f "$_abd_req" ]; then
   _abd_ok=0
 elif [ ! -x "$ABD_VENV/bin/python" ]; then
   echo "[env] creating the virtual environment $ABD_VENV (about 10 s)" >&2
-  python3 -m venv "$ABD_VENV" || { echo "[env] python3 -m venv failed" >&2; _abd_ok=0; }
+  python3 "$ABD_ROOT/scripts/heartbeat.py" "[env] python3 -m venv" 8 -- python3 -m venv "$ABD_VENV" >&2 \
+    || { echo "[env] python3 -m venv failed" >&2; _abd_ok=0; }
 fi
 if [ "$_abd_ok" = 1 ]; then
   # Reinstall only when the requirements changed (hash stamp in the venv, written only
@@ -43,7 +44,7 @@ if [ "$_abd_ok" = 1 ]; then
     esac
     echo "[env] installing the pinned wheels of $(basename "$_abd_req") into $ABD_VENV" \
          "($_abd_what the first time on 2 cores; pip's progress follows):" >&2
-    if python3 "$ABD_ROOT/scripts/heartbeat.py" "[env] pip install" 10 -- \
+    if python3 "$ABD_ROOT/scripts/heartbeat.py" "[env] pip install" 8 -- \
          "$ABD_VENV/bin/python" -m pip install --disable-pip-version-check -r "$_abd_req" >&2
     then
       touch "$_abd_stamp"

@@ -104,7 +104,7 @@ def test_the_node_installs_only_its_own_requirements(tmp_path):
 
 
 def test_heartbeat_speaks_while_the_command_is_silent(tmp_path):
-    """scripts/heartbeat.py (env.sh runs pip through it, every 10 s): the command's output
+    """scripts/heartbeat.py (env.sh runs venv and pip through it, 8 s): the command's output
     passes through, a line whenever it has been silent for the interval, its exit status."""
     res = subprocess.run(['python3', str(REPO / 'scripts' / 'heartbeat.py'), '[env] pip', '0.5',
                           '--', 'sh', '-c', 'echo first; sleep 1.8; echo second; exit 3'],
