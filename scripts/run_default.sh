@@ -30,8 +30,8 @@ source scripts/env.sh "$ROOT/requirements.txt" || { echo "[run_default] environm
 set -euo pipefail
 
 # colcon only when a file the install space is built from changed, was added or removed
-# since the last build (install/.abd-built holds the list of those files and the hash of
-# their contents at that build).
+# since the last build (install/.abd-built holds one hash of their names and contents at that
+# build).
 SOURCES=(abd_joint_sim launch config resource setup.py setup.cfg package.xml)
 STAMP="$WS/install/.abd-built"
 current="$(find "${SOURCES[@]}" -type f ! -path '*/__pycache__/*' ! -name '*.pyc' -print0 \
