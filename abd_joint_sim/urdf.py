@@ -95,13 +95,13 @@ class _Link:
 
 class _Joint:
     __slots__ = ('name', 'type', 'parent', 'child', 'origin', 'axis', 'lower', 'upper',
-                 'effort', 'mimic', 'damping', 'friction')
+                 'effort', 'velocity', 'mimic', 'damping', 'friction')
 
     def __init__(self, name, jtype, parent, child, origin, axis):
         self.name, self.type, self.parent, self.child = name, jtype, parent, child
         self.origin, self.axis = origin, axis
         self.lower = self.upper = None
-        self.effort = None
+        self.effort = self.velocity = None
         self.mimic = None
         self.damping = self.friction = 0.0     # <dynamics>
 
@@ -299,6 +299,7 @@ class _Reader:
             if j.effort < 0.0:
                 self.fail(f'{where} <limit>: effort="{j.effort:g}" is negative; effort is the '
                           'largest torque magnitude, >= 0 N m (0 or absent: no effort limit)')
+            j.velocity = self.number(lim, 'velocity', f'{where} <limit>', 0.0)
             if jtype == 'revolute':
                 j.lower = self.number(lim, 'lower', f'{where} <limit>', 0.0)
                 j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
@@ -594,6 +595,16 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         shown = ', '.join(rubbing[:8]) + (f' and {len(rubbing) - 8} more' if len(rubbing) > 8 else '')
         msg = (f'{source}: <dynamics friction> is not simulated (no Coulomb friction term): '
                f'ignored on {len(rubbing)} joint(s): {shown} (of <dynamics>, only damping is)')
+        notes.append(msg)
+        warnings.warn(msg, UrdfWarning, stacklevel=4)
+
+    # A joint speed limit is no term of this simulator either (a joint driven hard runs faster).
+    fast = [j.name for j in joints.values() if moving(j) and j.velocity]
+    if fast:
+        shown = ', '.join(fast[:8]) + (f' and {len(fast) - 8} more' if len(fast) > 8 else '')
+        msg = (f'{source}: <limit velocity> is not enforced (joint speeds are not limited): '
+               f'ignored on {len(fast)} joint(s): {shown} (of <limit>, lower, upper and effort '
+               'are)')
         notes.append(msg)
         warnings.warn(msg, UrdfWarning, stacklevel=4)
 

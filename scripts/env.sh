@@ -1,7 +1,10 @@
 # Sourced by the scripts: creates/updates .venv with the pinned wheels, and sets the
 # environment every ROS process here needs. Idempotent and quiet when nothing changed; says
-# what it installs before it does, with pip's own progress.
+# what it installs before it does, with pip's own progress and a line whenever venv or pip
+# has been silent for 8 s (scripts/heartbeat.py), so a line comes at least every 10 s.
 # Usage: source scripts/env.sh [requirements*.txt]   (default: requirements-test.txt)
+#   requirements.txt: what the node needs (scripts/run_default.sh);
+#   requirements-test.txt: that and what the tests need (scripts/test.sh).
 # Returns non-zero (and leaves the venv marked out of date) if the installation fails.
 # The caller's shell options are left alone (no set -e: it would end an interactive shell).
 ABD_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -19,18 +22,30 @@ if [ ! -f "$_abd_req" ]; then
   echo "[env] requirements file not found: $_abd_req" >&2
   _abd_ok=0
 elif [ ! -x "$ABD_VENV/bin/python" ]; then
-  echo "[env] creating the virtual environment $ABD_VENV" >&2
-  python3 -m venv "$ABD_VENV" || { echo "[env] python3 -m venv failed" >&2; _abd_ok=0; }
+  echo "[env] creating the virtual environment $ABD_VENV (about 10 s)" >&2
+  python3 "$ABD_ROOT/scripts/heartbeat.py" "[env] python3 -m venv" 8 -- python3 -m venv "$ABD_VENV" >&2 \
+    || { echo "[env] python3 -m venv failed" >&2; _abd_ok=0; }
 fi
 if [ "$_abd_ok" = 1 ]; then
   # Reinstall only when the requirements changed (hash stamp in the venv, written only
   # after pip succeeded).
-  _abd_stamp="$ABD_VENV/.req-$(cat "$ABD_ROOT"/requirements*.txt | sha1sum | cut -c1-12)-$(basename "$_abd_req")"
+  _abd_hash="$(cat "$ABD_ROOT"/requirements*.txt | sha1sum | cut -c1-12)"
+  _abd_stamp="$ABD_VENV/.req-$_abd_hash-$(basename "$_abd_req")"
+  # requirements-test.txt includes requirements.txt: a test venv serves the node as it is
+  if [ "$(basename "$_abd_req")" = requirements.txt ] \
+       && [ -f "$ABD_VENV/.req-$_abd_hash-requirements-test.txt" ]; then
+    _abd_stamp="$ABD_VENV/.req-$_abd_hash-requirements-test.txt"
+  fi
+  unset _abd_hash
   if [ ! -f "$_abd_stamp" ]; then
+    case "$(basename "$_abd_req")" in
+      requirements.txt) _abd_what="rclpy and the ROS 2 Jazzy messages, numpy, numba, mcap, colcon; about 1 min" ;;
+      *) _abd_what="the node's wheels and the tests' (scipy, matplotlib, MuJoCo, PyBullet, ...); about 2 min" ;;
+    esac
     echo "[env] installing the pinned wheels of $(basename "$_abd_req") into $ABD_VENV" \
-         "(rclpy and the ROS 2 Jazzy messages, numpy, scipy, numba, mcap, ...; 20 s to 2 min" \
-         "the first time; pip's progress follows):" >&2
-    if "$ABD_VENV/bin/python" -m pip install --disable-pip-version-check -r "$_abd_req" >&2
+         "($_abd_what the first time on 2 cores; pip's progress follows):" >&2
+    if python3 "$ABD_ROOT/scripts/heartbeat.py" "[env] pip install" 8 -- \
+         "$ABD_VENV/bin/python" -m pip install --disable-pip-version-check -r "$_abd_req" >&2
     then
       touch "$_abd_stamp"
       echo "[env] installed" >&2
@@ -39,6 +54,7 @@ if [ "$_abd_ok" = 1 ]; then
            "of date, so the next source of scripts/env.sh tries again" >&2
       _abd_ok=0
     fi
+    unset _abd_what
   fi
 fi
 # No DDS traffic may leave loopback (shared/spec/ROS.md).

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # README's second command (and CI's, via .ci/run): set everything up and run the whole test
-# suite. Extra arguments go to pytest, e.g. `bash scripts/test.sh -k ros_node -x`.
+# suite. Extra arguments go to pytest, e.g. `bash scripts/test.sh -k ros_node -x`, or
+# `bash scripts/test.sh -m "not slow"` for the quick subset (pytest.ini, docs/quick-start.md).
 # Each DDS test bounds its own waits with subprocess/receive timeouts (no pytest-timeout);
 # the whole run is additionally capped by ABD_TEST_TIMEOUT seconds (default 1200).
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -8,8 +9,9 @@ cd "$ROOT" || exit 1
 # shellcheck source=env.sh
 source scripts/env.sh "$ROOT/requirements-test.txt" || { echo "[test] environment set-up failed" >&2; exit 1; }
 export PYTHONDONTWRITEBYTECODE=1
-# Compile the physics kernels once per machine (~1 min, announced before it starts; ~1 s from
-# the cache after), so no test pays for it. The cache is shared with the install space.
+# Compile the physics kernels once per machine (announced before it starts, a progress line
+# every 5 s; a few seconds from the cache after), so no test pays for it. The cache is shared
+# with the install space.
 python -m abd_joint_sim.jit.warmup >&2 || { echo "[test] the physics kernels failed to compile" >&2; exit 1; }
 # The live page's browser test (test/test_live_browser.py) needs Debian's chromium: installed
 # here when missing and running as root (CI); otherwise that test fails saying how to install

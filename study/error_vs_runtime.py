@@ -257,20 +257,28 @@ def plots(rows, img_dir, prefix='', mj_rows=()):
     files = []
     style = {('bdf1', 'end'): ('C0', 'o'), ('bdf2', 'end'): ('C3', 's'),
              ('bdf1', 'start'): ('C0', 'x'), ('bdf2', 'start'): ('C3', 'x')}
+    # The two tolerance settings drawn apart: the loose one as a wide pale band with open
+    # markers, the tight one as a thin line with filled markers on top (where Newton's
+    # error is below the time-step error the two coincide, and the band shows both).
     tols = sorted({r['velocity_tol'] for r in rows}, reverse=True)
-    ls_tol = {t: ls for t, ls in zip(tols, ('--', '-', ':'))}
+    loose = tols[0] if len(tols) > 1 else None
     mj_rows = list(mj_rows)
     for kind in ('dt', 'wall'):
-        fig, axes = plt.subplots(1, len(scenes_), figsize=(5.4 * len(scenes_), 4.6), squeeze=False)
+        fig, axes = plt.subplots(1, len(scenes_), figsize=(4.6 * len(scenes_) + 2.6, 4.4),
+                                 squeeze=False, layout='constrained')
         for ax, scene in zip(axes[0], scenes_):
             for (s, integ, tol, samp), g in groups(rows).items():
                 if s != scene:
                     continue
                 c, mk = style[(integ, samp)]
                 x = [r['dt'] if kind == 'dt' else r['wall_per_sim_s'] for r in g]
-                lab = f'ours {integ} tol={tol:g}' + (' tau@t_n' if samp == 'start' else '')
-                ax.loglog(x, [r['err_max'] for r in g], ls_tol.get(tol, '-'), color=c, marker=mk,
-                          ms=4, label=lab, alpha=0.9 if samp == 'end' else 0.5)
+                lab = f'ours {integ}, velocity_tol {tol:g}' + (', tau at t_n' if samp == 'start' else '')
+                if tol == loose:
+                    ax.loglog(x, [r['err_max'] for r in g], '-', color=c, marker=mk, ms=8,
+                              mfc='white', lw=5, alpha=0.3, label=lab, zorder=2)
+                else:
+                    ax.loglog(x, [r['err_max'] for r in g], '-', color=c, marker=mk, ms=4,
+                              lw=1.3, label=lab, alpha=0.95 if samp == 'end' else 0.5, zorder=3)
             for (s, integ, tol, samp), g in groups(mj_rows).items():
                 if s != scene:
                     continue
@@ -281,7 +289,7 @@ def plots(rows, img_dir, prefix='', mj_rows=()):
                 if max(y) < EXACT:         # exact to rounding: drawn at the bottom of the panel
                     bottom = min(r['err_max'] for r in rows + mj_rows
                                  if r['scene'] == scene and r['err_max'] >= EXACT) / 3
-                    label += f' (exact: err <= {max(y):.0e}, drawn at {bottom:.0e})'
+                    label += f' ({scene}: exact, err <= {max(y):.0e}, drawn at {bottom:.0e})'
                     y = [bottom] * len(y)
                 ax.loglog(x, y, '-.', color=c, marker=mk, ms=5, mfc='none', label=label)
             if kind == 'dt':
@@ -289,17 +297,23 @@ def plots(rows, img_dir, prefix='', mj_rows=()):
                 dts = np.array(sorted({r['dt'] for r in g0}))
                 e1 = max(r['err_max'] for r in g0 if r['dt'] == dts[-1])
                 ax.loglog(dts, e1 * (dts / dts[-1]), 'k:', lw=0.8, label='slope 1')
-                ax.loglog(dts, 0.3 * e1 * (dts / dts[-1]) ** 2, 'k-.', lw=0.8, label='slope 2')
+                ax.loglog(dts, 0.3 * e1 * (dts / dts[-1]) ** 2, 'k--', lw=0.8, label='slope 2')
                 ax.set_xlabel('dt [s]')
             else:
                 for r in pareto([r for r in rows if r['scene'] == scene]):
-                    ax.plot(r['wall_per_sim_s'], r['err_max'], 'o', mfc='none', mec='k', ms=9)
-                ax.set_xlabel('wall time per simulated second [s]  (circles: our Pareto front)')
+                    ax.plot(r['wall_per_sim_s'], r['err_max'], 'o', mfc='none', mec='k', ms=11,
+                            label='our Pareto front')
+                ax.set_xlabel('wall time per simulated second [s]')
             ax.set_ylabel('max |theta - theta_ref| [rad]')
             ax.set_title(scene)
             ax.grid(True, which='both', alpha=0.3)
-            ax.legend(fontsize=6)
-        fig.tight_layout()
+        # one legend for all panels, beside them: every entry once, none over the data
+        handles = {}
+        for ax in axes[0]:
+            for h, lab in zip(*ax.get_legend_handles_labels()):
+                handles.setdefault(lab, h)
+        fig.legend(list(handles.values()), list(handles.keys()), loc='outside right center',
+                   fontsize=8)
         path = img_dir / f'{prefix}error_vs_{kind}.png'
         fig.savefig(path, dpi=90)
         plt.close(fig)
@@ -386,7 +400,11 @@ def main(argv=None):
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--scenes', nargs='*', default=None, choices=list(S.CASES))
     ap.add_argument('--no-mujoco', action='store_true', help='skip the MuJoCo side-by-side run')
+    ap.add_argument('--replot', action='store_true',
+                    help='no run: redraw the PNGs from OUT/results.csv (a committed study)')
     args = ap.parse_args(argv)
+    if args.replot:
+        return replot(args.out, args.img_dir or args.out)
     t0 = time.perf_counter()
     rows, cfg = sweep(args.quick, args.scenes)
     order_rows = orders(rows, cfg['fit_min_dt'])
@@ -419,6 +437,30 @@ def main(argv=None):
     if problems:
         print('CHECK FAILED:\n  ' + '\n  '.join(problems), file=sys.stderr)
         return 1
+    return 0
+
+
+def read_results(path):
+    """(our rows, MuJoCo rows) of a results.csv, numbers as numbers."""
+    import csv
+    text = ('engine', 'backend', 'scene', 'integrator', 'tau_sample', 'warnings', 'error')
+    rows = []
+    with open(path, newline='') as handle:
+        for r in csv.DictReader(handle):
+            rows.append({k: (v if k in text or v == '-' else float(v) if v != '' else math.nan)
+                         for k, v in r.items()})
+    return [r for r in rows if r['engine'] == 'abd'], [r for r in rows if r['engine'] != 'abd']
+
+
+def replot(out, img_dir):
+    """The PNGs from a study's results.csv, without running it again."""
+    try:
+        rows, mj_rows = read_results(out / 'results.csv')
+    except (OSError, KeyError, ValueError) as exc:
+        print(f'error_vs_runtime: cannot read {out / "results.csv"}: {exc}', file=sys.stderr)
+        return 2
+    pngs = plots(rows, img_dir, mj_rows=mj_rows)
+    print('plots:', ', '.join(map(str, pngs)) if pngs else 'skipped (matplotlib not installed)')
     return 0
 
 

@@ -46,7 +46,8 @@ def series(rows: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
-def plot(rows: list[dict], out: Path, plt) -> None:
+def plot(rows: list[dict], out: Path, plt):
+    """Draw and save the picture; returns the (closed) figure."""
     curves = series(rows)
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True)
     for name, pts in curves.items():
@@ -70,7 +71,8 @@ def plot(rows: list[dict], out: Path, plt) -> None:
         a.loglog(xs, [r0['error'] * (x / r0['dt']) ** 2 for x in xs], ':', color='0.4',
                  label='slope 2 (second order)')
     a.set_xlabel('time step dt [s]')
-    a.set_ylabel('largest joint-angle error over 0.2 s [rad]')
+    for ax in (a, b):
+        ax.set_ylabel('largest joint-angle error over 0.2 s [rad]')
     b.set_xlabel('wall time per simulated second [s] (2-core VM, ±30 %)')
     dts = sorted({r['dt'] for r in rows if r['engine'] in STYLE})
     a.set_xticks(dts, [f'{d:g}' for d in dts], minor=False)
@@ -84,6 +86,7 @@ def plot(rows: list[dict], out: Path, plt) -> None:
                  'torque step and gravity, 0.2 s', fontsize=11)
     fig.savefig(out, dpi=110)
     plt.close(fig)
+    return fig
 
 
 def main(argv=None) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import gc
 
 import numpy as np
+import pytest
 from numba import njit, types
 from numba.core import cgutils
 from numba.experimental.structref import _Utils
@@ -54,6 +55,7 @@ def _world():
     return w
 
 
+@pytest.mark.slow
 def test_model_and_workspace_arrays_are_borrowed():
     w = _world()
     data, work = w.solver.data, w.solver.work

@@ -19,6 +19,7 @@ I_AXIS = 64 * 0.32 / 12 + 64 * 0.36          # 0.4 m cube, COM 0.6 m from the ax
 TIGHT = dict(velocity_tol=1e-5, transrate_tol=1e-5)
 
 
+@pytest.mark.slow
 def test_reference_scene_angular_acceleration_is_40_4():
     """libuipc tests 74/80: tau = 1000 N m on I_axis = 24.747 kg m^2."""
     assert I_AXIS == pytest.approx(24.747, abs=1e-3)
@@ -394,6 +395,7 @@ def test_stiff_and_extreme_cases_stay_stable(case):
     assert w.joint_angles()[0] > 0
 
 
+@pytest.mark.slow
 def test_core_does_not_import_rclpy():
     code = ('import sys, abd_joint_sim, abd_joint_sim.world; '
             'w = abd_joint_sim.World(abd_joint_sim.Scene.from_yaml(sys.argv[1])); w.step(); '
@@ -443,6 +445,9 @@ _EXTRAPOLATION_CASES = [
 ]
 
 
+# pybullet_data's xArm and Mini Cheetah are repaired on import (inertias, friction), with
+# warnings test_urdf_engines.py asserts; here they would only repeat
+@pytest.mark.filterwarnings('ignore::abd_joint_sim.urdf.UrdfWarning')
 @pytest.mark.parametrize('robot, integrator, vs_plain, vs_linear', _EXTRAPOLATION_CASES)
 def test_extrapolated_warm_start_saves_iterations_on_robots(robot, integrator, vs_plain, vs_linear):
     """Newton starts from the warm start extrapolated over the last three steps

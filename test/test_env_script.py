@@ -77,3 +77,40 @@ def test_callers_shell_options_and_environment(tmp_path):
     assert out[1] == 'range=LOCALHOST' and out[2] == '1', out   # PATH entry added once
     res = _source(tmp_path, venv, 'source scripts/env.sh requirements-nope.txt; echo "rc=$?"')
     assert 'rc=0' in res.stdout      # not an existing file: the default is used
+
+
+def test_the_node_installs_only_its_own_requirements(tmp_path):
+    """run_default.sh sources env.sh with requirements.txt: pip installs the node's wheels
+    alone, not the tests' (SciPy, matplotlib, MuJoCo, PyBullet); a venv the tests set up
+    (requirements-test.txt includes requirements.txt) serves the node without pip."""
+    script = 'source scripts/env.sh requirements.txt; echo "rc=$?"'
+    assert 'run_default' not in script and \
+        'source scripts/env.sh "$ROOT/requirements.txt"' in (REPO / 'scripts' / 'run_default.sh').read_text()
+    venv = _venv(tmp_path)
+    res = _source(tmp_path, venv, script)
+    assert 'rc=0' in res.stdout, res.stderr
+    assert _calls(tmp_path) == ['STUB -m pip install --disable-pip-version-check -r '
+                                'requirements.txt']
+    assert '[env] installing the pinned wheels of requirements.txt' in res.stderr
+    node_reqs = (REPO / 'requirements.txt').read_text()
+    assert not any(name in node_reqs for name in ('scipy', 'matplotlib', 'mujoco', 'pybullet'))
+    # a test venv: no pip for the node
+    tmp2 = tmp_path / 'test-venv'
+    tmp2.mkdir()
+    venv2 = _venv(tmp2)
+    _source(tmp2, venv2, 'source scripts/env.sh requirements-test.txt')
+    res = _source(tmp2, venv2, script)
+    assert 'rc=0' in res.stdout and res.stderr == '' and len(_calls(tmp2)) == 1
+
+
+def test_heartbeat_speaks_while_the_command_is_silent(tmp_path):
+    """scripts/heartbeat.py (env.sh runs venv and pip through it, 8 s): the command's output
+    passes through, a line whenever it has been silent for the interval, its exit status."""
+    res = subprocess.run(['python3', str(REPO / 'scripts' / 'heartbeat.py'), '[env] pip', '0.5',
+                          '--', 'sh', '-c', 'echo first; sleep 1.8; echo second; exit 3'],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 3
+    lines = res.stderr.splitlines()
+    assert lines[0] == 'first' and lines[-1] == 'second', lines
+    beats = [line for line in lines if line.startswith('[env] pip: still running (')]
+    assert 2 <= len(beats) <= 4, lines

@@ -61,6 +61,7 @@ def _outcome(make):
         return exc
 
 
+@pytest.mark.slow
 def test_mutated_scenes_are_refused_with_one_clear_error():
     rng = random.Random(36)
     bases = [chain_scene(3, torque=0.1), hinge_dict()]
@@ -84,6 +85,7 @@ URDF_VALUES = ['', 'x', 'nan', 'inf', '-inf', '1e308', '0', '-1', '1 2', '1 2 3 
                '1e-320', '0 0 0', 'prismatic', 'fixed', 'continuous', 'floating', 'base_link', '1,2,3']
 
 
+@pytest.mark.slow
 def test_mutated_urdfs_are_refused_with_one_clear_error():
     pybullet_data = pytest.importorskip('pybullet_data')
     text = open(os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf')).read()

@@ -208,6 +208,7 @@ events:
 """
 
 
+@pytest.mark.slow
 def test_round_trip_cli_and_from_bag(tmp_path):
     """run_headless (the CLI, in a process) -> replay_check exit 0; --from-bag reproduces
     the same joint states and replays too."""
@@ -287,6 +288,7 @@ def test_bad_schedule_exit_2(tmp_path, capsys, text, expected):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_bad_input_cli_one_line_no_traceback(tmp_path):
     sched = tmp_path / 's.yaml'
     sched.write_text('- {t: 0.0, torque: {wrist: 1.0}}\n')
@@ -298,6 +300,7 @@ def test_bad_input_cli_one_line_no_traceback(tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1 and 'Traceback' not in res.stderr
 
 
+@pytest.mark.slow
 def test_without_the_ros_environment_one_line_naming_it(tmp_path):
     """Run outside `source scripts/env.sh`: the message definitions the bag stores cannot be
     found; one line that says why and what to do, not ament_index's OSError traceback."""
@@ -343,6 +346,7 @@ def test_bad_scene_out_and_arguments_exit_2(tmp_path, capsys):
     assert not (tmp_path / 'o').exists()
 
 
+@pytest.mark.slow
 def test_scene_faults_are_one_line_exit_2(tmp_path):
     """Scenes that would otherwise end in ~3000 lines of traceback and exit 1 (a 1e-200 m
     box, dt 1e-300, a 400-digit dt, non-UTF-8 bytes): one line naming file and field, exit 2."""
@@ -396,6 +400,7 @@ def test_replay_check_unusable_bags_exit_2(tmp_path, capsys):
 
 
 # ------------------------------------------------------------- live node over real DDS ----
+@pytest.mark.slow
 def test_live_node_bag_replays(tmp_path):
     """sim_node records while another process commands it over DDS (torques, enables, the
     array, a ~/reset in the middle), is stopped with SIGINT; the bag replays exactly and
@@ -529,6 +534,7 @@ def test_live_node_bag_replays(tmp_path):
     assert again_counts == meta_counts
 
 
+@pytest.mark.slow
 def test_parameter_change_just_before_reset_replays(tmp_path):
     """A parameter change just before a reset: node on hinge, paused, recording, publish_rate 0;
     ~/step x5; command_timeout := 0.1; ~/reset; 50 N m; ~/step x30; SIGINT. The change is

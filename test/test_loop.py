@@ -86,6 +86,7 @@ def _reference(scene, timeout: float) -> dict[int, tuple]:
     return out
 
 
+@pytest.mark.slow
 def test_batches_with_pending_commands_and_timeout_are_bit_identical():
     from abd_joint_sim.tools.sim import HeadlessSim
     scene = Scene.from_yaml(resolve_scene('default'))

@@ -192,6 +192,7 @@ def _poses_by_time(config_values: dict) -> dict:
     return out
 
 
+@pytest.mark.slow
 def test_recorded_markers_follow_the_bodies(tmp_path):
     """run_headless's bag, read by rosbags: one marker per body at 30 Hz of simulated time,
     each posed as World.body_pose (nearest rotation, p) of an independently stepped world."""
@@ -263,6 +264,7 @@ def test_marker_rate_zero_records_no_markers(tmp_path):
 
 
 # --------------------------------------------------------------- the live node ----
+@pytest.mark.slow
 def test_markers_node(tmp_path):
     """sim_node (paused, hinge scene, torque 1000 N m) advanced by ~/step: every step
     publishes a MarkerArray (a forced publish) with one marker per body, posed as
@@ -337,6 +339,7 @@ def test_markers_node(tmp_path):
     assert set(live) <= set(recorded)
 
 
+@pytest.mark.slow
 def test_markers_node_running_on_the_grid(tmp_path):
     """sim_node running as fast as possible (batched steps) records markers exactly at the
     first step at or after each k / marker_rate, posed as a World stepped on its own (the

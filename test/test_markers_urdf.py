@@ -165,6 +165,7 @@ def check_kinds(pairs) -> None:
     # cylinders and boxes on links merged by fixed joints
     ('TwoJointRobot_w_fixedJoints.urdf', {'joint_1': 0.7, 'joint_2': -0.9}, ()),
 ])
+@pytest.mark.slow
 def test_markers_of_real_robots_follow_pybullet_forward_kinematics(rel_path, q0, lock):
     path, scene, world, msg = run_robot(rel_path, q0, lock)
     moved = np.abs(world.joint_angles() - [q0.get(n, 0.0) for n in scene.joint_names])
@@ -239,6 +240,7 @@ def _pybullet_body_coms(path: str, angles: dict) -> dict:
     return out
 
 
+@pytest.mark.slow
 def test_plot_bag_draws_meshes_as_their_bodies_equal_inertia_box(tmp_path, capsys):
     """A robot with mesh visuals (r2d2's grippers, rotated visual origins) recorded by
     run_headless: plot_bag stands in each mesh body's box of equal inertia, centred at the

@@ -67,6 +67,7 @@ def test_validator_rejects_a_truncated_bag(tmp_path):
     assert not result['ok']
 
 
+@pytest.mark.slow
 def test_bag_stores_no_absolute_paths(tmp_path):
     """scene_path and the stored parameters name the scene and the bag by base name only."""
     from abd_joint_sim import Scene
@@ -92,6 +93,7 @@ def test_bag_stores_no_absolute_paths(tmp_path):
     assert portable_scene_path(str(tmp_path / 'sub' / 'my_arm.yaml')) == 'my_arm.yaml'
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM, signal.SIGINT])
 def test_stop_signal_mid_run_leaves_a_valid_bag(tmp_path, sig):
     """SIGINT or SIGTERM at an arbitrary moment of a fast recorded run (markers, joint

@@ -54,6 +54,7 @@ def test_install_layout(install):
     assert set(params) <= {p.name for p in PARAMS}, set(params) - {p.name for p in PARAMS}
 
 
+@pytest.mark.slow
 def test_ros2_run_resolution_and_joint_states(install, tmp_path):
     prefix = install / PKG
     domain = next_domain_id()
@@ -104,3 +105,48 @@ def test_bad_scene_fails_with_one_clear_line(install, tmp_path):
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert 'cannot start' in proc.stderr and 'missing.yaml' in proc.stderr
     assert 'Traceback' not in proc.stderr
+
+
+def _run_default(args, ws: Path, tmp_path: Path, name: str) -> str:
+    """scripts/run_default.sh ARGS with its build under ws; its output once the node's
+    start-up line is there (then the node is stopped with SIGINT, by PID)."""
+    import time
+    env = ros_env(next_domain_id(), tmp_path)
+    env['ABD_BUILD_ROOT'] = str(ws)
+    env['ABD_VENV'] = sys.prefix                 # the venv these tests run in
+    node = NodeProcess(['bash', str(REPO / 'scripts' / 'run_default.sh'), *args], env,
+                       tmp_path / f'{name}.log', cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 240
+        while 'not simulated: contact' not in node.output():
+            assert node.alive(), node.output()[-3000:]
+            assert time.monotonic() < deadline, node.output()[-3000:]
+            time.sleep(0.2)
+        rc = node.stop(signal.SIGINT)
+        assert rc == 0, f'exit status {rc} after SIGINT:\n{node.output()[-3000:]}'
+    finally:
+        if node.alive():
+            node.stop(signal.SIGKILL)
+    return node.output()
+
+
+@pytest.mark.slow
+def test_run_default_builds_only_when_needed_and_records_only_when_asked(tmp_path):
+    """The README's first command: colcon builds the install space the first time and not
+    again while nothing changed; `--no-record` runs without a bag, `-p record:=DIR` records
+    there; neither makes the node warn that `record` was given twice."""
+    ws = tmp_path / 'ws'
+    out = _run_default(['--no-record', '--ros-args', '-p', 'real_time_factor:=0'], ws,
+                       tmp_path, 'first')
+    assert '[run_default] colcon build ->' in out and 'recording off' in out, out[-3000:]
+    assert 'more than once' not in out and not (ws / 'bags').exists()
+    bag = tmp_path / 'my_bag'
+    out = _run_default(['--ros-args', '-p', f'record:={bag}', '-p', 'real_time_factor:=0'], ws,
+                       tmp_path, 'second')
+    assert 'install space up to date' in out and 'colcon build ->' not in out, out[-3000:]
+    assert f'recording {bag}' in out and 'more than once' not in out, out[-3000:]
+    assert (bag / 'metadata.yaml').is_file()
+    # an edited package file: built again
+    (ws / 'install' / '.abd-built').write_text('another tree\n')
+    out = _run_default(['--ros-args', '-p', 'real_time_factor:=0'], ws, tmp_path, 'third')
+    assert '[run_default] colcon build ->' in out and 'recording ' + str(ws / 'bags') in out

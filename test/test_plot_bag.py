@@ -36,6 +36,7 @@ def _png_size(path):
     return int.from_bytes(data[16:20], 'big'), int.from_bytes(data[20:24], 'big')
 
 
+@pytest.mark.slow
 def test_fresh_bag_to_pngs(tmp_path, capsys):
     bag = _bag(tmp_path / 'run', marker_joint_axes=True)
     out = tmp_path / 'png'
@@ -60,6 +61,45 @@ def test_fresh_bag_to_pngs(tmp_path, capsys):
     img = mpimg.imread(out / 'poses.png')
     quarter = img.shape[1] // 4
     assert np.abs(img[:, :quarter] - img[:, -quarter:]).mean() > 1e-3
+
+
+def test_each_body_its_own_colour_fixed_ones_grey_and_the_title_names_the_scene(tmp_path):
+    """body_styles: a distinct colour per moving body (never the fixed bodies' grey), grey
+    for the fixed ones, from the stored scene or, without one, the bodies that never moved;
+    the default title names the scene (a URDF robot: its <robot name>)."""
+    run = plot_bag.read_run(_bag(tmp_path / 'b'))
+    styles = plot_bag.body_styles(run)
+    assert styles == {'pedestal': (plot_bag.FIXED_COLOUR, True),
+                      'upper_arm': (plot_bag.BODY_COLOURS[0], False),
+                      'forearm': (plot_bag.BODY_COLOURS[1], False)}
+    run.fixed_bodies = None                 # a bag without a readable scene
+    assert plot_bag.body_styles(run) == styles
+    assert run.scene_name == 'default'
+    assert plot_bag.scene_name({'abd_joint_sim.urdf': '<robot name="demo_arm">',
+                                'abd_joint_sim.scene_path': 'demo_arm.urdf'}) == 'demo_arm'
+    assert len(set(plot_bag.BODY_COLOURS)) == len(plot_bag.BODY_COLOURS)
+    assert plot_bag.FIXED_COLOUR not in plot_bag.BODY_COLOURS
+
+
+def test_grid_fits_the_poses_and_trails_are_bounded(tmp_path):
+    assert [plot_bag.grid_shape(n) for n in (1, 4, 5, 6, 8, 9)] == \
+        [(1, 1), (1, 4), (1, 5), (2, 3), (2, 4), (2, 5)]
+    run = plot_bag.read_run(_bag(tmp_path / 'b'))
+    k = len(run.markers) - 1                # t = 1.2 s, markers at 30 Hz
+    t = run.markers[k][0]
+    paths = plot_bag.trails(run, k)
+    assert paths and all(t - plot_bag.TRAIL_SECONDS - 1e-9 <= te <= t
+                         for path in paths.values() for te, _ in path)
+    assert max(len(path) for path in paths.values()) == 16      # 0.5 s at 30 Hz, both ends
+
+
+def test_command_note_only_when_there_were_commands(tmp_path):
+    run = plot_bag.read_run(_bag(tmp_path / 'b'))
+    assert plot_bag.joints_notes(run) == 'dotted: a command took effect'
+    run.commands = []
+    assert plot_bag.joints_notes(run) == ''
+    run.resets = [0.5]
+    assert plot_bag.joints_notes(run) == 'dashed: reset'
 
 
 def test_view_follows_the_motion_plane(tmp_path):

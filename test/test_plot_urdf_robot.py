@@ -18,6 +18,7 @@ def _module():
     return mod
 
 
+@pytest.mark.slow
 def test_picture_from_the_committed_csv(tmp_path, capsys):
     pytest.importorskip('matplotlib', reason='matplotlib not installed (requirements-test.txt)')
     mod = _module()
@@ -31,6 +32,13 @@ def test_picture_from_the_committed_csv(tmp_path, capsys):
     assert sorted(curves) == ['MuJoCo Euler', 'ours bdf1', 'ours bdf2']
     assert all(len(v) == 6 for v in curves.values())
     assert '28 rows' in capsys.readouterr().out
+    # both panels say what their y axis is
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig = mod.plot(rows, tmp_path / 'again.png', plt)
+    assert [ax.get_ylabel() for ax in fig.axes] == \
+        ['largest joint-angle error over 0.2 s [rad]'] * 2
 
 
 def test_bad_csv_is_one_line(tmp_path, capsys):

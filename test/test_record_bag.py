@@ -494,6 +494,7 @@ def _all_topics_in_both_readers(bag: Path) -> dict[str, list]:
     return ours
 
 
+@pytest.mark.slow
 def test_every_topic_decodes_in_both_readers_with_empty_sequences(tmp_path):
     """A live parameter change (ParameterEvent: empty int64[]/float64[] sequences in every
     ParameterValue) and a scene without joints (JointState with empty float64[]): rclpy's

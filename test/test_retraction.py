@@ -66,6 +66,7 @@ def _random_rotation(rng):
     return _rotation(rng.normal(size=3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('angle', [1e-9, 1e-5, 1e-3, 0.3, 1.5, 3.0])
 def test_rigid_step_about_an_axis_is_the_exact_rotation(angle):
     rng = np.random.default_rng(int(angle * 1e9) % 1000)

@@ -140,6 +140,7 @@ def _finite_states(states) -> bool:
 
 
 # ------------------------------------------------------------------ runtime commands ----
+@pytest.mark.slow
 def test_bad_runtime_commands_rejected_or_clamped(monkeypatch, tmp_path):
     """three_link scene: yaw (actuated, no limit), mid (actuated, effort limit 1 N m), tip
     (not actuated). Every bad input is rejected or clamped with a warning saying which and
@@ -370,6 +371,7 @@ def test_live_parameter_change_is_recorded_and_replayed(tmp_path):
 
 
 # ----------------------------------------------------------------------------- load ----
+@pytest.mark.slow
 def test_command_flood_short(tmp_path):
     """Short `bench/node_load.py flood`: 2 kHz of torque commands for 2 s from another process over
     localhost DDS. The node keeps stepping near its real-time factor, its memory stays
@@ -393,6 +395,7 @@ def test_command_flood_short(tmp_path):
 
 
 # ----------------------------------------------------------------- recording safety ----
+@pytest.mark.slow
 def test_sigkill_bag_recovers_and_replays(tmp_path):
     """sim_node recording, commanded over DDS with a live command_timeout change, is
     SIGKILLed: the bag_recover CLI restores every chunk closed before (the node closes one
@@ -459,6 +462,7 @@ def _limit_file_size(limit: int):
     return apply
 
 
+@pytest.mark.slow
 def test_full_disk_stops_recording_not_simulation(tmp_path):
     """RLIMIT_FSIZE (64 KiB) on the node process stands in for a full disk: the write fails
     (EFBIG), the node logs 'recording stopped', keeps stepping and publishing, SIGTERM ends

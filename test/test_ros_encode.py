@@ -110,6 +110,7 @@ def _scenes():
             Scene.from_urdf(kuka)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('axes', [False, True])
 def test_marker_bytes_are_rclpys_bytes_of_the_built_markers(axes):
     """build_serialized against serialize_message(build()) of a second builder, over a

@@ -161,6 +161,8 @@ def test_start_line_and_initial_state(hinge):
     out = hinge.output()
     assert 'hinge.yaml' in out and "actuated ['hinge']" in out and 'paused' in out
     assert '/joint_torque_commands' in out and 'recording off' in out
+    # what is not simulated, up front: the hinge scene has no gravity, and no body collides
+    assert '| no gravity |' in out and 'not simulated: contact and collision' in out
     msg = hinge.states[0]
     assert list(msg.name) == ['hinge']
     assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 1
@@ -315,6 +317,7 @@ def test_bad_commands_rejected_and_node_keeps_running(hinge):
     assert hinge.node.alive()
 
 
+@pytest.mark.slow
 def test_default_scene_array_limits_recording_and_sigterm(tmp_path):
     """Default arm: array command in `joints` order, effort limits clamp (and say so),
     recording on, SIGTERM finalises the bag."""
@@ -376,6 +379,7 @@ def _check_bag(bag: Path) -> None:
     assert array_log_times[0] == t_applied - 1_000_000, (array_log_times, t_applied)
 
 
+@pytest.mark.slow
 def test_recording_failure_keeps_simulating(tmp_path):
     """A bag path that exists already: recording is refused with an error, the node runs."""
     domain = next_domain_id()
@@ -412,6 +416,7 @@ def _start(tmp_path: Path, domain: int, name: str, *ros_args: str) -> NodeProces
     return NodeProcess(_node_cmd(*ros_args), ros_env(domain, log_dir), tmp_path / f'{name}.log')
 
 
+@pytest.mark.slow
 def test_use_sim_time_does_not_freeze_the_node(tmp_path):
     """use_sim_time:=true (as a launch file may set for every node): the node's clock would
     follow /clock, which only this node moves; it must step on wall time regardless."""
@@ -434,6 +439,7 @@ def test_use_sim_time_does_not_freeze_the_node(tmp_path):
             node.stop(signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_misspelt_and_overridden_parameters_are_reported(tmp_path):
     """-p real_time_factr:=0.5 (typo) is warned about, naming the closest parameter; a
     --params-file whose record: "" overrides -p record:=<bag> says recording is off."""
@@ -508,6 +514,7 @@ def test_live_absurd_publish_rate_refused_node_lives(hinge):
     assert hinge.node.alive()
 
 
+@pytest.mark.slow
 def test_recorded_bytes_are_what_dds_delivers_for_empty_sequences(tmp_path):
     """Who is right about empty sequences: a scene without joints publishes JointState with
     empty float64[] sequences. What DDS delivers (and so what `ros2 bag record` stores) is
@@ -568,6 +575,7 @@ rclpy.try_shutdown()
 '''
 
 
+@pytest.mark.slow
 def test_stop_signal_while_the_context_lock_is_held_does_not_hang(tmp_path):
     """SIGINT/SIGTERM only note the signal; a handler that shut the context down itself
     deadlocked when the signal arrived inside Context.ok() (seen as a node that ignored

@@ -16,6 +16,7 @@ from abd_joint_sim.model import DAMPING_RATIO_MAX, mass_properties
 from physics_helpers import SCENES, box, hinge_dict, scene_dict
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', sorted(p.stem for p in SCENES.glob('*.yaml')))
 def test_packaged_scenes_load_and_step(name):
     w = World(Scene.from_yaml(SCENES / f'{name}.yaml'))
@@ -241,6 +242,7 @@ def test_alias_bomb_fails_fast_with_bounded_memory(tmp_path):
     assert wall < 10.0 and peak < 50e6, (wall, peak)
 
 
+@pytest.mark.slow
 def test_aliases_reused_many_times_in_a_large_file_are_fine():
     """The bound is relative to the text: 30 000 bodies sharing one anchored mapping (about
     330 000 values expanded, more than the absolute 100 000) load."""

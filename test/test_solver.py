@@ -81,6 +81,7 @@ def _world(d):
 
 
 # -- linear solve and small kernels -----------------------------------------------------------
+@pytest.mark.slow
 def test_a_large_loop_is_refused_with_a_message_and_a_small_one_runs_dense():
     with pytest.raises(ValueError, match='closed loop.*at most 64'):
         _world(_ring(70))
@@ -598,6 +599,7 @@ def test_the_compiled_step_allocates_nothing_per_step(case):
     assert counts[0] > 0 and counts[1] == counts[0], counts
 
 
+@pytest.mark.slow
 def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
     """Solver calls the compiled step's entry point directly (no per-call typing) only with
     arrays the step made or Control arrays it checked; a State or Control whose arrays have
@@ -692,6 +694,7 @@ def test_a_moderately_overloaded_joint_only_warns():
 
 
 # -- compile once, and layering ---------------------------------------------------------------
+@pytest.mark.slow
 def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
     """`python -m abd_joint_sim.jit.warmup` succeeds; the cache lives outside the source tree, in
     one directory keyed on the kernel sources, so an install (another copy of the same
@@ -715,6 +718,7 @@ def test_warm_up_command_reports_and_the_cache_is_shared(tmp_path):
     assert out.stdout.strip() == str(cache.marker())     # same sources, same cache entry
 
 
+@pytest.mark.slow
 def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
     """Another version of the kernel sources (here: a copy with one kernel file edited) gets its
     own cache directory, so versions used alternately neither recompile over each other nor
@@ -755,6 +759,7 @@ def test_kernel_cache_is_per_source_version_and_pruned(tmp_path):
     assert left == sorted([ours.name, edited.name, 'unfinished'] + [f'{k:020d}' for k in range(3, cache.KEEP + 2)])
 
 
+@pytest.mark.slow
 def test_an_unreadable_kernel_cache_index_is_compiled_over(tmp_path):
     """A cache index that cannot be unpickled (here: one naming a module that does not exist,
     as another version's index did; or truncated) costs a compile, not a traceback."""
@@ -852,6 +857,7 @@ def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, ca
         seen.append(capsys.readouterr().err)      # what was printed before compiling
     monkeypatch.setattr(warmup, '_run_kernels', fake_run)
     monkeypatch.setattr(warmup, '_done', False)
+    monkeypatch.setenv('ABD_COMPILE_JOBS', '1')         # (no second compiling process)
     monkeypatch.setattr(cache, 'marker', lambda: tmp_path / 'compiled-marker')
     monkeypatch.setattr(cache, 'mark_compiled', lambda: (tmp_path / 'compiled-marker').write_text(''))
     out = warmup.ensure_compiled()
@@ -933,6 +939,7 @@ print('ok', L[0, 0], L[2, 2])
 '''
 
 
+@pytest.mark.slow
 def test_a_kernel_cache_that_cannot_be_written_does_not_stop_the_run(tmp_path):
     """A full disk (here RLIMIT_FSIZE) under the kernel cache: one line on stderr saying the
     kernels will be compiled again, and the run goes on with correct results."""
@@ -1025,6 +1032,7 @@ def test_step_n_keeps_steps_that_only_warn_in_its_compiled_batch(case):
             assert np.array_equal(x, y)
 
 
+@pytest.mark.slow
 def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
     """World.step(n) runs at most `batch_limit` steps per compiled call (the batch writes every
     step's state: unbounded, World.step(100_000) would allocate gigabytes); split or not, the
@@ -1057,6 +1065,7 @@ def _subnormal_count(*arrays):
     return sum(int(np.count_nonzero((a != 0.0) & (np.abs(a) < tiny))) for a in arrays)
 
 
+@pytest.mark.slow
 def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
     """A disturbance decays ~10^0.7 per link along a chain, so after a few steps the far links'
     zero entries would hold subnormals (< 2.2e-308), each operation on which is ~100× slower on
@@ -1097,6 +1106,7 @@ def test_flat_copies_and_fills_match_numpy_assignment():
     assert view[1].all() and not view[0].any()
 
 
+@pytest.mark.slow
 def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
     """forward_block12 and schur_update12 are written for LLVM's SLP vectoriser and always
     compiled with it (jit.kernel, slp.vectorized; numba keeps it off by default after
@@ -1178,6 +1188,7 @@ for name, scene in scenes.items():
 '''
 
 
+@pytest.mark.slow
 def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
     """The kernels are compiled with LLVM's SLP vectoriser (jit/slp.py), which numba
     keeps off because it once miscompiled. A build with ABD_SLP=0 (every kernel scalar,

@@ -603,6 +603,7 @@ def test_the_exact_angle_hessian_gives_the_bits_of_the_textbook_loops():
         np.testing.assert_array_equal(pair, want_p)
 
 
+@pytest.mark.slow
 def test_angle_hessian_is_exact_where_the_inertia_keeps_newtons_matrix_definite():
     """angles.accumulate_angle_joint takes E''∇θ∇θᵀ + E'∇²θ unprojected where its most
     negative eigenvalue is provably ≥ −exact_bound (Weyl's bound from its structure; the terms pass

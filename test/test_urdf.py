@@ -3,6 +3,7 @@ checked against hand-computed values, real-world quirks, and errors."""
 import math
 import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,12 +36,17 @@ def joint(name, jtype, parent, child, xyz='0 0 0', rpy='0 0 0', axis='0 0 1', ex
             f'<origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="{axis}"/>{extra}</joint>')
 
 
-def _from_urdf_warned(text, **options):
-    """(Scene.from_urdf(text, **options), the UrdfWarning messages it gave)."""
+SPEED_LIMITS = '<limit velocity> is not enforced'
+
+
+def _from_urdf_warned(text, speed_limits=False, **options):
+    """(Scene.from_urdf(text, **options), the UrdfWarning messages it gave; the one about
+    ignored speed limits, which nearly every robot gives, only with speed_limits=True)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         scene = Scene.from_urdf(text, **options)
-    return scene, [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
+    return scene, [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)
+                   and (speed_limits or SPEED_LIMITS not in str(w.message))]
 
 
 ARM = robot(
@@ -114,6 +120,7 @@ def test_limits_switch_and_overrides():
     assert scene.joints[0].external_torque is None and scene.joints[0].limit.upper == 0.5
 
 
+@pytest.mark.slow
 def test_sign_and_inertia_against_the_analytic_rotation():
     """+τ about the URDF axis turns the link by +τ t²/(2 I_axis) (no gravity): the reported
     angle and velocity follow the URDF joint position's sign."""
@@ -445,6 +452,20 @@ def test_xacro_substitutions_refused_but_not_in_comments():
         Scene.from_urdf(macro)
     with pytest.raises(SceneError, match=r'no <link> in the robot$'):
         Scene.from_urdf('<robot name="empty"/>')
+
+
+def test_ignored_speed_limits_are_said_once_per_robot():
+    """<limit velocity> is not enforced: one warning per robot naming the moving joints that
+    have one (none for a robot without, or for a fixed joint's)."""
+    _, msgs = _from_urdf_warned(Path(DEMO).read_text(), speed_limits=True)
+    speed = [m for m in msgs if SPEED_LIMITS in m]
+    assert speed == ['<robot_description>: <limit velocity> is not enforced (joint speeds are not '
+                     'limited): ignored on 3 joint(s): shoulder_pan, shoulder_lift, elbow (of '
+                     '<limit>, lower, upper and effort are)'], msgs
+    _, msgs = _from_urdf_warned(ARM.replace(' velocity="2"', ''), speed_limits=True)
+    assert not [m for m in msgs if SPEED_LIMITS in m], msgs
+    with pytest.raises(SceneError, match=r'velocity'):
+        Scene.from_urdf(ARM.replace('velocity="2"', 'velocity="fast"'))
 
 
 def _damped_arm(dynamics):

@@ -58,7 +58,13 @@ def run_pybullet(path, names, torques, q0, dt=1e-4):
 
 def run_ours(path, q0, dt=5e-4, **options):
     """(world after T_END, joint names, torques): our run of the comparisons, BDF2."""
-    scene = Scene.from_urdf(path, dt=dt, integrator='bdf2', initial_positions=q0, **options)
+    import warnings
+    from abd_joint_sim.urdf import UrdfWarning
+    with warnings.catch_warnings():
+        # pendulum5's <dynamics friction> is not simulated and said once (test_urdf.py
+        # asserts that warning); here it would only repeat
+        warnings.filterwarnings('ignore', '.*<dynamics friction> is not simulated', UrdfWarning)
+        scene = Scene.from_urdf(path, dt=dt, integrator='bdf2', initial_positions=q0, **options)
     world = World(scene)
     names = list(scene.joint_names)
     assert np.allclose(world.joint_angles(), [q0.get(n, 0.0) for n in names], atol=1e-12)
@@ -85,6 +91,7 @@ def compare(rel_path, q0, dt=5e-4, **options):
                               'lbr_iiwa_joint_6': 0.8}),
     ('pendulum5.urdf', {}),
 ])
+@pytest.mark.slow
 def test_joint_motion_agrees_with_pybullet(rel_path, q0):
     names, dv, dq = compare(rel_path, q0)
     print(f'{rel_path} q0={q0}: velocity {dv:.2e}, angle {dq:.2e} (relative)')
@@ -196,7 +203,9 @@ def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned
     msgs = [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)]
     assert len(scene.joint_names) == joints and len(msgs) == len(scene.warnings)
     friction = [m for m in msgs if '<dynamics friction> is not simulated' in m]
-    msgs = [m for m in msgs if m not in friction]
+    speed = [m for m in msgs if '<limit velocity> is not enforced' in m]
+    assert len(speed) <= 1                          # said once per robot, if at all
+    msgs = [m for m in msgs if m not in friction and m not in speed]
     if warned is not None:
         assert [m.split("link '")[1].split("'")[0] for m in msgs] == warned
     if rel_path.startswith('xarm/'):                # friction="1.0" on its six joints: one line
@@ -216,6 +225,7 @@ REFUSALS = (r'cannot be simulated \(only revolute and continuous', r"is (prismat
             r'must be 3 finite number\(s\)$', r'unexpanded xacro/launch substitution', r'no <link> in the robot$')
 
 
+@pytest.mark.slow
 def test_every_urdf_of_pybullet_data_loads_or_is_one_clear_refusal():
     """All ~1100 URDFs of the wheel: each loads or raises one SceneError line naming the file
     and a known reason (never another exception), and the robots with joints that load are

@@ -26,6 +26,7 @@ def buffer_for(scene, world):
                          driven=[j.name for j in scene.joints if j.driving])
 
 
+@pytest.mark.slow
 def test_joint_commands_effort_position_and_refusals():
     scene = Scene.from_urdf(str(DEMO), joints={'elbow': {'driving': {'enabled': True}}})
     world = World(scene)
@@ -63,6 +64,7 @@ def test_joint_commands_effort_position_and_refusals():
     assert rej == [] and buf.apply(world).aims == {'elbow': -1e4}
 
 
+@pytest.mark.slow
 def test_headless_run_with_joint_commands_records_the_urdf_and_replays(tmp_path):
     schedule = tmp_path / 's.yaml'
     schedule.write_text(
@@ -112,6 +114,7 @@ def test_headless_run_with_joint_commands_records_the_urdf_and_replays(tmp_path)
     assert max(abs(a - b) for a, b in zip(last.q, recorded)) > 1e-3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('how', ['robot_description', 'scene'])
 def test_sim_node_from_robot_description(tmp_path, how):
     """robot_description (URDF text) or scene:=demo_arm is the scene: /joint_states names
@@ -157,6 +160,9 @@ def test_sim_node_from_robot_description(tmp_path, how):
     out = node.output()
     assert ('scene robot_description' if how == 'robot_description' else 'demo_arm.urdf') in out
     assert 'clamped to 15' in out
+    # the start-up line's gravity, and the ignored speed limits said once, as a warning
+    assert 'gravity (0, 0, -9.81) m/s²' in out
+    assert out.count('<limit velocity> is not enforced') == 1, out[-3000:]
     from abd_joint_sim.record import read_custom_data
     assert read_custom_data(str(bag))['abd_joint_sim.urdf'] == DEMO.read_text()
     env = ros_env(domain, tmp_path)
@@ -199,6 +205,7 @@ def test_position_commands_drive_the_joints_along_a_trajectory():
     assert abs(q[1]) < 2e-3
 
 
+@pytest.mark.slow
 def test_robot_description_on_the_command_line(tmp_path):
     """`-p robot_description:="$(cat robot.urdf)"`, as users start robot_state_publisher:
     rcl would parse the URDF text as YAML (": " in a comment ends it); the node moves it into

@@ -142,9 +142,31 @@ def marker() -> Path:
     return directory() / f'compiled-{sources_hash()}'
 
 
+def kernel_count(path: Path | None = None) -> int:
+    """Kernel signatures stored under `path` (default: this version's directory)."""
+    try:
+        return sum(1 for _ in (path or directory()).rglob('*.nbc'))
+    except OSError:
+        return 0
+
+
+def previous_kernel_count() -> int:
+    """The count the most recent complete compile of another source version stored (0 if
+    none): a compile's expected total."""
+    try:
+        marks = sorted(directory().parent.glob('*/compiled-*'), key=lambda p: p.stat().st_mtime)
+        for mark in reversed(marks):
+            text = mark.read_text().split()
+            if text and text[0].isdigit():
+                return int(text[0])
+    except OSError:
+        pass
+    return 0
+
+
 def mark_compiled() -> None:
     try:
-        marker().write_text('all kernels compiled for these sources\n')
+        marker().write_text(f'{kernel_count()} kernel signatures compiled for these sources\n')
     except OSError:
         return
     prune()
@@ -256,6 +278,24 @@ def install() -> None:
 
     caching.IndexDataCacheFile._load_index = _load_index
     caching.IndexDataCacheFile._load_data = _load_data
+
+    # Two processes compiling at once (warmup's helper; two first runs) each read an index,
+    # number a new data file and write the index back: unserialised, both could take the same
+    # number and one's index name the other's machine code. An exclusive lock per cache
+    # directory around numba's read-number-write makes each save see the last.
+    index_save = caching.IndexDataCacheFile.save
+
+    def save_locked(self, key, data):
+        import fcntl
+        try:
+            lock = open(os.path.join(self._cache_path, '.lock'), 'a')
+        except OSError:
+            return index_save(self, key, data)
+        with lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            return index_save(self, key, data)
+
+    caching.IndexDataCacheFile.save = save_locked
     _installed = True
 
 

@@ -1,24 +1,40 @@
 """Compile the physics kernels once per install: `python -m abd_joint_sim.jit.warmup`.
 
-Every kernel is `njit(cache=True)`: numba compiles it on first use (about a minute for the
-whole step on a small machine) and stores machine code on disk; later processes load it
-(about a second). `ensure_compiled()`, called by every Solver, runs a tiny scene through
-every kernel signature the simulator uses, printing one line to stderr BEFORE a compile
-starts, so a first run never waits in silence. A marker file keyed on the kernel sources
-records a completed compile (cache.py says where, and why it is shared between the source
-tree and an install).
+Every kernel is `njit(cache=True)`: numba compiles it on first use (about a minute of CPU for
+the whole step) and stores machine code on disk; later processes load it (a few seconds).
+`ensure_compiled()`, called by every Solver, runs a tiny scene through every kernel signature
+the simulator uses, printing one line to stderr BEFORE a compile starts and then a progress
+line every PROGRESS_SECONDS (kernels stored / expected), so a first run never waits in
+silence. A marker file keyed on the kernel sources records a completed compile (cache.py says
+where, and why it is shared between the source tree and an install).
+
+With two or more cores, a second process compiles the kernels the main sequence reaches last
+(three energy terms, the linear solve, the retraction, then the batched step) while this one
+works from the top (`_helper_kernels`): each process loads from the disk cache what the other
+has stored, and cache.py serialises numba's index writes, so the cache stays consistent
+whichever process stores a kernel. ABD_COMPILE_JOBS=1 compiles in this process alone.
 
 Exit status of the command: 0 on success, 1 when the kernels fail to compile.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
+import threading
 import time
 
 from . import cache
 
 _done = False
+#: seconds between two progress lines of a compile
+PROGRESS_SECONDS = 5.0
+#: kernel signatures a complete compile stores (cache.kernel_count()): the progress line's
+#: total when no earlier compile on this machine recorded its own count
+EXPECTED_KERNELS = 112
+#: the second compiling process, while it runs (`_helper_kernels`)
+_helper = None
 
 
 def _tiny_scene():
@@ -62,9 +78,11 @@ def _run_kernels():
         state, control = State.initial(model), Control.initial(model)
         solver.joint_rates(state)                             # World.reset of moving bodies
         state, _ = solver.step(state, control)                # BDF1 start
+        _helper_go()                                          # its batched step may start
         resident = Resident(model.body_count, model.joint_count)
         resident.set(state)
         solver.step_resident(resident, control)              # World.step()
+        _helper_wait()
         state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
         solver.clean_steps(state, control, 2)
         torque.clamp_commands(control.torque_value.copy(), model.torque_effort_limit, control.torque_value)
@@ -81,6 +99,121 @@ def _run_kernels():
                 np.zeros((1, 3)), np.empty((1, 7)), np.empty((1, 3)))
 
 
+def _late_subtrees():
+    """A compiled function (not cached, never run) whose compile compiles, in this order, the
+    subtrees `newton.minimize` reaches last, with the argument types it gives them: the step
+    borrows its structs (jit/refcounts.py), and the literal True is part of a signature."""
+    from numba import njit
+    from ..solver import linsolve, retraction
+    from ..terms import damping, driving, limit
+    from . import refcounts
+
+    @njit
+    def late_subtrees(q, m, ws):
+        m, ws = refcounts.struct(m), refcounts.struct(ws)
+        ctx = refcounts.struct(ws.ctx)
+        driving.accumulate(q, m, ctx, ws.grad, ws.diag, ws.pair, True)
+        limit.accumulate(q, m, ctx, ws.grad, ws.diag, ws.pair, True)
+        damping.accumulate(q, m, ctx, ws.grad, ws.diag, ws.pair, True)
+        linsolve.solve(m, ws.diag, ws.pair, ws.grad, ws.dq, ws)
+        retraction.retract(q, ws.dq, 1.0, m, ws, ws.trial)
+    return late_subtrees
+
+
+def _helper_kernels(go) -> None:
+    """The second process's share, in the order that meets the main sequence (`_run_kernels`,
+    depth first from `step`) at the latest: the subtrees it reaches last first, then, once
+    `go` returns (the main process has stored `step`, whose Newton loop the batched step
+    calls), the batched step. What counts is what numba stores."""
+    from numba import typeof
+    from ..model import compile_scene
+    from ..solver.solver import Solver
+    from ..state import Control, State
+    model = compile_scene(_tiny_scene())
+    solver = Solver(model)
+    state, control = State.initial(model), Control.initial(model)
+    _late_subtrees().compile((typeof(state.q), typeof(solver.data), typeof(solver.work)))
+    go()
+    solver.advance(state, control, 3)
+    solver.clean_steps(state, control, 2)
+
+
+def _jobs() -> int:
+    try:
+        return max(1, int(os.environ.get('ABD_COMPILE_JOBS', '') or len(os.sched_getaffinity(0))))
+    except (ValueError, AttributeError):
+        return 1
+
+
+def _start_helper():
+    """`python -m abd_joint_sim.jit.warmup --helper` on this copy of the package, or None."""
+    global _helper
+    if _jobs() < 2:
+        return None
+    env = dict(os.environ, ABD_COMPILE_JOBS='1')
+    root = str(cache.PACKAGE.parent)
+    env['PYTHONPATH'] = root + (os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
+    try:
+        _helper = subprocess.Popen([sys.executable, '-m', 'abd_joint_sim.jit.warmup', '--helper'],
+                                   stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                   stderr=subprocess.DEVNULL, env=env, cwd=root)
+    except OSError:
+        _helper = None
+    return _helper
+
+
+def _helper_go() -> None:
+    """Let the helper start its batched step (the main process has stored `step`)."""
+    if _helper is not None and _helper.stdin is not None and not _helper.stdin.closed:
+        try:
+            _helper.stdin.write(b'go\n')
+            _helper.stdin.close()
+        except OSError:
+            pass
+
+
+def _helper_wait() -> None:
+    """Wait for the helper (whatever it failed to store, this process compiles next)."""
+    global _helper
+    if _helper is None:
+        return
+    _helper_go()
+    try:
+        _helper.wait(timeout=600)
+    except subprocess.TimeoutExpired:
+        _helper.kill()
+        _helper.wait()
+    _helper = None
+
+
+class _Progress:
+    """A line to stderr every PROGRESS_SECONDS while the kernels compile: kernels stored in
+    the cache (by either process) / the count a complete compile stores."""
+
+    def __init__(self, verbose: bool):
+        self.verbose = verbose
+        self.total = cache.previous_kernel_count() or EXPECTED_KERNELS
+        self.stop = threading.Event()
+        self.t0 = time.perf_counter()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        while not self.stop.wait(PROGRESS_SECONDS):
+            done = cache.kernel_count()
+            print(f'abd_joint_sim: compiling the physics kernels: {done}/{max(done, self.total)} '
+                  f'stored, {time.perf_counter() - self.t0:.0f} s', file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        if self.verbose:
+            self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        if self.thread.is_alive():
+            self.thread.join()
+
+
 def ensure_compiled(verbose: bool = True) -> dict:
     """Compile or load the kernels in this process (once). Returns {'seconds', 'compiled'}:
     compiled is False when they came from the on-disk cache."""
@@ -90,14 +223,23 @@ def ensure_compiled(verbose: bool = True) -> dict:
         return {'seconds': 0.0, 'compiled': False}
     cache.install()
     fresh = not cache.marker().exists()
+    jobs = min(_jobs(), 2) if fresh else 1
     if fresh and verbose:
-        print('abd_joint_sim: compiling the physics kernels (first run on this machine, ~1 min)…',
+        print('abd_joint_sim: compiling the physics kernels (first run on this machine: about '
+              f'1 min on 2 idle cores, longer on a busy machine; {jobs} process'
+              f'{"es" if jobs > 1 else ""}, a line every {PROGRESS_SECONDS:.0f} s)…',
               file=sys.stderr, flush=True)
     _done = True
     try:
-        _run_kernels()
+        with _Progress(verbose and fresh):
+            if jobs > 1:
+                _start_helper()
+            _run_kernels()
     except BaseException:
         _done = False
+        if _helper is not None:
+            _helper.kill()
+            _helper_wait()
         raise
     cache.mark_compiled()
     return {'seconds': time.perf_counter() - t0, 'compiled': fresh}
@@ -105,7 +247,12 @@ def ensure_compiled(verbose: bool = True) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='python -m abd_joint_sim.jit.warmup', description=__doc__.split('\n\n')[0])
-    ap.parse_args(argv)
+    ap.add_argument('--helper', action='store_true', help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.helper:                        # the second compiling process (_start_helper)
+        cache.install()
+        _helper_kernels(lambda: sys.stdin.readline())
+        return 0
     try:
         out = ensure_compiled()
     except Exception as exc:  # noqa: BLE001 - one line, then fail

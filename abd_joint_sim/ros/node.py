@@ -717,8 +717,12 @@ class SimNode(Node):
         limits = (', '.join(f'{j}={v:g}' for j, v in self.commands.limits.items())
                   or 'none')
         ns = self.get_namespace().rstrip('/')
+        g = self.world.model.gravity
+        gravity = (f'gravity ({g[0]:g}, {g[1]:g}, {g[2]:g}) m/s²' if any(g != 0.0)
+                   else 'no gravity')
         self.get_logger().info(
-            f'scene {c.scene} | dt {self.world.dt:g} s | '
+            f'scene {c.scene} | dt {self.world.dt:g} s | {gravity} | '
+            'not simulated: contact and collision (bodies pass through each other) | '
             f'joints {self.joint_names} | '
             f'actuated {self.actuated} (torque enabled: {enabled or "none"}) | '
             f'publishing {ns}/{TOPIC_JOINT_STATES} '

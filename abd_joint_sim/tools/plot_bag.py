@@ -9,12 +9,16 @@ writes
   command took effect (torque, array or enable topics; the log time of a command is the
   step boundary it was applied at), and a dashed one at each reset (simulated time going
   back to 0 starts a new segment, drawn after the previous one);
-* ``DIR/poses.png``: a strip of the bodies at chosen times, drawn from the recorded
+* ``DIR/poses.png``: a grid of the bodies at chosen times, drawn from the recorded
   ``markers`` (docs/bag-format.md): each box, cylinder or sphere projected on a plane
   (boxes and cylinders as the convex hull of their projected outline, spheres as
-  circles), joint-axis arrows as lines, and a thin line for the path each body's marker
-  took up to that time. Without markers in the bag (recorded with ``marker_rate`` 0)
-  only joints.png is written.
+  circles), joint-axis arrows as black lines, and a thin line for the path each moving
+  body took over the last TRAIL_SECONDS before that time. Each body has its own colour and
+  legend entry (`body_styles`: the bodies of a robot often share one URDF material colour);
+  fixed bodies are light grey and labelled "(fixed)". Without markers in the bag (recorded
+  with ``marker_rate`` 0) only joints.png is written.
+
+The default title names the scene (the robot's name for a URDF robot) and the bag.
 
 Meshes (URDF ``<mesh>`` visuals, ``MESH_RESOURCE`` markers) are not loaded: a body with
 mesh visuals is drawn as its box of equal inertia (``markers.equal_inertia_box``: sides
@@ -39,6 +43,14 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 PROG = 'plot_bag'
+#: [s] each body's path drawn in a pose panel: the last this many seconds before it
+TRAIL_SECONDS = 0.5
+#: moving bodies' colours (matplotlib's tab20 without its greys, dark shades first): grey
+#: is kept for fixed bodies
+BODY_COLOURS = ('#1f77b4', '#ff7f0e', '#2ca02c', '#d62728', '#9467bd', '#8c564b', '#e377c2',
+                '#bcbd22', '#17becf', '#aec7e8', '#ffbb78', '#98df8a', '#ff9896', '#c5b0d5',
+                '#c49c94', '#f7b6d2', '#dbdb8d', '#9edae5')
+FIXED_COLOUR = '0.78'
 _COMMAND_TYPES = ('std_msgs/msg/Float64', 'std_msgs/msg/Float64MultiArray',
                   'std_msgs/msg/Bool')
 _AXES = {'x': 0, 'y': 1, 'z': 2}
@@ -65,20 +77,42 @@ class Run:
         # body -> (visual origins {index: (t, R_v)}, box sides, centre, axes in the body
         # frame): the stand-in drawn for mesh visuals (see the module docstring)
         self.mesh_boxes: dict[str, tuple] = {}
+        self.fixed_bodies: Optional[set[str]] = None    # from the stored scene; None: unknown
+        self.scene_name = ''               # the robot's name, else the scene file's stem
 
 
-def mesh_boxes(bag: str | os.PathLike[str]) -> dict[str, tuple]:
-    """Per body with mesh visuals, what :attr:`Run.mesh_boxes` holds, from the scene
-    stored in the bag; {} when the bag stores none that parses (then meshes are crosses)."""
+def _stored_scene(bag: str | os.PathLike[str]):
+    """(the scene stored in the bag or None, its custom data {})."""
     from abd_joint_sim.record import read_custom_data
-    from abd_joint_sim.geometry import rpy_matrix
-    from abd_joint_sim.ros.markers import equal_inertia_box
     from abd_joint_sim.tools.bagrun import scene_from_text
     try:
-        text = read_custom_data(bag).get('abd_joint_sim.scene_yaml', '')
-        scene = scene_from_text(text, 'scene.yaml') if text else None
-    except Exception:  # noqa: BLE001 - optional: the picture falls back to crosses
-        return {}
+        custom = read_custom_data(bag)
+    except Exception:  # noqa: BLE001 - optional: the pictures do without it
+        return None, {}
+    try:
+        text = custom.get('abd_joint_sim.scene_yaml', '')
+        return (scene_from_text(text, 'scene.yaml') if text else None), custom
+    except Exception:  # noqa: BLE001
+        return None, custom
+
+
+def scene_name(custom: dict) -> str:
+    """The robot's name (a URDF robot's <robot name>), else the scene file's stem."""
+    import re
+    found = re.search(r'<robot\b[^>]*\bname\s*=\s*["\']([^"\']+)', custom.get('abd_joint_sim.urdf', ''))
+    if found:
+        return found.group(1)
+    path = custom.get('abd_joint_sim.scene_path', '')
+    return Path(path).stem if path else ''
+
+
+def mesh_boxes(bag: str | os.PathLike[str], scene: Any = False) -> dict[str, tuple]:
+    """Per body with mesh visuals, what :attr:`Run.mesh_boxes` holds, from the scene
+    stored in the bag; {} when the bag stores none that parses (then meshes are crosses)."""
+    from abd_joint_sim.geometry import rpy_matrix
+    from abd_joint_sim.ros.markers import equal_inertia_box
+    if scene is False:
+        scene = _stored_scene(bag)[0]
     out = {}
     for body in scene.bodies if scene is not None else ():
         visuals = getattr(body, 'visuals', ()) or ()
@@ -169,9 +203,73 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
         raise PlotError(str(exc)) from None
     if not run.t:
         raise PlotError(f'{bag}: no sensor_msgs/msg/JointState messages to plot')
+    scene, custom = _stored_scene(bag)
+    run.scene_name = scene_name(custom)
+    if scene is not None:
+        run.fixed_bodies = {b.name for b in scene.bodies if b.fixed}
     if run.markers:
-        run.mesh_boxes = mesh_boxes(bag)
+        run.mesh_boxes = mesh_boxes(bag, scene)
     return run
+
+
+def body_styles(run: Run) -> dict[str, tuple[Any, bool]]:
+    """{body: (colour, fixed)} in the order the bodies' markers first appear: a colour of
+    its own for each moving body, FIXED_COLOUR for the fixed ones (from the stored scene; a
+    bag without one: the bodies whose markers never moved)."""
+    names: list[str] = []
+    where: dict[str, list] = {}
+    for _, arr in run.markers:
+        for m in arr.markers:
+            if m.ns.startswith('bodies/'):
+                name = m.ns.split('/', 1)[1]
+                if name not in where:
+                    names.append(name)
+                    where[name] = []
+                p = m.pose.position
+                where[name].append((p.x, p.y, p.z))
+    out = {}
+    k = 0
+    for name in names:
+        if run.fixed_bodies is not None:
+            fixed = name in run.fixed_bodies
+        else:
+            fixed = float(np.ptp(np.array(where[name]), axis=0).max()) < 1e-9
+        if fixed:
+            out[name] = (FIXED_COLOUR, True)
+        else:
+            out[name] = (BODY_COLOURS[k % len(BODY_COLOURS)], False)
+            k += 1
+    return out
+
+
+def trails(run: Run, k: int) -> dict[tuple[str, int], list[tuple[float, list[float]]]]:
+    """{(marker ns, id): [(t, position)]} of the bodies' markers over the TRAIL_SECONDS up
+    to run.markers[k], in its segment: the paths a pose panel draws."""
+    t = run.markers[k][0]
+    out: dict = {}
+    segment = run.marker_segment[k]
+    for (te, earlier), seg in zip(run.markers[:k + 1], run.marker_segment):
+        if seg != segment or te < t - TRAIL_SECONDS - 1e-9:
+            continue
+        for m in earlier.markers:
+            if m.ns.startswith('bodies/'):
+                p = m.pose.position
+                out.setdefault((m.ns, m.id), []).append((te, [p.x, p.y, p.z]))
+    return out
+
+
+def grid_shape(n: int) -> tuple[int, int]:
+    """(rows, cols) of n panels: rows of at most 5, as even as they come (5: one row of
+    5; 6: 2 x 3; 8: 2 x 4), so at most rows - 1 panels are empty."""
+    rows = max(1, -(-n // 5))
+    return rows, max(1, -(-n // rows))
+
+
+def joints_notes(run: Run) -> str:
+    """What the vertical lines of joints.png mean, for the lines there are."""
+    notes = (['dotted: a command took effect'] if run.commands else []) + \
+        (['dashed: reset'] if run.resets else [])
+    return '; '.join(notes)
 
 
 def _pyplot():
@@ -205,8 +303,8 @@ def plot_joints(plt, run: Run, path: Path, title: str) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(loc='best', fontsize=9, ncol=max(1, len(run.joint_names) // 4 + 1))
     axes[-1].set_xlabel('simulated time [s]')
-    notes = 'dotted: a command took effect' + ('; dashed: reset' if run.resets else '')
-    axes[0].set_title(f'{title}\n{notes}', fontsize=11)
+    notes = joints_notes(run)
+    axes[0].set_title(f'{title}\n{notes}' if notes else title, fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -324,12 +422,13 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
     lo, hi = all_pts.min(axis=0), all_pts.max(axis=0)
     pad = 0.05 * max(hi - lo) + 1e-3
     n = len(chosen)
-    cols = min(n, 4)                    # rows of at most 4 panels stay readable
-    rows = -(-n // cols)
+    rows, cols = grid_shape(n)
+    styles = body_styles(run)
     aspect = (hi[1] - lo[1] + 2 * pad) / (hi[0] - lo[0] + 2 * pad)
     panel = 3.6
-    fig, axes = plt.subplots(rows, cols, figsize=(panel * cols + 0.4,
-                                                  (min(panel * aspect, 2 * panel) + 1.0) * rows + 0.4),
+    # (the legend beside the grid narrows the panels: 0.85 of their width)
+    fig, axes = plt.subplots(rows, cols, figsize=(panel * cols + 1.6, (min(
+        0.85 * panel * aspect, 2 * panel) + 0.9) * rows + 0.7),
                              squeeze=False, constrained_layout=True)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
@@ -339,52 +438,48 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
     for ax, k in zip(axes.ravel(), chosen):
         t, arr = run.markers[k]
         drawn.append(t)
-        # Faint trail: where each moving body's marker has been up to t (in its segment).
-        trails: dict = {}
-        segment = run.marker_segment[k]
-        for (_, earlier), seg in zip(run.markers[:k + 1], run.marker_segment):
-            if seg != segment:
-                continue
-            for m in earlier.markers:
-                if m.ns.startswith('bodies/'):
-                    trails.setdefault((m.ns, m.id), []).append(
-                        [m.pose.position.x, m.pose.position.y, m.pose.position.z])
-        for path_pts in trails.values():
-            xy = np.array(path_pts)[:, [i, j]]
-            if np.ptp(xy, axis=0).max() > 1e-6:
-                ax.plot(xy[:, 0], xy[:, 1], color='0.35', lw=0.8, alpha=0.6)
+        # Thin trail: where each moving body's markers were over the last TRAIL_SECONDS (in
+        # this segment), in the body's colour.
+        for (ns, _), path_pts in trails(run, k).items():
+            xy = np.array([p for _, p in path_pts])[:, [i, j]]
+            colour, fixed = styles.get(ns.split('/', 1)[1], ('0.35', False))
+            if not fixed and np.ptp(xy, axis=0).max() > 1e-6:
+                ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.0, alpha=0.7)
         for m in arr.markers:
-            colour = (m.color.r, m.color.g, m.color.b, max(m.color.a, 0.3) if m.color.a else 0.8)
+            name = m.ns.split('/', 1)[1] if m.ns.startswith('bodies/') else ''
+            colour, fixed = styles.get(name, ('k', False))
+            label = None if not name or name in labelled else \
+                (f'{name} (fixed)' if fixed else name)
             p = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
             if m.type == Marker.ARROW and len(m.points) == 2:
                 a, b = m.points
                 ax.annotate('', xy=([b.x, b.y, b.z][i], [b.x, b.y, b.z][j]),
                             xytext=([a.x, a.y, a.z][i], [a.x, a.y, a.z][j]),
-                            arrowprops=dict(arrowstyle='->', color=colour, lw=1.5))
-            elif m.type == Marker.SPHERE:
+                            arrowprops=dict(arrowstyle='->', color='k', lw=1.5))
+                continue
+            if m.type == Marker.SPHERE:
                 ax.add_patch(Circle((p[i], p[j]), m.scale.x / 2, facecolor=colour,
-                                    edgecolor='k', lw=0.6, alpha=0.85))
+                                    edgecolor='k', lw=0.6, alpha=0.85, label=label))
             elif m.type == Marker.MESH_RESOURCE:
-                name = m.ns.split('/', 1)[-1]
                 pts = _mesh_box_points(run, m)
                 if pts is None:
-                    ax.plot(p[i], p[j], 'x', color=colour, ms=8, mew=2)
+                    ax.plot(p[i], p[j], 'x', color=colour, ms=8, mew=2, label=label)
                 elif (t, name) not in boxed:        # one stand-in per body
                     boxed.add((t, name))
                     ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
                                          facecolor=colour, edgecolor='k', lw=0.6,
-                                         alpha=0.6, hatch='//',
-                                         label=None if name in labelled else name))
-                    labelled.add(name)
+                                         alpha=0.6, hatch='//', label=label))
+                else:
+                    continue
             else:
                 pts = _outline(m)
-                if pts is not None:
-                    name = m.ns.split('/', 1)[-1]
-                    ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
-                                         facecolor=colour, edgecolor='k', lw=0.6,
-                                         alpha=0.85,
-                                         label=None if name in labelled else name))
-                    labelled.add(name)
+                if pts is None:
+                    continue
+                ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
+                                     facecolor=colour, edgecolor='k', lw=0.6,
+                                     alpha=0.85, label=label))
+            if name:
+                labelled.add(name)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
         ax.set_aspect('equal')
@@ -393,15 +488,18 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
         ax.set_xlabel(f'{view[0]} [m]')
     for row in axes:
         row[0].set_ylabel(f'{view[1]} [m]')
-    if len(labelled) > 4:       # many bodies (a robot): beside the strip, not over a panel
-        fig.legend(*axes[0][0].get_legend_handles_labels(), loc='outside right upper',
-                   fontsize=8)
-    elif labelled:
-        axes[0][0].legend(loc='best', fontsize=8, framealpha=0.8)
-    note = '\nhatched: a mesh visual, drawn as the box of equal inertia of its body' \
-        if boxed else ''
+    if labelled:        # one entry per body, beside the grid (never over a panel)
+        handles = {}
+        for ax in axes.ravel():
+            for h, lab in zip(*ax.get_legend_handles_labels()):
+                handles.setdefault(lab, h)
+        fig.legend(list(handles.values()), list(handles.keys()), loc='outside right upper',
+                   fontsize=9)
+    notes = [f'thin lines: each body\'s path over the last {TRAIL_SECONDS:g} s']
+    if boxed:
+        notes.append('hatched: a mesh visual, drawn as the box of equal inertia of its body')
     fig.suptitle(f'{title}: bodies seen along {"xyz"[3 - i - j]} (from the recorded '
-                 f'markers){note}', fontsize=11)
+                 f'markers)\n{"; ".join(notes)}', fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return drawn
@@ -431,7 +529,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser.add_argument('--view', choices=('xy', 'xz', 'yz'), default=None,
                         help='projection plane of the pose strip (default: the plane the '
                         'bodies move in)')
-    parser.add_argument('--title', default=None, help='title (default: the bag name)')
+    parser.add_argument('--title', default=None,
+                        help='title (default: the scene or robot name and the bag name)')
     parser.add_argument('-q', '--quiet', action='store_true', help='no summary line')
     args = parser.parse_args(argv)
     plt = _pyplot()
@@ -450,7 +549,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     except OSError as exc:
         print(f'{PROG}: cannot create {out}: {exc.strerror or exc}', file=sys.stderr)
         return 2
-    title = args.title or Path(os.path.normpath(args.bag)).name
+    bag_name = Path(os.path.normpath(args.bag)).name
+    title = args.title or (f'{run.scene_name} (bag {bag_name})' if run.scene_name else bag_name)
     written = [out / 'joints.png']
     plot_joints(plt, run, written[0], title)
     note = 'no markers in the bag (marker_rate 0): no poses.png'
