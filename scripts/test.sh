@@ -3,7 +3,7 @@
 # suite. Extra arguments go to pytest, e.g. `bash scripts/test.sh -k ros_node -x`, or
 # `bash scripts/test.sh -m "not slow"` for the quick subset (pytest.ini, docs/quick-start.md).
 # Each DDS test bounds its own waits with subprocess/receive timeouts (no pytest-timeout);
-# the whole run is additionally capped by ABD_TEST_TIMEOUT seconds (default 1200).
+# the whole run is additionally capped by ABD_TEST_TIMEOUT seconds (default 2700).
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT" || exit 1
 # shellcheck source=env.sh
@@ -22,12 +22,12 @@ if ! command -v "${ABD_CHROMIUM:-/usr/bin/chromium}" >/dev/null 2>&1 && [ "$(id 
     { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; } >&2 \
         || echo "[test] apt-get install chromium failed: the browser test will say so" >&2
 fi
-timeout --signal=INT --kill-after=30 "${ABD_TEST_TIMEOUT:-1200}" \
+timeout --signal=INT --kill-after=30 "${ABD_TEST_TIMEOUT:-2700}" \
     python -m pytest -q -p no:cacheprovider test "$@" < /dev/null
 status=$?
 case $status in
     0) ;;
     5) echo "[test] pytest collected no tests: counted as a failure" >&2; status=1 ;;
-    124|130) echo "[test] test suite exceeded ${ABD_TEST_TIMEOUT:-1200} s" >&2 ;;
+    124|130) echo "[test] test suite exceeded ${ABD_TEST_TIMEOUT:-2700} s" >&2 ;;
 esac
 exit $status

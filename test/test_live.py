@@ -21,7 +21,8 @@ from abd_joint_sim import Scene  # noqa: E402
 from abd_joint_sim.live import check_port, LiveError, LiveServer  # noqa: E402
 from abd_joint_sim.live.scene import urdf_link_frames  # noqa: E402
 from abd_joint_sim.ros.loop import SimLoop  # noqa: E402
-from abd_joint_sim.ros.markers import MarkerBuilder, nearest_rotation, quaternion  # noqa: E402
+from abd_joint_sim.ros.markers import MarkerBuilder  # noqa: E402
+from physics_helpers import nearest_rotation, quaternion  # noqa: E402
 from abd_joint_sim.ros.params import config_from_values  # noqa: E402
 
 DEMO_ARM = REPO / 'abd_joint_sim' / 'robots' / 'demo_arm.urdf'

@@ -15,7 +15,7 @@ import foxglove  # noqa: E402,F401 - requirements-live.txt (in requirements-test
 
 from abd_joint_sim import Scene  # noqa: E402
 from abd_joint_sim.ros.loop import SimLoop  # noqa: E402
-from abd_joint_sim.ros.markers import nearest_rotation, quaternion  # noqa: E402
+from physics_helpers import nearest_rotation, quaternion  # noqa: E402
 from abd_joint_sim.ros.params import config_from_values  # noqa: E402
 
 

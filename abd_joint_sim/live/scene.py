@@ -21,7 +21,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from abd_joint_sim.ros.markers import MarkerBuilder, quaternion
+from abd_joint_sim.ros.markers import MarkerBuilder
+from abd_joint_sim.smallmat import quaternion_in
 
 NS_PER_S = 1_000_000_000
 
@@ -36,7 +37,9 @@ def _vec(v) -> dict:
 
 
 def _pose(t, R) -> dict:
-    x, y, z, w = quaternion(np.asarray(R, dtype=float))
+    out = np.empty(4)
+    quaternion_in(np.ascontiguousarray(R, dtype=float), out)     # (x, y, z, w), w >= 0
+    x, y, z, w = out.tolist()
     return {'position': _vec(t), 'orientation': {'x': x, 'y': y, 'z': z, 'w': w}}
 
 
