@@ -14,6 +14,8 @@ COMMANDS = {
     'flood': ('flood', 'torque commands at kHz rates from another process; lag, memory, RTF'),
     'soak': ('soak', 'many steps with changing commands (headless, or --node over DDS); memory, drift'),
     'markers': ('markers', 'bytes per simulated second recorded with and without markers; build cost'),
+    'live': ('live_cost', "the live view's share of a step (nobody connected, one client), the RTF "
+                          'with one client, publish-to-page latency in headless chromium (docs/live.md)'),
 }
 
 if __name__ == '__main__':

@@ -17,6 +17,8 @@ COMMANDS = {
     'sweep': ('urdf_sweep', 'every URDF under a directory, loaded, stepped and timed against MuJoCo'),
     'chain-urdfs': ('chain_urdfs', 'write 48 URDF chains nobody tuned the simulator for, for `sweep`'),
     'regimes': ('regimes', 'Newton iterations per step where light links turn fast, against MuJoCo'),
+    'sweeps': ('sweep_rate', "sweep cases per second in-process and on 1-2 Ray workers, against "
+                             "mujoco.rollout on the same cases (docs/sweeps.md)"),
 }
 
 if __name__ == '__main__':

@@ -12,9 +12,9 @@ import sys
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ENTRIES = {'peers.py': ['chains', 'robots', 'sweep', 'chain-urdfs', 'regimes'],
+ENTRIES = {'peers.py': ['chains', 'robots', 'sweep', 'chain-urdfs', 'regimes', 'sweeps'],
            'profiler.py': ['step', 'calls', 'perf'],
-           'node_load.py': ['rtf', 'flood', 'soak', 'markers']}
+           'node_load.py': ['rtf', 'flood', 'soak', 'markers', 'live']}
 
 
 def _run(*args, timeout=300):

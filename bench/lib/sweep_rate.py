@@ -3,7 +3,7 @@ local Ray with 1 and 2 workers; the overhead per case; and the same sweeps of a 
 and of the KUKA iiwa URDF in MuJoCo's own batch runner (`mujoco.rollout`, open-loop
 torques, as many threads as workers).
 
-    python bench/sweep_bench.py [--cases 16] [--duration 0.5] [--workers 1 2] [--no-mujoco]
+    python bench/peers.py sweeps [--cases 16] [--duration 0.5] [--workers 1 2] [--no-mujoco]
                                 [--robot arm|kuka|both]
 
 Each rate is measured with warm workers: the Ray workers are started and have loaded the
@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / 'bench'))
 
@@ -192,7 +192,7 @@ def main(argv=None) -> int:
     sweep._ray_environment(None)
     sweep._export_pythonpath()
     import numba
-    print(f'sweep_bench: {args.cases} cases of {args.duration:g} s simulated, dt 1 ms; '
+    print(f'peers.py sweeps: {args.cases} cases of {args.duration:g} s simulated, dt 1 ms; '
           f'{os.cpu_count()} CPU(s), numba {numba.__version__}', flush=True)
     tmp = Path(tempfile.mkdtemp(prefix='sweep-bench-'))
     try:
@@ -211,7 +211,7 @@ def _bench(args, tmp: Path) -> int:
         if path:
             robots.append(('KUKA iiwa', kuka_spec(tmp, path, args.cases, args.duration), path))
         else:
-            print('sweep_bench: pybullet_data not installed: no KUKA iiwa rows')
+            print('peers.py sweeps: pybullet_data not installed: no KUKA iiwa rows')
     for label, spec_path, path in robots:
         spec = sweep.load_spec(spec_path)
         results = [serial_rate(spec)]
