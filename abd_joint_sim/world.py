@@ -95,6 +95,12 @@ class World:
         return self._actuated
 
     @property
+    def effort_limits(self) -> np.ndarray:
+        """The effort limit of each actuated joint, in `actuated_joint_names` order: N m on a
+        revolute joint, N on a prismatic one (inf: none). A copy."""
+        return self._effort_limit_array.copy()
+
+    @property
     def joint_types(self) -> tuple:
         """'revolute' or 'prismatic' per joint, in joint_names order."""
         return self._types
