@@ -67,6 +67,7 @@ def _slide_scene():
 
 def _run_kernels():
     """Call every kernel entry point the simulator calls from Python, on both linear solves."""
+    import numpy as np
     from ..model import compile_scene
     from ..solver.resident import Resident
     from ..solver.solver import Solver
@@ -83,7 +84,8 @@ def _run_kernels():
         solver.step_resident(resident, control)              # World.step()
         state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
         solver.clean_steps(state, control, 2)
-        torque.clamp_commands(control.torque_value.copy(), model.torque_effort_limit, control.torque_value)
+        limits = np.concatenate([model.torque_effort_limit, model.prismatic_force_effort_limit])
+        torque.clamp_commands(control.torque_value.copy(), limits, control.torque_value)
         torque.clamp_command(1.0, 2.0)
         revolute.max_separation(state.q, solver.data)
         prismatic.check_separations(state.q, solver.data)
@@ -91,7 +93,6 @@ def _run_kernels():
         for term in (ortho, revolute, driving, limit, prismatic, prismatic_driving, prismatic_limit):
             term.energy(state.q, solver.data, ctx)
     # the body markers' poses (ros/markers.py)
-    import numpy as np
     from ..smallmat import frame_poses
     one = np.zeros(1, dtype=np.intp)
     frame_poses(np.zeros((1, 3)), np.eye(3)[None], one, np.zeros((1, 3)), np.eye(3)[None], one,
