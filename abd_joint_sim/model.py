@@ -146,6 +146,8 @@ class Model:
     prismatic_limit_lower: np.ndarray       #: [m] (Ls,)
     prismatic_limit_upper: np.ndarray       #: [m] (Ls,)
     prismatic_limit_strength: np.ndarray    #: (Ls,)
+    prismatic_damping_joints: np.ndarray    #: (Ps,) prismatic joints with viscous damping
+    prismatic_damping_coeff: np.ndarray     #: [N s/m] (Ps,) their damping coefficients c > 0
 
     @property
     def body_count(self) -> int:
@@ -209,6 +211,7 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
     sf = sel(lambda j: j.external_force is not None, PRISMATIC)
     sd = sel(lambda j: j.driving is not None, PRISMATIC)
     sl = sel(lambda j: j.limit is not None, PRISMATIC)
+    sp = sel(lambda j: j.damping > 0.0, PRISMATIC)
     jf, jsd, jsl = ([scene.joints[k] for k in ks] for ks in (sf, sd, sl))
     jt = [scene.joints[k] for k in tj]
     jd = [scene.joints[k] for k in dj]
@@ -254,6 +257,8 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
         prismatic_limit_joints=sl, prismatic_limit_lower=np.array([j.limit.lower for j in jsl], float),
         prismatic_limit_upper=np.array([j.limit.upper for j in jsl], float),
         prismatic_limit_strength=np.array([j.limit.strength for j in jsl], float),
+        prismatic_damping_joints=sp,
+        prismatic_damping_coeff=np.array([scene.joints[k].damping for k in sp], float),
     )
     for value in model.__dict__.values():
         if isinstance(value, np.ndarray):
@@ -267,6 +272,17 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
                 f'({inertia:.2e} kg m^2) per step of {model.dt:g} s (dt d / I), beyond the '
                 f'{DAMPING_RATIO_MAX:g} a step can resolve: a joint damped this hard does not '
                 'move; lock it, or lower the damping')
+    for k, j in enumerate(model.prismatic_damping_joints):
+        c = model.prismatic_damping_coeff[k]
+        free = [float(model.body_mass[b]) for b in (model.joint_parent[j], model.joint_child[j])
+                if not model.body_fixed[b]]
+        mass = min(free) if free else math.inf
+        if model.dt * c > DAMPING_RATIO_MAX * mass:
+            raise SceneError(
+                f'{scene.source}: joint {model.joint_names[j]!r}: damping {c:g} N s/m is '
+                f'{model.dt * c / mass:.1e} times the mass of its lighter body ({mass:.2e} kg) per '
+                f'step of {model.dt:g} s (dt c / m), beyond the {DAMPING_RATIO_MAX:g} a step can '
+                'resolve: a joint damped this hard does not move; lock it, or lower the damping')
     return model
 
 

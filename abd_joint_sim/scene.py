@@ -803,9 +803,6 @@ class _Parser:
         init_value = self.number(f'{where}.{init_key}', d.get(init_key, 0.0), bound=position)
         damping = self.number(f'{where}.damping', d.get('damping', 0.0), nonneg=True,
                               bound='slide_damping' if sliding else 'damping')
-        if sliding and damping > 0.0:
-            self.fail(f'{where}.damping', f'joint {name!r} is prismatic: viscous damping (N s/m) is '
-                                          'simulated on revolute joints only; remove it (0)')
         return JointSpec(name=name, parent=d['parent'], child=d['child'], p0=p0, p1=p1,
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
                                                     positive=True, bound='strength'),

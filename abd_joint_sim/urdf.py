@@ -731,14 +731,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             d['limit'] = {'lower': j.lower, 'upper': j.upper}
         if opt.driving is not None:         # UID 19 / 21 on every moving joint, holding its pose
             d['driving'] = {aim_key: q0, **opt.driving}
-        if opt.damping and j.damping > 0.0:
-            if sliding:
-                msg = (f'{source}: joint {j.name!r}: <dynamics damping> {j.damping:g} N s/m is not '
-                       'simulated on prismatic joints: ignored')
-                notes.append(msg)
-                warnings.warn(msg, UrdfWarning, stacklevel=4)
-            else:
-                d['damping'] = j.damping
+        if opt.damping and j.damping > 0.0:     # N m s/rad, or N s/m on a prismatic joint
+            d['damping'] = j.damping
         over = opt.overrides.get(j.name, {})
         for key in JOINT_OVERRIDES:
             if key not in over:

@@ -223,3 +223,18 @@ def prismatic_force(model, q, forces):
             F[b, :3] += w
             F[b, 3:12] += np.outer(w, model.joint_anchor0[j, side]).ravel()
     return F
+
+
+def prismatic_damping_energy(model, q, q_prev, start, h, bdf2):
+    """Prismatic joint damping: the potential whose d-derivative is h² c ḋ, ḋ the integrator's
+    rate at the end of the step (BDF1 (d − dⁿ)/h, BDF2 (3d − 4dⁿ + dⁿ⁻¹)/(2h), dⁿ⁻¹ at
+    q_prev): ḋ is linear in d with slope r, so E = h² c ḋ² / (2r)."""
+    E = 0.0
+    for k, j in enumerate(model.prismatic_damping_joints):
+        c, now, x = model.prismatic_damping_coeff[k], start[j], prismatic_distance(model, q, j)
+        if bdf2:
+            rate, r = (3 * x - 4 * now + prismatic_distance(model, q_prev, j)) / (2 * h), 3 / (2 * h)
+        else:
+            rate, r = (x - now) / h, 1 / h
+        E += h * h * c * rate ** 2 / (2 * r)
+    return E

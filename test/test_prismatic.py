@@ -14,13 +14,15 @@ from abd_joint_sim import Scene, World, compile_scene
 from abd_joint_sim.errors import SceneError
 from abd_joint_sim.solver import model_data
 from abd_joint_sim.terms import angle as angles
-from abd_joint_sim.terms import damping, prismatic, prismatic_driving, prismatic_force, prismatic_limit
+from abd_joint_sim.terms import (damping, prismatic, prismatic_damping, prismatic_driving, prismatic_force,
+                                 prismatic_limit)
 from abd_joint_sim.terms.context import StepContext
 
 from physics_helpers import box, random_rotation
 from test_terms import check_term, dense
 
-TERMS = {'prismatic': prismatic, 'prismatic_driving': prismatic_driving, 'prismatic_limit': prismatic_limit}
+TERMS = {'prismatic': prismatic, 'prismatic_driving': prismatic_driving, 'prismatic_limit': prismatic_limit,
+         'prismatic_damping': prismatic_damping}
 
 
 def _scene(**slide):
@@ -32,7 +34,7 @@ def _scene(**slide):
                           p1=[0.75, 0.05, 0.1], init_distance=0.05,
                           external_force=dict(force=2.0, enabled=True),
                           driving=dict(aim_distance=0.2, enabled=True, strength_ratio=50.0),
-                          limit=dict(lower=0.04, upper=0.06, strength=3.0), **slide),
+                          limit=dict(lower=0.04, upper=0.06, strength=3.0), damping=30.0, **slide),
                      dict(name='lock', type='prismatic', parent='c', child='b', p0=[0.8, 0, 0],
                           p1=[0.8, 1, 0], limit=dict(lower=0.0, upper=0.0))])
     return Scene.from_dict(d)
@@ -54,13 +56,16 @@ def _state(seed, scale=0.15):
 
 
 TARGETS = np.array([0.13])      # UID 21 target d̃ (relative to init_distance)
+START = np.array([0.0, 0.02, -0.01])    # joint positions at the step's start (relative)
+Q_PREV = _state(99, scale=0.1)          # the bodies one step back (BDF2 damping)
 
 
 def _ctx(on=True):
     J, D = MODEL.joint_count, len(MODEL.drive_joints) + len(MODEL.prismatic_drive_joints)
     assert D == 1
-    return StepContext(0.01, 1.0, MODEL.body_q0.copy(), np.zeros(J), TARGETS.copy(), np.full(D, on),
-                       np.empty(angles.ANGLE_WORK_SHAPE), np.empty(damping.reference_shape(MODEL)))
+    ref = prismatic_damping.references(DATA, Q_PREV, START, 0.01, True, np.zeros(damping.reference_shape(MODEL)))
+    return StepContext(0.01, 1.0, MODEL.body_q0.copy(), START.copy(), TARGETS.copy(), np.full(D, on),
+                       np.empty(angles.ANGLE_WORK_SHAPE), ref)
 
 
 def _oracle(name, q):
@@ -68,6 +73,8 @@ def _oracle(name, q):
         return oracle.prismatic_energy(MODEL, q)
     if name == 'prismatic_driving':
         return oracle.prismatic_driving_energy(MODEL, q, TARGETS, [True])
+    if name == 'prismatic_damping':
+        return oracle.prismatic_damping_energy(MODEL, q, Q_PREV, START, 0.01, True)
     return oracle.prismatic_limit_energy(MODEL, q)
 
 
@@ -293,6 +300,23 @@ def test_limit_stops_the_slide_and_separation_is_reported():
     assert not w.last_step.warnings
 
 
+@pytest.mark.parametrize('integrator', ['bdf1', 'bdf2'])
+def test_damped_slider_approaches_the_terminal_velocity(integrator):
+    """Joint damping c [N s/m] under a constant force f, fixed parent: ḋ = (f/c)(1 − e^(−ct/m)),
+    d = (f/c)(t − (m/c)(1 − e^(−ct/m))) (BDF2: within 0.5 %; BDF1 first order)."""
+    f, c, h = 20.0, 40.0, 5e-3
+    w = _slider(f, integrator=integrator, dt=h, damping=c)
+    m = _box_mass(1000.0)
+    w.step(400)                                       # 2 s, 1.25 time constants
+    t = w.time
+    v = f / c * (1 - math.exp(-c * t / m))
+    d = f / c * (t - m / c * (1 - math.exp(-c * t / m)))
+    rtol = 5e-3 if integrator == 'bdf2' else 2e-2
+    assert w.joint_velocities()[0] == pytest.approx(v, rel=rtol)
+    assert w.joint_positions()[0] == pytest.approx(d, rel=rtol)
+    assert 'prismatic_damping' in w.terms
+
+
 def test_init_distance_offsets_what_is_reported_and_the_bounds():
     w = _slider(None, init_distance=0.3, limit=dict(lower=0.2, upper=0.4),
                 driving=dict(aim_distance=0.35, enabled=True))
@@ -310,7 +334,7 @@ def test_terms_are_assembled_only_where_a_scene_has_them():
     assert w.terms == ('ortho_potential', 'prismatic_joint', 'prismatic_driving', 'prismatic_limit',
                        'external_force')
     assert World(_scene()).terms == ('ortho_potential', 'revolute_joint', 'prismatic_joint', 'prismatic_driving',
-                                     'prismatic_limit', 'external_force')
+                                     'prismatic_limit', 'prismatic_damping', 'external_force')
     from physics_helpers import hinge_dict
     assert not any('prismatic' in t or t == 'external_force' for t in World(Scene.from_dict(hinge_dict())).terms)
 
@@ -359,7 +383,7 @@ BASE = dict(dt=0.01, bodies=[box('base', (0, 0, 0), fixed=True), box('cart', (0.
     (dict(limit=dict(lower=0.2, upper=0.1)), 'joints[0].limit', 'lower 0.2 > upper 0.1 (m)'),
     (dict(init_distance=0.5, limit=dict(lower=0.0, upper=0.1)), 'joints[0].init_distance',
      "0.5 m is outside the joint's limit [0, 0.1] m"),
-    (dict(damping=2.0), 'joints[0].damping', 'viscous damping (N s/m) is simulated on revolute joints only'),
+    (dict(damping=1e300), 'joints[0].damping', '|value| <= 1e+09 N s/m'),
     (dict(init_distance=1e300), 'joints[0].init_distance', '|value| <= 10000 m'),
 ])
 def test_scene_errors_name_the_joint_field_and_unit(joint, where, message):

@@ -189,8 +189,7 @@ def test_several_unsupported_joints_in_one_error_and_a_trailing_nul():
 def test_prismatic_joint_loads_with_its_limit_effort_and_initial_position():
     """URDF prismatic -> UID 20 along <axis> from the joint origin, <limit lower upper> [m]
     -> UID 669, effort -> the UID 667 force limit [N], initial_positions [m] ->
-    init_distance (the child placed along the axis); its <dynamics damping> is ignored with a
-    warning."""
+    init_distance (the child placed along the axis), <dynamics damping> -> its damping [N s/m]."""
     import warnings
     from abd_joint_sim.urdf import UrdfWarning
     text = robot(link('a', inertial(1)), link('b', inertial(1)),
@@ -200,11 +199,9 @@ def test_prismatic_joint_loads_with_its_limit_effort_and_initial_position():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         scene = Scene.from_urdf(text, initial_positions={'slide': 0.05})
-    assert [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)] == [
-        "<robot_description>: joint 'slide': <dynamics damping> 3 N s/m is not simulated on "
-        'prismatic joints: ignored']
+    assert [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)] == []
     (j,) = scene.joints
-    assert j.type == 'prismatic' and j.init_distance == 0.05 and j.damping == 0.0
+    assert j.type == 'prismatic' and j.init_distance == 0.05 and j.damping == 3.0
     assert np.allclose(j.p0, [0, 0, 0.2]) and np.allclose(np.subtract(j.p1, j.p0), [0, 1, 0])
     assert (j.limit.lower, j.limit.upper) == (-0.1, 0.3) and j.external_force.effort_limit == 40.0
     assert np.allclose(scene.bodies[1].position, [0, 0.05, 0.2])

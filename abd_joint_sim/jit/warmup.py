@@ -62,7 +62,7 @@ def _slide_scene():
                 dict(name='slide', type='prismatic', parent='a', child='b', p0=[0.3, 0, 0],
                      p1=[0.4, 0, 0], external_force=dict(force=1.0, enabled=True),
                      driving=dict(aim_distance=0.01, enabled=True),
-                     limit=dict(lower=-0.01, upper=0.01))]))
+                     limit=dict(lower=-0.01, upper=0.01), damping=0.5)]))
 
 
 def _run_kernels():

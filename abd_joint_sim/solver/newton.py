@@ -23,8 +23,8 @@ import math
 
 
 from ..jit import flat, kernel
-from ..terms import (damping, driving, inertia, limit, ortho, prismatic, prismatic_driving, prismatic_limit,
-                     revolute)
+from ..terms import (damping, driving, inertia, limit, ortho, prismatic, prismatic_damping, prismatic_driving,
+                     prismatic_limit, revolute)
 from . import linsolve
 from .retraction import retract
 
@@ -56,6 +56,8 @@ def potential(q, m, ctx):
         E += prismatic_driving.energy(q, m, ctx)    # UID 21
     if m.prismatic_limit_joints.size:
         E += prismatic_limit.energy(q, m, ctx)      # UID 669 (0 inside the limits)
+    if m.prismatic_damping_joints.size:
+        E += prismatic_damping.energy(q, m, ctx)    # prismatic joint damping
     return E
 
 
@@ -98,6 +100,8 @@ def assemble(q, m, ctx, grad, diag, pair):
         E += prismatic_driving.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 21
     if m.prismatic_limit_joints.size:
         E += prismatic_limit.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 669
+    if m.prismatic_damping_joints.size:
+        E += prismatic_damping.accumulate(q, m, ctx, grad, diag, pair, True)  # prismatic damping
     return pair, E
 
 

@@ -24,7 +24,7 @@ from ..model import axis_inertia
 from ..state import Control, State
 from ..terms import TERMS, angle, damping, limit
 from ..terms.context import StepContext
-from ..terms import prismatic
+from ..terms import prismatic, prismatic_damping
 from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
 from ..terms.torque import SINGULAR_RATIO
 from . import model_data, step as kernel, workspace
@@ -165,6 +165,8 @@ class Solver:
         if len(self.model.damping_joints):
             damping.references(self.data, state.q, state.q_prev, start, float(h), False,
                                np.empty(angle.ANGLE_WORK_SHAPE), ref)
+        if len(self.model.prismatic_damping_joints):
+            prismatic_damping.references(self.data, state.q_prev, start, float(h), False, ref)
         return limit.references(self.data, start, ref)
 
     # -- one step, with recovery ---------------------------------------------------------

@@ -24,7 +24,8 @@ import math
 import numpy as np
 
 from ..jit import flat, kernel, refcounts, subnormals
-from ..terms import angle, damping, gravity, limit, prismatic, prismatic_driving, prismatic_force, revolute, torque
+from ..terms import (angle, damping, gravity, limit, prismatic, prismatic_damping, prismatic_driving, prismatic_force,
+                     revolute, torque)
 from . import bdf, newton
 
 # columns of a step's outcome row
@@ -213,6 +214,8 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
     if m.damping_joints.size:
         damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
     limit.references(m, angle_start, ws.angle_ref)
+    if m.prismatic_damping_joints.size:
+        prismatic_damping.references(m, q_prev, angle_start, h, bdf2, ws.angle_ref)
     # the Workspace's context (over q_tilde, angle_start, drive_target, angle_ref and its own
     # drive_on): a reference where a context built here would be copied into every term call
     ctx = refcounts.struct(ws.ctx)

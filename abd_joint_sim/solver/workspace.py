@@ -24,8 +24,8 @@ FIELDS = (
     ('q_alt', "(B,12) Newton's other start: q̃ + c h² warm_start, not extrapolated"),
     ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
     ('drive_target', '(D + Ds,) UID 19 targets, then UID 21\'s'),
-    ('angle_ref', '(L + P, 3 or damping.ROW) the step\'s limit.references and '
-                  'damping.references (StepContext.angle_ref)'),
+    ('angle_ref', '(L + P + Ps, 3 or damping.ROW) the step\'s limit.references, '
+                  'damping.references and prismatic_damping.references (StepContext.angle_ref)'),
     ('grad', '(B,12) ∇Π'),
     ('diag', '(B,12,12) diagonal blocks of ∇²Π'),
     ('pair', '(J,12,12) joint blocks of ∇²Π'),

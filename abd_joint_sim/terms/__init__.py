@@ -24,12 +24,12 @@ numba cannot loop over modules: solver/newton.py `potential` and `assemble` call
 terms one by one, in ENERGY_TERMS' order (the order Π is summed in), and
 test_terms.py checks them against this list.
 """
-from . import (damping, driving, gravity, inertia, limit, ortho, prismatic, prismatic_driving,
-               prismatic_force, prismatic_limit, revolute, torque)
+from . import (damping, driving, gravity, inertia, limit, ortho, prismatic, prismatic_damping,
+               prismatic_driving, prismatic_force, prismatic_limit, revolute, torque)
 
 #: the terms of the incremental potential Π, in the order Newton sums them
 ENERGY_TERMS = (inertia, ortho, revolute, driving, limit, damping, prismatic, prismatic_driving,
-                prismatic_limit)
+                prismatic_limit, prismatic_damping)
 #: the forces without energy, which enter only the prediction
 FORCE_TERMS = (gravity, torque, prismatic_force)
 #: every term
