@@ -402,3 +402,16 @@ def test_a_revolute_joint_refuses_the_prismatic_fields():
     j = dict(name='hinge', parent='base', child='cart', p0=[0.3, 0, 0], p1=[0.3, 0, 1], init_distance=0.1)
     with pytest.raises(SceneError, match=r'joints\[0\].init_distance: .*takes init_angle \(rad\)'):
         Scene.from_dict(dict(BASE, joints=[j]))
+
+
+def test_a_damper_too_hard_to_resolve_is_refused():
+    """dt c beyond 1e15 times the lighter body's mass: one error naming joint, value and unit."""
+    from abd_joint_sim.model import compile_scene as compile_
+    j = dict(name='slide', type='prismatic', parent='base', child='cart', p0=[0.3, 0, 0], p1=[1.3, 0, 0],
+             damping=1e9)
+    light = dict(dt=1.0, bodies=[box('base', (0, 0, 0), fixed=True), dict(box('cart', (0.6, 0, 0)), density=1e-6)],
+                 joints=[j])
+    with pytest.raises(SceneError, match=r"joint 'slide': damping 1e\+09 N s/m is .* times the mass of its "
+                                         r"lighter body .* lock it, or lower the damping"):
+        compile_(Scene.from_dict(light))
+    compile_(Scene.from_dict(dict(light, dt=1e-3, bodies=BASE['bodies'])))      # a real one is fine
