@@ -14,9 +14,9 @@ import numpy as np
 from .jit import kernel
 
 # Jacobi sweeps stop once Σ off-diagonal² ≤ JACOBI_TOL · Σ diagonal². The rotations leave
-# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 was often never
-# met: every call ran to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12 eigenproblem,
-# measured 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
+# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 is often never
+# met: every call would run to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12
+# eigenproblem, 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
 # n ≤ 12 and still means off-diagonals ≤ ~1e-15 relative: the results change by rounding.
 JACOBI_TOL = 1e-30
 

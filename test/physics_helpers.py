@@ -2,13 +2,16 @@
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
 from abd_joint_sim.scene import load_yaml
+from abd_joint_sim.terms import angle, torque
 
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
 
@@ -67,7 +70,7 @@ def torque_force(world, q, taus, enabled=None):
     on = np.ones(len(taus), bool) if enabled is None else np.asarray(enabled, bool)
     F = np.zeros((world.model.body_count, 12))
     skipped = np.zeros(2 * len(taus) + 1, dtype=np.int64)
-    n = torque.generalized_force(np.ascontiguousarray(q, dtype=float), world.solver.data, taus, on, F, skipped)
+    n = generalized_force(np.ascontiguousarray(q, dtype=float), world.solver.data, taus, on, F, skipped)
     return F, skipped[:n].tolist()
 
 
@@ -77,3 +80,50 @@ def torque_axis(world, q, k=0):
     e = np.zeros(3)
     torque.axis(np.ascontiguousarray(q, dtype=float), world.solver.data, int(world.model.torque_joints[k]), e)
     return e
+
+
+# -- test-side kernels over the compiled terms' pieces ---------------------------------------
+@njit
+def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
+    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
+    written to `skipped` (parent side of every joint first, then child side); returns their
+    count."""
+    if not torque._any_active(torque_value, torque_enabled, m.torque_joints.size):
+        return 0
+    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
+    e = np.empty((tj.size + 2, 3))
+    torque._axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)
+    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
+    any_skipped = False
+    for t in range(bodies.size):
+        b = bodies[t]
+        f = torque._body_force(q, b, ptr[t], ptr[t + 1], entries, e, torque_value, torque_enabled)
+        if f[0] == 0:
+            any_skipped = True
+        elif f[0] == 1:
+            F[b, 3] += f[1]
+            F[b, 4] += f[2]
+            F[b, 5] += f[3]
+            F[b, 6] += f[4]
+            F[b, 7] += f[5]
+            F[b, 8] += f[6]
+            F[b, 9] += f[7]
+            F[b, 10] += f[8]
+            F[b, 11] += f[9]
+    if not any_skipped:
+        return 0
+    return torque._list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
+
+
+@njit
+def theta_derivatives(q, m, j, grad, hess, want_hess):
+    """angle.theta_derivatives_at on the compiled model m."""
+    return angle.theta_derivatives_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j,
+                                      grad, hess, want_hess, np.empty(angle.WORK_SHAPE))
+
+
+@njit
+def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
+    """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]."""
+    c, s, slope = angle.cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j)
+    return math.atan2(s, c), slope

@@ -824,8 +824,9 @@ def _layer_violations(files):
 
 
 def test_physics_layers_import_downward_only():
-    """terms/ knows nothing of the solver, jit/ (but the warm-up) nothing of the physics, the solver nothing of World, and no
-    module below World imports it (or the node): no cycle, nothing reaches up."""
+    """terms/ knows nothing of the solver, jit/ (but the warm-up) nothing of the physics, the
+    solver nothing of World, and no module below World imports it (or the node): no cycle,
+    nothing reaches up."""
     pkg = REPO / 'abd_joint_sim'
     below_world = [*sorted((pkg / 'terms').glob('*.py')), *sorted((pkg / 'solver').glob('*.py')),
                    *sorted(f for f in (pkg / 'jit').glob('*.py') if f.name != 'warmup.py'),
@@ -1193,3 +1194,23 @@ def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
     assert len(vectorised) == 4
     assert any((tmp_path / 'cache').rglob('*.nbi'))          # it did compile its own build
     assert vectorised == scalar
+
+
+def test_every_kernel_is_compiled_by_the_one_decorator():
+    """No kernel of the package is compiled by a bare `njit`: each goes through `jit.kernel`,
+    which gives it the on-disk cache, numpy's error model and the SLP vectoriser."""
+    import re
+    from numba.core.registry import CPUDispatcher
+    from abd_joint_sim.jit import slp
+    from abd_joint_sim.solver import newton, step
+    from abd_joint_sim.terms import TERMS
+    pkg = REPO / 'abd_joint_sim'
+    bare = [str(f.relative_to(pkg)) for f in pkg.rglob('*.py')
+            if f.parent.name != 'jit' and re.search(r'\bnjit\b', f.read_text())]
+    assert bare == []
+    kernels = [getattr(mod, name) for mod in (newton, step, *TERMS) for name in dir(mod)
+               if isinstance(getattr(mod, name), CPUDispatcher)]
+    assert len(kernels) > 40
+    for k in kernels:
+        assert k.targetoptions['error_model'] == 'numpy' and k._cache.__class__.__name__ != 'NullCache'
+        assert k.compile.__qualname__ == slp.vectorized.__qualname__ + '.<locals>.compile', k

@@ -2,11 +2,11 @@
 
 numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through its n-d
 iterator, one index computation per element; a loop over the flat array is what the compiler
-turns into vector moves. On the 13 12x12 blocks of a robot's Newton matrix the flat copy
-took 0.18 µs against 0.66. Same values, bit for bit:
-a copy is a copy. `a.flat[i]` rather than a reshaped view: numba's reshape calls a C helper,
-~20 ns a time, as much as copying a small robot's q. `array` makes the copies the
-kernels are compiled for.
+turns into vector moves. Measured in a compiled loop (2-core VM, loaded): thirteen 12x12 blocks
+(a 13-body robot's Newton matrix) copy in 0.17 µs against 0.67, the (1000,12) q of a 1000-link
+chain in 1.8 µs against 4.5. Same values, bit for bit: a copy is a copy. `a.flat[i]` rather
+than a reshaped view: numba's reshape calls a C helper, ~20 ns a time, as much as copying a
+small robot's q. `array` makes the copies the kernels are compiled for.
 """
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ from ..terms.context import StepContext
 from ..terms import prismatic, prismatic_damping
 from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
 from ..terms.torque import SINGULAR_RATIO
-from . import model_data, step as kernel, workspace
+from . import model_data, step as compiled, workspace
 from .report import STATUS_BY_CODE, Status, StepReport
 from .resident import Resident
 
@@ -44,8 +44,8 @@ ACCURACY_NOTE = {
 #: [bytes] the states of one compiled batch (Solver.advance): within a core's L2 cache
 BATCH_BYTES = 1 << 20
 _CONVERGED, _new_tuple = Status.CONVERGED, tuple.__new__
-_OUT_ROTATION, _OUT_SEPARATION = kernel.OUT_ROTATION, kernel.OUT_SEPARATION
-_KEPT_WITH_WARNINGS = kernel.KEPT_WITH_WARNINGS
+_OUT_ROTATION, _OUT_SEPARATION = compiled.OUT_ROTATION, compiled.OUT_SEPARATION
+_KEPT_WITH_WARNINGS = compiled.KEPT_WITH_WARNINGS
 
 #: dtypes of Control's arrays as the compiled step takes them
 CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
@@ -126,13 +126,13 @@ class Solver:
         self.work = workspace.build(model, self.data)
         B, J = model.body_count, model.joint_count
         self._skipped = np.zeros(max(2 * len(model.torque_joints), 1), dtype=np.int64)
-        self._outcome = np.zeros(kernel.OUT_COLUMNS)
+        self._outcome = np.zeros(compiled.OUT_COLUMNS)
         self._outcome_view = memoryview(self._outcome)      # (step_resident's report)
         self._clean_rotation = min(model.newton.max_step_rotation, ACCURACY_ROTATION[model.integrator])
         self._keep_rotation = float(model.newton.max_step_rotation)     # (step.kept)
         self._shape = (B, J)
         #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
-        self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + kernel.OUT_COLUMNS)))
+        self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + compiled.OUT_COLUMNS)))
         self._entry = None              # the compiled step's entry point (_control_checked)
         self._resident_entry = None     # and step_resident's (_bind)
         self._made = (None,) * 7        # state arrays the last step made (_compute)
@@ -231,18 +231,18 @@ class Solver:
                     keep_rotation=self._keep_rotation)
         if standard and self._resident_entry is None:
             try:
-                sig = (kernel.step_resident.typeof_pyval(io),)
-                self._resident_entry = kernel.step_resident.overloads[sig].entry_point
+                sig = (compiled.step_resident.typeof_pyval(io),)
+                self._resident_entry = compiled.step_resident.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
                 self._resident_entry = None
-        call = self._resident_entry if standard and self._resident_entry is not None else kernel.step_resident
+        call = self._resident_entry if standard and self._resident_entry is not None else compiled.step_resident
         r.io_call = (call, (io,))
 
     def _clean_report(self, out, time):
         """The StepReport of a step whose outcome row `out` is clean (`step.clean`, the rule
         the compiled batches and step_resident apply), else None: such a step needs none of
         the recovery and warnings of `_advance` and `_finish`."""
-        if not kernel.clean(out, self._clean_rotation):
+        if not compiled.clean(out, self._clean_rotation):
             return None
         return self._report(out, time)
 
@@ -297,7 +297,7 @@ class Solver:
         (step.joint_rates): the joint velocities of an initial state whose bodies move."""
         m = self.model
         out = np.empty((2, m.joint_count))
-        kernel.joint_rates(self.data, state.q, state.v, self.work.zero,
+        compiled.joint_rates(self.data, state.q, state.v, self.work.zero,
                            state.joint_angle - m.joint_init_angle, m.dt, out)
         return out[1].copy()
 
@@ -352,7 +352,7 @@ class Solver:
                 and s.joint_angle is k[5] and self._control_checked(c) and self._entry is not None):
             self._entry(*args)
         else:
-            kernel.step(*args)
+            compiled.step(*args)
         # arrays of the new state this step made (or, as history, made the steps before);
         # indexed once: each qvw[0] is a new view object, and the check is by identity
         qvw, aw = (qvw[0], qvw[1], qvw[2]), (aw[0], aw[1])
@@ -384,10 +384,10 @@ class Solver:
                 m, s = self.data, self.work
                 z = np.zeros(self._qvw_shape[1:])
                 j = np.zeros(self._aw_shape[1:])
-                sig = tuple(kernel.step.typeof_pyval(a) for a in (
+                sig = tuple(compiled.step.typeof_pyval(a) for a in (
                     m, z, z, z, z, z, z, z, j, *arrays, 1.0, True, 2, True, s,
                     np.empty(self._qvw_shape), np.empty(self._aw_shape), self._skipped, self._outcome))
-                self._entry = kernel.step.overloads[sig].entry_point
+                self._entry = compiled.step.overloads[sig].entry_point
             except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
                 self._entry = None
         return True
@@ -404,41 +404,41 @@ class Solver:
         if failure is not None:
             return None, failure
         new = self._state(s, h, qvw, aw)
-        rotation, limit = float(out[kernel.OUT_ROTATION]), self.model.newton.max_step_rotation
+        rotation, limit = float(out[compiled.OUT_ROTATION]), self.model.newton.max_step_rotation
         if rotation > limit:
             return new, f'a joint turned {rotation:.3g} rad in one step (limit {limit:.3g})'
-        status = STATUS_BY_CODE[int(out[kernel.OUT_STATUS])]
+        status = STATUS_BY_CODE[int(out[compiled.OUT_STATUS])]
         if status is not Status.CONVERGED:
             tally.status, tally.converged = status, False
-            return new, f'Newton stopped: {status.value} after {int(out[kernel.OUT_NEWTON])} iterations'
+            return new, f'Newton stopped: {status.value} after {int(out[compiled.OUT_NEWTON])} iterations'
         return new, None
 
     def _count(self, out, tally, q):
         """Add outcome row `out` (the step's new body states q) to tally: its counts and
         skipped-torque warnings. Returns why the step left nothing to keep, or None."""
         m = self.model
-        skipped = int(out[kernel.OUT_SKIPPED])
+        skipped = int(out[compiled.OUT_SKIPPED])
         if skipped:
             tally.warnings += self._skipped_warnings(skipped)
-        failure = int(out[kernel.OUT_FAILURE])
-        rotation = float(out[kernel.OUT_ROTATION])
+        failure = int(out[compiled.OUT_FAILURE])
+        rotation = float(out[compiled.OUT_ROTATION])
         limit = m.newton.max_step_rotation
-        if failure == kernel.FAIL_PREDICTED_ROTATION:
+        if failure == compiled.FAIL_PREDICTED_ROTATION:
             return f'a joint is predicted to turn {rotation:.3g} rad in one step (limit {limit:.3g})'
-        tally.newton_iterations += int(out[kernel.OUT_NEWTON])
-        tally.line_search_iterations += int(out[kernel.OUT_LINE_SEARCH])
-        if failure == kernel.FAIL_NEWTON_NONFINITE:
+        tally.newton_iterations += int(out[compiled.OUT_NEWTON])
+        tally.line_search_iterations += int(out[compiled.OUT_LINE_SEARCH])
+        if failure == compiled.FAIL_NEWTON_NONFINITE:
             return 'Newton produced a non-finite state'
-        if failure == kernel.FAIL_STEP_NONFINITE:
+        if failure == compiled.FAIL_STEP_NONFINITE:
             return 'step produced a non-finite state'
-        if failure == kernel.FAIL_JOINT_APART:
-            j = int(out[kernel.OUT_APART_JOINT])
+        if failure == compiled.FAIL_JOINT_APART:
+            j = int(out[compiled.OUT_APART_JOINT])
             apart = self.joint_separation(q, j)[0]
             return (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
                     f"(> {SEPARATION_FAULT:g} x the bodies' size)")
         tally.max_step_rotation = max(tally.max_step_rotation, rotation)
-        tally.max_joint_separation = float(out[kernel.OUT_SEPARATION])
-        tally.overloaded = bool(out[kernel.OUT_OVERLOADED])
+        tally.max_joint_separation = float(out[compiled.OUT_SEPARATION])
+        tally.overloaded = bool(out[compiled.OUT_OVERLOADED])
         return None
 
     def joint_separation(self, q, j) -> tuple:
@@ -513,7 +513,7 @@ class Solver:
             return state, report, 1
         batch = self._clean_result(state, count, qvw, aw, out)
         o = out[count - 1]
-        if not kernel.clean(o, self._clean_rotation):
+        if not compiled.clean(o, self._clean_rotation):
             return batch.state, self._kept_report(o, batch.state.time, batch.state.q), count
         return batch.state, batch.report, count
 
@@ -522,10 +522,10 @@ class Solver:
         B, J = self._shape
         qvw = np.empty((n, 3, B, 12))
         aw = np.empty((n, 2, J))
-        out = np.empty((n, kernel.OUT_COLUMNS))
+        out = np.empty((n, compiled.OUT_COLUMNS))
         bdf2 = m.integrator == 'bdf2'
         uniform = s.history_dt == m.dt
-        count = kernel.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start,
+        count = compiled.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start,
                              s.warm_start_prev, s.warm_start_prev2, s.joint_angle, c.torque_value,
                              c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, m.dt,
                              bdf2 and uniform, bdf2, uniform, s.extrapolation_order(m.dt),
@@ -560,8 +560,8 @@ class Solver:
                       step_count=s.step_count + count, history_dt=h, warm_start=w,
                       warm_start_prev=prev, warm_start_prev2=prev2)
         o = out[k]
-        report = StepReport(time=t, newton_iterations=int(o[kernel.OUT_NEWTON]),
-                            line_search_iterations=int(o[kernel.OUT_LINE_SEARCH]),
-                            max_joint_separation=float(o[kernel.OUT_SEPARATION]),
-                            max_step_rotation=max(0.0, float(o[kernel.OUT_ROTATION])))
+        report = StepReport(time=t, newton_iterations=int(o[compiled.OUT_NEWTON]),
+                            line_search_iterations=int(o[compiled.OUT_LINE_SEARCH]),
+                            max_joint_separation=float(o[compiled.OUT_SEPARATION]),
+                            max_step_rotation=max(0.0, float(o[compiled.OUT_ROTATION])))
         return CleanSteps(count, state, report, times, aw[:count, 0], aw[:count, 1], qvw[:count, 0])

@@ -264,23 +264,6 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
 
 
 @kernel
-def step_in_ring(m, ring, angles, cur, torque_value, torque_enabled, drive_aim, drive_enabled,
-                 drive_passive, h, bdf2, order, may_split, ws, skipped, outcome):
-    """`step` on a state held in ring buffers (solver/resident.py): ring (4,3,B,12) holds
-    (q, v, warm_start) per slot, angles (4,2,J) (joint angle, joint velocity). The state is
-    slot `cur`, its history the slots before it (cur − 1: q_prev, v_prev, warm_start_prev;
-    cur − 2: warm_start_prev2, modulo 4), and the step writes slot cur + 1. The same call as
-    `step` on a State's arrays: the same bits. (Unboxing 2 arrays and a slot number instead
-    of a State's 8 arrays and the 2 new ones is most of what a one-step call saves,
-    docs/speed.md.)"""
-    prev, prev2, nxt = (cur + 3) % 4, (cur + 2) % 4, (cur + 1) % 4
-    ring, angles = refcounts.array(ring), refcounts.array(angles)
-    step(m, ring[cur, 0], ring[cur, 1], ring[prev, 0], ring[prev, 1], ring[cur, 2], ring[prev, 2],
-         ring[prev2, 2], angles[cur, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
-         drive_passive, h, bdf2, order, may_split, ws, ring[nxt], angles[nxt], skipped, outcome)
-
-
-@kernel
 def clean(o, clean_rotation):
     """Whether the step of outcome row o is clean: no failure, Newton converged, no torque
     skipped, no joint turned more than `clean_rotation` (the accuracy warning's threshold) and
@@ -305,26 +288,29 @@ KEPT_WITH_WARNINGS = -2
 
 @kernel
 def step_resident(io):
-    """`World.step()`: `step_in_ring` on a Resident's ring (io: resident.ResidentIO, which
-    also holds the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome
-    rows and its settings), and when the step is `clean`, the Resident advanced to it: slot
-    cur + 1 becomes the current state, the clock moves by h, and the past warm starts count
-    only across steps of one size (solver._history's rule: known + 1, at most 2, if the last
-    step had size h, else 0). If the step was not clean it returns 0, and nothing but the
-    ring's slot cur + 1 and the outcome row changed: the Solver recovers from there. A clean
-    step returns its Newton iterations (≥ 1), or −1 if its line search halved the step (the
-    outcome row has the count): the caller builds the step's report without converting
-    the row's floats. A step that is not clean but `kept` (it only warns) advances the
-    Resident as a clean one and returns KEPT_WITH_WARNINGS: the caller words the warnings
-    from the outcome row."""
+    """`World.step()`: `step` on a Resident's ring (io: resident.ResidentIO, which also holds
+    the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome rows and its
+    settings), and when the step is `clean`, the Resident advanced to it: slot cur + 1 becomes
+    the current state, the clock moves by h, and the past warm starts count only across steps
+    of one size (solver._history's rule: known + 1, at most 2, if the last step had size h,
+    else 0). If the step was not clean it returns 0, and nothing but the ring's slot cur + 1
+    and the outcome row changed: the Solver recovers from there. A clean step returns its
+    Newton iterations (≥ 1), or −1 if its line search halved the step (the outcome row has the
+    count): the caller builds the step's report without converting the row's floats. A step
+    that is not clean but `kept` (it only warns) advances the Resident as a clean one and
+    returns KEPT_WITH_WARNINGS: the caller words the warnings from the outcome row."""
     io = refcounts.struct(io)
     slots, clock, h = io.slots, io.clock, io.h
     cur, known = slots[0], slots[1]
     uniform = clock[1] == h
     outcome = io.outcome
-    step_in_ring(io.model, io.ring, io.angles, cur, io.torque_value, io.torque_enabled, io.drive_aim,
-                 io.drive_enabled, io.drive_passive, h, io.bdf2 and uniform, known if uniform else 0,
-                 io.may_split, io.work, io.skipped, outcome)
+    # the state is slot cur of the ring, its history the slots before it (modulo 4)
+    prev, prev2, nxt = (cur + 3) % 4, (cur + 2) % 4, (cur + 1) % 4
+    ring, angles = refcounts.array(io.ring), refcounts.array(io.angles)
+    step(io.model, ring[cur, 0], ring[cur, 1], ring[prev, 0], ring[prev, 1], ring[cur, 2], ring[prev, 2],
+         ring[prev2, 2], angles[cur, 0], io.torque_value, io.torque_enabled, io.drive_aim,
+         io.drive_enabled, io.drive_passive, h, io.bdf2 and uniform, known if uniform else 0,
+         io.may_split, io.work, ring[nxt], angles[nxt], io.skipped, outcome)
     if clean(outcome, io.clean_rotation):
         code = int(outcome[OUT_NEWTON]) if outcome[OUT_LINE_SEARCH] == 0.0 else -1
     elif kept(outcome, io.keep_rotation):

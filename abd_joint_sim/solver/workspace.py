@@ -1,7 +1,7 @@
 """`Workspace`: the arrays one step works in, allocated once per Solver (a numba structref,
 like ModelData). An array allocated inside a compiled kernel costs as much as a few hundred
-flops, and a step used to allocate some forty of them: at a few bodies that was a large
-share of the step. The kernels only write these arrays before reading them; nothing in them
+flops, and a step needs some forty of them: at a few bodies, allocating them would be a
+large share of the step. The kernels only write these arrays before reading them; nothing in them
 carries from one step to the next (a step with a fresh Workspace gives the same result).
 """
 from __future__ import annotations

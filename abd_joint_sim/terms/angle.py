@@ -11,8 +11,11 @@ Derivatives are taken with respect to x = [vec A_i, vec A_j] (18,), vec = row-ma
 maps onto q_i[3:12] and q_j[3:12]. c and s are bilinear in (A_i, A_j): their second
 derivatives are zero within a body and ½ I3 ⊗ (outer products) across the pair.
 `unwrap` picks the branch of θ nearest to the previous step's angle (multi-turn angle).
-`accumulate_angle_hessian` adds the gradient and PSD-projected Hessian of any E(θ), the
-shared part of UID 19 and UID 670.
+`accumulate_angle_joint` adds the gradient and the (PSD-projected) Hessian of any E(θ) on one
+joint, the shared part of UID 19, UID 670 and the damping. With `project`, a joint with
+|E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead of E''∇θ∇θᵀ + E'∇²θ, and H is
+PSD-projected (negative eigenvalues clamped to 0) in closed form up to a 4x4 eigenproblem
+(angle_hessian_projected).
 """
 from __future__ import annotations
 
@@ -112,13 +115,6 @@ def cos_sin_at(q, parent, child, nbar, bbar, j):
 
 
 @kernel
-def theta_derivatives(q, m, j, grad, hess, want_hess):
-    """See theta_derivatives_at."""
-    return theta_derivatives_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j,
-                                grad, hess, want_hess, np.empty(WORK_SHAPE))
-
-
-@kernel
 def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess, work):
     """Wrapped θ of joint j; fills grad = ∇θ (18,) and, if want_hess, hess = ∇²θ (18,18),
     w.r.t. [vec A_i, vec A_j]. With N = c ∇s − s ∇c, P = c ∇c + s ∇s, r² = c² + s²:
@@ -168,14 +164,6 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess,
     return th
 
 
-@kernel
-def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
-    """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]
-    (pass a zero array as d_minus for d = d_plus): θ = atan2(s, c) of cos_sin_slope_at."""
-    c, s, slope = cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j)
-    return math.atan2(s, c), slope
-
-
 @kernel(inline='always')
 def cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
     """(c, s, ∇θ(q)·d) of joint j along d = d_plus − d_minus, without θ itself (no atan2: the
@@ -212,25 +200,6 @@ def cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
     return cs, sn, 0.5 * (cs * ds - sn * dc) / (cs * cs + sn * sn)
 
 
-@kernel
-def accumulate_angle_hessian(q, m, joints, d1s, d2s, n, grad, diag, pair, project):
-    """For the n joints `joints[:n]` of one term with E'(θ), E''(θ) in d1s, d2s: adds
-    ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ to the blocks on q[3:12]. With `project`,
-    a joint with |E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead, and H is
-    PSD-projected (negative eigenvalues clamped to 0) joint by joint, in closed form up to
-    a 4x4 eigenproblem (angle_hessian_projected). Projecting joint by joint gives the
-    matrix of the former batch rule (kept as is when every eigenvalue of the batch is ≥ 0,
-    else each joint projected): the projection of a PSD H is H, and H with E' ≠ 0 is never
-    PSD (eigenvalue −|E'|/(2r) at least 4 times), so to rounding the two rules agree."""
-    if n == 0:
-        return
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    work = np.empty(ANGLE_WORK_SHAPE)
-    for k in range(n):
-        accumulate_angle_joint(q, parent, child, nbar, bbar, joints[k], d1s[k], d2s[k],
-                               grad, diag, pair, project, work, 0.0)
-
-
 # -- the angle terms' Hessian, joint by joint ---------------------------------------------------
 ANGLE_WORK_SHAPE = (25, 18)     #: work array of accumulate_angle_joint
 _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair carries nothing
@@ -239,8 +208,9 @@ _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair ca
 @kernel
 def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair, project,
                            work, exact_bound):
-    """accumulate_angle_hessian for one joint j with E' = d1, E'' = d2 (`work`: an array of
-    ANGLE_WORK_SHAPE, reused across joints). With `project`, the Hessian is taken exact
+    """Adds ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ (PSD-projected with `project`, module
+    docstring) to the blocks on q[3:12], for joint j with E' = d1, E'' = d2 (`work`: an array
+    of ANGLE_WORK_SHAPE, reused across joints). With `project`, the Hessian is taken exact
     (unprojected) where its most negative eigenvalue is at least −exact_bound (the terms pass
     s times model_data's joint_angle_budget: the bodies' inertia keeps Newton's matrix
     positive definite then; 0.0 projects always)."""

@@ -1,9 +1,9 @@
 """What the energy terms read besides q and the model: fixed for the duration of one step.
 
 A numba structref, passed by reference. Every term call of a step takes the context (a
-dozen calls per Newton iteration on a chain, more on an arm), and as a namedtuple of six
-arrays it was copied onto the stack at each of them: ~300 bytes per call, and stalls where
-the callee read back what had just been written.
+dozen calls per Newton iteration on a chain, more on an arm): a namedtuple of six arrays
+would be copied onto the stack at each of them, ~300 bytes per call, with stalls where the
+callee reads back what has just been written.
 The step itself does not build one: its Workspace holds a context over the workspace's own
 arrays, and the step sets h, scale and drive_on in place (solver/step.py).
 

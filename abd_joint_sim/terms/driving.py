@@ -53,30 +53,9 @@ def energy(q, m, ctx):
 
 
 @kernel
-def active_joints(q, m, ctx):
-    """(joints, E', E'', n): the n enabled drives at q."""
-    drive_joints, K, on, target, start = m.drive_joints, m.drive_K, ctx.drive_on, ctx.drive_target, ctx.angle_start
-    D = drive_joints.size
-    joints = np.empty(D, dtype=np.int64)
-    d1s = np.empty(D)
-    d2s = np.empty(D)
-    parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
-    n = 0
-    for k in range(D):
-        if on[k]:
-            j = drive_joints[k]
-            x = angle.unwrap(angle.theta_at(q, parent, child, nbar, bbar, j), start[j])
-            joints[n] = j
-            d1s[n] = K[k] * (x - target[k])
-            d2s[n] = K[k]
-            n += 1
-    return joints, d1s, d2s, n
-
-
-@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the enabled drives (active_joints and
-    angle.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work.
+    """∇E and the (projected) Hessian of the enabled drives (E', E'' and
+    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
     Returns E (the bits of `energy`)."""
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start

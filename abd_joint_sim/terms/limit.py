@@ -69,14 +69,6 @@ def active(x, lower, upper):
 
 
 @kernel
-def joint_angle(q, m, ctx, k):
-    """The unwrapped angle x of limit k's joint at q (relative to init_angle). [rad]"""
-    j = m.limit_joints[k]
-    return angle_of(*angle.cos_sin_at(q, m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar, j),
-                    ctx.angle_start[j])
-
-
-@kernel
 def angle_of(c, s, start):
     """x from the joint frames' (c, s): atan2 unwrapped about the step's start angle. [rad]"""
     return angle.unwrap(math.atan2(s, c), start)
@@ -147,29 +139,9 @@ def energy(q, m, ctx):
 
 
 @kernel
-def active_joints(q, m, ctx):
-    """(joints, E', E'', n): the n limits outside their range at q, with their slopes."""
-    limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
-    L = limit_joints.size
-    joints = np.empty(L, dtype=np.int64)
-    d1s = np.empty(L)
-    d2s = np.empty(L)
-    n = 0
-    for k in range(L):
-        x = joint_angle(q, m, ctx, k)
-        if active(x, lower[k], upper[k]):
-            _, d1, d2 = phi(x, lower[k], upper[k], strength[k])
-            joints[n] = limit_joints[k]
-            d1s[n] = d1
-            d2s[n] = d2
-            n += 1
-    return joints, d1s, d2s, n
-
-
-@kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the active limits (active_joints and
-    angle.accumulate_angle_hessian fused, joint by joint), working in ctx.angle_work.
+    """∇E and the (projected) Hessian of the active limits (E', E'' from `phi` and
+    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
     Returns E (the bits of `energy`)."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar

@@ -208,38 +208,6 @@ def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled,
 
 
 @kernel
-def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
-    """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
-    written to `skipped` (parent side of every joint first, then child side); returns their
-    count."""
-    if not _any_active(torque_value, torque_enabled, m.torque_joints.size):
-        return 0
-    tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
-    e = np.empty((tj.size + 2, 3))
-    _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)
-    bodies, ptr, entries = m.torque_bodies, m.torque_body_ptr, m.torque_body_entries
-    any_skipped = False
-    for t in range(bodies.size):
-        b = bodies[t]
-        f = _body_force(q, b, ptr[t], ptr[t + 1], entries, e, torque_value, torque_enabled)
-        if f[0] == 0:
-            any_skipped = True
-        elif f[0] == 1:
-            F[b, 3] += f[1]
-            F[b, 4] += f[2]
-            F[b, 5] += f[3]
-            F[b, 6] += f[4]
-            F[b, 7] += f[5]
-            F[b, 8] += f[6]
-            F[b, 9] += f[7]
-            F[b, 10] += f[8]
-            F[b, 11] += f[9]
-    if not any_skipped:
-        return 0
-    return _list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
-
-
-@kernel
 def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
     """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
     only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
