@@ -472,3 +472,26 @@ def test_a_prismatic_joint_is_published_in_m_and_n_and_commanded_by_force():
     t, h = t_ns * 1e-9, loop.world.dt
     assert position[0] == pytest.approx(0.5 * 0.5 * t * t + 0.5 * 0.5 * h * t, rel=2e-2)
     assert velocity[0] == pytest.approx(0.5 * t, rel=2e-2)
+
+
+def test_a_disabled_prismatic_force_is_warned_in_newtons():
+    from abd_joint_sim.ros.loop import SimLoop
+
+    class Logged(Collect):
+        def __init__(self):
+            super().__init__()
+            self.lines = []
+
+        def log(self, level, text, key=None):
+            self.lines.append((level, text))
+    cube = dict(box=[0.4, 0.4, 0.4], density=1000.0)
+    scene = Scene.from_dict(dict(dt=0.01, bodies=[
+        dict(name='base', position=[0, 0, 0], fixed=True, **cube), dict(name='cart', position=[0.6, 0, 0], **cube)],
+        joints=[dict(name='rail', type='prismatic', parent='base', child='cart', p0=[0.3, 0, 0], p1=[1.3, 0, 0],
+                     external_force=dict(enabled=False))]))
+    out = Logged()
+    loop = SimLoop(scene, config_from_values({'scene': 'default', 'publish_rate': 0.0}), output=out)
+    loop.commands.command_torque('rail', 5.0)
+    loop.step_once()
+    assert any(level == 'warn' and "joint 'rail': force 5 N stored but the force is disabled" in text
+               for level, text in out.lines), out.lines

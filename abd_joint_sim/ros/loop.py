@@ -314,9 +314,12 @@ class SimLoop:
             if value != 0.0 and not self.world.effort_enabled(joint) \
                     and joint not in self._warned_disabled:
                 self._warned_disabled.add(joint)
+                types = getattr(self.world, 'joint_types', None)
+                sliding = types is not None and types[self.world.joint_names.index(joint)] == 'prismatic'
+                what, unit = ('force', 'N') if sliding else ('torque', 'N m')
                 # Throttled too: a sender toggling the enable would re-arm it each time.
                 self.output.log(
-                    'warn', f'joint {joint!r}: torque {value:g} N m stored but the torque is '
+                    'warn', f'joint {joint!r}: {what} {value:g} {unit} stored but the {what} is '
                     f'disabled; publish true on {TOPIC_ENABLE_JOINT.format(joint=joint)} to '
                     'apply it', key=('disabled', joint))
         for joint, flag in applied.enables.items():
