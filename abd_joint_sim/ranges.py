@@ -24,5 +24,8 @@ RANGES = {
     'torque': (0.0, 1e9, 'N m'),
     'effort_limit': (1e-9, 1e9, 'N m'),
     'damping': (0.0, 1e9, 'N m s/rad'),
+    'force': (0.0, 1e9, 'N'),
+    'force_limit': (1e-9, 1e9, 'N'),
+    'slide_damping': (0.0, 1e9, 'N s/m'),
     'tolerance': (1e-12, 1e3, ''),
 }

@@ -272,11 +272,25 @@ class TorqueSpec:
 
 
 @dataclass(frozen=True)
+class ForceSpec:
+    """UID 667, the external force along a prismatic joint's axis [N]."""
+
+    force: float = 0.0
+    enabled: bool = False
+    effort_limit: float = math.inf
+
+
+@dataclass(frozen=True)
 class DrivingSpec:
     strength_ratio: float = 100.0
-    aim_angle: float = 0.0
+    aim_angle: float = 0.0                  # [rad] UID 19 (revolute)
     passive: bool = False
     enabled: bool = False
+    aim_distance: float = 0.0               # [m] UID 21 (prismatic)
+
+    def aim(self, kind: str) -> float:
+        """The aim in the joint's own unit: rad (revolute) or m (prismatic)."""
+        return self.aim_distance if kind == PRISMATIC else self.aim_angle
 
 
 @dataclass(frozen=True)
@@ -284,6 +298,13 @@ class LimitSpec:
     lower: float
     upper: float
     strength: float = 1.0
+
+
+REVOLUTE, PRISMATIC = 'revolute', 'prismatic'
+JOINT_TYPES = (REVOLUTE, PRISMATIC)
+#: the unit of a joint's position (angle, distance) and of its effort, per joint type
+POSITION_UNIT = {REVOLUTE: 'rad', PRISMATIC: 'm'}
+EFFORT_UNIT = {REVOLUTE: 'N m', PRISMATIC: 'N'}
 
 
 @dataclass(frozen=True)
@@ -297,8 +318,16 @@ class JointSpec:
     init_angle: float = 0.0
     external_torque: TorqueSpec | None = None
     driving: DrivingSpec | None = None
-    limit: LimitSpec | None = None
-    damping: float = 0.0                    # [N m s/rad] viscous joint damping; 0 = none
+    limit: LimitSpec | None = None          # [rad] revolute, [m] prismatic
+    damping: float = 0.0                    # viscous joint damping [N m s/rad] or [N s/m]; 0 = none
+    type: str = REVOLUTE                    # REVOLUTE (UID 18) or PRISMATIC (UID 20)
+    init_distance: float = 0.0              # [m] prismatic: the reported distance at creation
+    external_force: ForceSpec | None = None  # UID 667 (prismatic)
+
+    @property
+    def init_position(self) -> float:
+        """init_angle [rad] of a revolute joint, init_distance [m] of a prismatic one."""
+        return self.init_distance if self.type == PRISMATIC else self.init_angle
 
 
 @dataclass(frozen=True)
@@ -658,15 +687,29 @@ class _Parser:
 
     def joint(self, where, value, body_names):
         d = self.mapping(where, value, ('name', 'type', 'parent', 'child', 'p0', 'p1', 'strength_ratio',
-                                        'init_angle', 'external_torque', 'driving', 'limit', 'damping'),
+                                        'init_angle', 'init_distance', 'external_torque',
+                                        'external_force', 'driving', 'limit', 'damping'),
                          required=('name', 'parent', 'child', 'p0', 'p1'))
         name = self.name(f'{where}.name', d['name'])
-        jtype = d.get('type', 'revolute')
-        if jtype != 'revolute':
+        jtype = d.get('type', REVOLUTE)
+        if jtype not in JOINT_TYPES:
             if 'external_torque' in d:
                 self.fail(f'{where}.external_torque', f'joint {name!r} is {jtype!r}: the external '
                           'torque (UID 668) requires a revolute joint (UID 18)')
-            self.fail(f'{where}.type', f'unsupported joint type {jtype!r}; only revolute (UID 18)')
+            self.fail(f'{where}.type', f'unsupported joint type {jtype!r}; one of revolute (UID 18), '
+                                       'prismatic (UID 20)')
+        sliding = jtype == PRISMATIC
+        # the fields of the other joint type, named with the ones to use instead
+        wrong = {'init_distance': 'the revolute joint takes init_angle (rad)',
+                 'external_force': 'the external force (UID 667) requires a prismatic joint (UID 20); '
+                                   'a revolute joint takes external_torque (UID 668, N m)'} \
+            if not sliding else {'init_angle': 'the prismatic joint takes init_distance (m)',
+                                 'external_torque': 'the external torque (UID 668) requires a revolute '
+                                                    'joint (UID 18); a sliding joint takes '
+                                                    'external_force (UID 667, N)'}
+        for key, why in wrong.items():
+            if key in d:
+                self.fail(f'{where}.{key}', f'joint {name!r} is {jtype}: {why}')
         for key in ('parent', 'child'):
             if self.name(f'{where}.{key}', d[key]) not in body_names:
                 self.fail(f'{where}.{key}', f'unknown body {d[key]!r}; bodies: {", ".join(sorted(body_names))}')
@@ -676,7 +719,10 @@ class _Parser:
         p1 = self.vector(f'{where}.p1', d['p1'], bound='position')
         if math.dist(p0, p1) < 1e-9:
             self.fail(f'{where}.p1', f'must differ from p0 (the axis is p0 -> p1), both are {list(p0)}')
-        torque = driving = limit = None
+        unit = POSITION_UNIT[jtype]
+        position = 'position' if sliding else 'angle'       # RANGES row of positions and aims
+        init_key = 'init_distance' if sliding else 'init_angle'
+        torque = force = driving = limit = None
         if d.get('external_torque') is not None:
             w = f'{where}.external_torque'
             t = self.mapping(w, d['external_torque'], ('torque', 'enabled', 'effort_limit'))
@@ -687,37 +733,56 @@ class _Parser:
                                 if 'effort_limit' in t else math.inf)
             if abs(torque.torque) > torque.effort_limit:
                 self.fail(f'{w}.torque', f'|{torque.torque}| exceeds effort_limit {torque.effort_limit}')
+        if d.get('external_force') is not None:
+            w = f'{where}.external_force'
+            t = self.mapping(w, d['external_force'], ('force', 'enabled', 'effort_limit'))
+            force = ForceSpec(self.number(f'{w}.force', t.get('force', 0.0), bound='force'),
+                              self.boolean(f'{w}.enabled', t.get('enabled', False)),
+                              self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
+                                          bound='force_limit')
+                              if 'effort_limit' in t else math.inf)
+            if abs(force.force) > force.effort_limit:
+                self.fail(f'{w}.force', f'|{force.force}| N exceeds effort_limit {force.effort_limit} N')
         if d.get('driving') is not None:
             w = f'{where}.driving'
-            t = self.mapping(w, d['driving'], ('strength_ratio', 'aim_angle', 'passive', 'enabled'))
+            aim_key = 'aim_distance' if sliding else 'aim_angle'
+            other = 'aim_angle' if sliding else 'aim_distance'
+            t = self.mapping(w, d['driving'], ('strength_ratio', aim_key, 'passive', 'enabled', other))
+            if other in t:
+                self.fail(f'{w}.{other}', f'joint {name!r} is {jtype}: its drive takes {aim_key} ({unit})')
+            aim = self.number(f'{w}.{aim_key}', t.get(aim_key, 0.0), bound=position)
             driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0), positive=True,
                                               bound='strength'),
-                                  self.number(f'{w}.aim_angle', t.get('aim_angle', 0.0), bound='angle'),
+                                  aim if not sliding else 0.0,
                                   self.boolean(f'{w}.passive', t.get('passive', False)),
-                                  self.boolean(f'{w}.enabled', t.get('enabled', False)))
+                                  self.boolean(f'{w}.enabled', t.get('enabled', False)),
+                                  aim if sliding else 0.0)
         if d.get('limit') is not None:
             w = f'{where}.limit'
             t = self.mapping(w, d['limit'], ('lower', 'upper', 'strength'), ('lower', 'upper'))
-            limit = LimitSpec(self.number(f'{w}.lower', t['lower'], bound='angle'),
-                              self.number(f'{w}.upper', t['upper'], bound='angle'),
+            limit = LimitSpec(self.number(f'{w}.lower', t['lower'], bound=position),
+                              self.number(f'{w}.upper', t['upper'], bound=position),
                               self.number(f'{w}.strength', t.get('strength', 1.0), positive=True,
                                           bound='strength'))
             if limit.lower > limit.upper:
-                self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper}')
-            init = d.get('init_angle', 0.0)
+                self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper} ({unit})')
+            init = d.get(init_key, 0.0)
             if isinstance(init, (int, float)) and not isinstance(init, bool) and \
                     limit.upper > limit.lower and not limit.lower <= init <= limit.upper:
                 # The limit energy grows as the cube of the distance outside the range over
                 # its width: a start far outside is a huge kick at the first step, not a
                 # mechanism anyone meant (the backends fail or fling the body differently).
                 # A zero-width limit is a lock (s|x - l|^3, no width to divide by) that pulls
-                # the joint to its angle from wherever it starts: allowed.
-                self.fail(f'{where}.init_angle', f'{init!r} rad is outside the joint\'s limit '
-                                                 f'[{limit.lower:g}, {limit.upper:g}]; start inside it')
+                # the joint to its position from wherever it starts: allowed.
+                self.fail(f'{where}.{init_key}', f'{init!r} {unit} is outside the joint\'s limit '
+                                                 f'[{limit.lower:g}, {limit.upper:g}] {unit}; start inside it')
+        init_value = self.number(f'{where}.{init_key}', d.get(init_key, 0.0), bound=position)
+        damping = self.number(f'{where}.damping', d.get('damping', 0.0), nonneg=True,
+                              bound='slide_damping' if sliding else 'damping')
         return JointSpec(name=name, parent=d['parent'], child=d['child'], p0=p0, p1=p1,
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
                                                     positive=True, bound='strength'),
-                         init_angle=self.number(f'{where}.init_angle', d.get('init_angle', 0.0), bound='angle'),
+                         init_angle=0.0 if sliding else init_value,
                          external_torque=torque, driving=driving, limit=limit,
-                         damping=self.number(f'{where}.damping', d.get('damping', 0.0), nonneg=True,
-                                             bound='damping'))
+                         damping=damping, type=jtype, init_distance=init_value if sliding else 0.0,
+                         external_force=force)

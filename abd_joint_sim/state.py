@@ -17,8 +17,10 @@ class State:
     v: np.ndarray               #: (B,12) dq/dt
     q_prev: np.ndarray          #: (B,12) q one step back (BDF2 history; = q at start)
     v_prev: np.ndarray          #: (B,12) v one step back
-    joint_angle: np.ndarray     #: [rad] (J,) multi-turn angle including init_angle
-    joint_velocity: np.ndarray  #: [rad/s] (J,)
+    #: [rad | m] (J,) multi-turn angle including init_angle (a revolute joint), or distance
+    #: including init_distance (a prismatic joint)
+    joint_angle: np.ndarray
+    joint_velocity: np.ndarray  #: [rad/s | m/s] (J,)
     step_count: int = 0
     history_dt: float = 0.0     #: [s] step size q_prev/v_prev belong to; 0 = no history (BDF2 restarts)
     #: (B,12) Newton's last correction (q − q̃)/(c h²), c = 1 (BDF1) or 4/9 (BDF2): the next
@@ -79,17 +81,25 @@ def _copy_history(s: State):
 
 @dataclass
 class Control:
-    torque_value: np.ndarray    #: [N m] (T,) per UID 668 joint (model.torque_joints order)
-    torque_enabled: np.ndarray  #: (T,) bool
-    drive_aim: np.ndarray       #: [rad] (D,) absolute aim angle (includes init_angle)
-    drive_enabled: np.ndarray   #: (D,) bool
-    drive_passive: np.ndarray   #: (D,) bool
+    #: [N m | N] (T + F,) the joints' efforts: per UID 668 joint (model.torque_joints order)
+    #: its torque [N m], then per UID 667 joint (model.prismatic_force_joints) its force [N]
+    torque_value: np.ndarray
+    torque_enabled: np.ndarray  #: (T + F,) bool, likewise
+    #: [rad | m] (D + Ds,) absolute aims (including init_angle / init_distance): per UID 19
+    #: drive (model.drive_joints) an angle, then per UID 21 drive (model.prismatic_drive_joints)
+    #: a distance
+    drive_aim: np.ndarray
+    drive_enabled: np.ndarray   #: (D + Ds,) bool, likewise
+    drive_passive: np.ndarray   #: (D + Ds,) bool, likewise
 
     @classmethod
     def initial(cls, model) -> 'Control':
-        return cls(model.torque_value0.copy(), model.torque_enabled0.copy(),
-                   model.drive_aim0.copy(), model.drive_enabled0.copy(),
-                   model.drive_passive0.copy())
+        m = model
+        return cls(np.concatenate([m.torque_value0, m.prismatic_force_value0]),
+                   np.concatenate([m.torque_enabled0, m.prismatic_force_enabled0]),
+                   np.concatenate([m.drive_aim0, m.prismatic_drive_aim0]),
+                   np.concatenate([m.drive_enabled0, m.prismatic_drive_enabled0]),
+                   np.concatenate([m.drive_passive0, m.prismatic_drive_passive0]))
 
     def copy(self) -> 'Control':
         return Control(*(getattr(self, f.name).copy() for f in fields(self)))

@@ -12,7 +12,9 @@ any scene. Every mapping rule and why: docs/urdf.md.
   mass-weighted mean, inertias add with the parallel-axis theorem
   ``I = Σ R_k I_k R_kᵀ + m_k (|d_k|² 1 − d_k d_kᵀ)``, ``d_k = c_k − c``.
 * revolute -> UID 18 (+ UID 670 from ``<limit lower upper>``; ``effort`` -> the UID 668
-  effort limit); continuous -> UID 18 without a limit. ``p0`` = joint origin,
+  effort limit); continuous -> UID 18 without a limit; prismatic -> UID 20 (+ UID 669 from
+  ``<limit lower upper>`` [m]; ``effort`` -> the UID 667 force limit [N]; ``init_distance`` =
+  the initial position [m]; a positive position slides the child along ``<axis>``). ``p0`` = joint origin,
   ``p1 = p0 + axis`` (world, initial pose): a positive URDF position (right-hand rotation of
   the child about ``<axis>``) is a positive joint angle, and ``init_angle`` = the initial
   position so the reported angle reads the URDF joint position.
@@ -52,11 +54,14 @@ ROBOT_OPTIONS = ('fixed_base', 'initial_positions', 'lock', 'actuated', 'joints'
 """URDF options of ``from_urdf`` and of a ``robot:`` block (besides ``urdf``)."""
 SCENE_OPTIONS = ('dt', 'gravity', 'integrator', 'newton', 'name')
 """Scene options ``from_urdf`` also takes (in a scene YAML they are top-level keys)."""
-JOINT_OVERRIDES = ('strength_ratio', 'external_torque', 'driving', 'limit', 'damping')
+JOINT_OVERRIDES = ('strength_ratio', 'external_torque', 'external_force', 'driving', 'limit', 'damping')
 OVERRIDE_KEYS = {'external_torque': ('torque', 'enabled', 'effort_limit'),
-                 'driving': ('strength_ratio', 'aim_angle', 'passive', 'enabled'),
+                 'external_force': ('force', 'enabled', 'effort_limit'),
+                 'driving': ('strength_ratio', 'aim_angle', 'aim_distance', 'passive', 'enabled'),
                  'limit': ('lower', 'upper', 'strength')}
-MOVABLE = ('revolute', 'continuous')
+MOVABLE = ('revolute', 'continuous', 'prismatic')
+TURNING = ('revolute', 'continuous')
+LIMITED = ('revolute', 'prismatic')     # the types whose <limit lower upper> is a UID 670/669 limit
 MAX_URDF_BYTES = 8 << 20
 """Largest URDF read [bytes], as for scene YAML (scene.MAX_YAML_BYTES): the largest robot
 of pybullet_data is 0.2 MB, a generated 2000-link arm ~1 MB."""
@@ -298,9 +303,9 @@ class _Reader:
             j.effort = self.number(lim, 'effort', f'{where} <limit>', 0.0)
             if j.effort < 0.0:
                 self.fail(f'{where} <limit>: effort="{j.effort:g}" is negative; effort is the '
-                          'largest torque magnitude, >= 0 N m (0 or absent: no effort limit)')
+                          'largest torque (N m) or force (N) magnitude, >= 0 (0 or absent: no effort limit)')
             j.velocity = self.number(lim, 'velocity', f'{where} <limit>', 0.0)
-            if jtype == 'revolute':
+            if jtype in LIMITED:
                 j.lower = self.number(lim, 'lower', f'{where} <limit>', 0.0)
                 j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
         if el.find('mimic') is not None:
@@ -535,7 +540,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             refused.append((j.name, j.type, j.mimic))
     if len(refused) == 1:
         name, jtype, mimic = refused[0]
-        why = (f'is {jtype}: only revolute and continuous joints are simulated' if mimic is None
+        why = (f'is {jtype}: only revolute, continuous and prismatic joints are simulated' if mimic is None
                else f'({jtype}) mimics joint {mimic!r}: mimic joints are not simulated')
         raise SceneError(f'{source}: joint {name!r} {why}; `lock: [{name}]` holds it rigid '
                          '(the child link is merged into its parent)')
@@ -543,8 +548,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         names = ', '.join(name for name, _, _ in refused)
         what = ', '.join(f'{name!r} ({jtype}' + (f', mimics {mimic!r})' if mimic else ')')
                          for name, jtype, mimic in refused)
-        raise SceneError(f'{source}: {len(refused)} joints cannot be simulated (only revolute '
-                         f'and continuous joints are, and no mimic joints): {what}; '
+        raise SceneError(f'{source}: {len(refused)} joints cannot be simulated (only revolute, '
+                         f'continuous and prismatic joints are, and no mimic joints): {what}; '
                          f'`lock: [{names}]` holds them rigid (each child link is merged into '
                          'its parent)')
 
@@ -553,7 +558,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
 
     def effective_limit(j):
         """(lower, upper) of the UID 670 limit the joint will get, or None."""
-        lim = ({'lower': j.lower, 'upper': j.upper} if opt.limits and j.type == 'revolute'
+        lim = ({'lower': j.lower, 'upper': j.upper} if opt.limits and j.type in LIMITED
                and j.lower is not None and j.upper > j.lower else None)
         over = opt.overrides.get(j.name, {})
         if 'limit' in over:
@@ -562,13 +567,13 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
 
     # A limit beyond the angles a scene takes (|x| <= 1e4 rad, ~1600 turns) is how some
     # descriptions say "no limit" (lower="-1e+16"): such a joint is taken as continuous.
-    angle_max = RANGES['angle'][1]
     for j in joints.values():
-        if j.type == 'revolute' and j.lower is not None and moving(j) \
-                and not max(abs(j.lower), abs(j.upper)) <= angle_max:
-            msg = (f'{source}: joint {j.name!r}: limit [{j.lower:g}, {j.upper:g}] rad is beyond '
-                   f'the supported |angle| <= {angle_max:g} rad: taken as no limit (a continuous '
-                   'joint)')
+        unit, bound = ('m', RANGES['position'][1]) if j.type == 'prismatic' else ('rad', RANGES['angle'][1])
+        if j.type in LIMITED and j.lower is not None and moving(j) \
+                and not max(abs(j.lower), abs(j.upper)) <= bound:
+            msg = (f'{source}: joint {j.name!r}: limit [{j.lower:g}, {j.upper:g}] {unit} is beyond '
+                   f'the supported |position| <= {bound:g} {unit}: taken as no limit'
+                   + (' (a continuous joint)' if unit == 'rad' else ''))
             notes.append(msg)
             warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
             j.lower = j.upper = None
@@ -617,7 +622,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if lim is not None and not lim[0] <= q <= lim[1]:
             q = min(max(q, lim[0]), lim[1])
             msg = (f'{source}: joint {j.name!r}: position 0 is outside its limit '
-                   f'[{lim[0]:g}, {lim[1]:g}]: it starts at {q:g} rad (set initial_positions '
+                   f'[{lim[0]:g}, {lim[1]:g}]: it starts at {q:g} {"m" if j.type == "prismatic" else "rad"} (set initial_positions '
                    'to choose)')
             notes.append(msg)
             warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
@@ -636,7 +641,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             joint_frame[j.name] = T
             q = q_init[j.name]
             M = np.eye(4)
-            if j.type in MOVABLE:
+            if j.type in TURNING:
                 M[:3, :3] = axis_rotation(j.axis, q)
             elif j.type == 'prismatic':
                 M[:3, 3] = j.axis * q
@@ -761,33 +766,36 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if not moving(joints[name]):
             raise SceneError(f'{source}: robot.actuated: joint {name!r} is '
                              f'{"locked" if name in opt.lock else joints[name].type}; only '
-                             'moving revolute/continuous joints can be actuated')
+                             'moving revolute/continuous/prismatic joints can be actuated')
     for name in opt.overrides:
         if not moving(joints[name]):
             raise SceneError(f'{source}: robot.joints.{name}: joint {name!r} is '
                              f'{"locked" if name in opt.lock else joints[name].type}, not a '
-                             'moving revolute/continuous joint')
+                             'moving revolute/continuous/prismatic joint')
     scene_joints = []
     for j in movable:
         F = joint_frame[j.name]
         p0 = F[:3, 3]
         axis = F[:3, :3] @ j.axis
         q0 = q_init[j.name]
-        d = {'name': j.name, 'type': 'revolute', 'parent': group[j.parent],
+        sliding = j.type == 'prismatic'
+        aim_key, effort_key, value_key = (('aim_distance', 'external_force', 'force') if sliding
+                                          else ('aim_angle', 'external_torque', 'torque'))
+        d = {'name': j.name, 'type': 'prismatic' if sliding else 'revolute', 'parent': group[j.parent],
              'child': group[j.child], 'p0': _plain_list(p0), 'p1': _plain_list(p0 + axis),
-             'init_angle': q0}
+             'init_distance' if sliding else 'init_angle': q0}
         if opt.strength_ratio is not None:
             d['strength_ratio'] = opt.strength_ratio
         if j.name in actuated:
-            et = {'torque': 0.0, 'enabled': opt.torque_enabled}
+            et = {value_key: 0.0, 'enabled': opt.torque_enabled}
             if j.effort is not None and j.effort > 0.0:
                 et['effort_limit'] = j.effort
-            d['external_torque'] = et
-        if opt.limits and j.type == 'revolute' and j.lower is not None and j.upper > j.lower:
+            d[effort_key] = et
+        if opt.limits and j.type in LIMITED and j.lower is not None and j.upper > j.lower:
             d['limit'] = {'lower': j.lower, 'upper': j.upper}
-        if opt.driving is not None:         # UID 19 on every moving joint, holding its pose
-            d['driving'] = {'aim_angle': q0, **opt.driving}
-        if opt.damping and j.damping > 0.0:
+        if opt.driving is not None:         # UID 19 / 21 on every moving joint, holding its pose
+            d['driving'] = {aim_key: q0, **opt.driving}
+        if opt.damping and j.damping > 0.0:     # N m s/rad, or N s/m on a prismatic joint
             d['damping'] = j.damping
         over = opt.overrides.get(j.name, {})
         for key in JOINT_OVERRIDES:
@@ -801,12 +809,13 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             elif isinstance(value, dict):
                 base = d.get(key) if isinstance(d.get(key), dict) else {}
                 if key == 'driving' and 'driving' not in d:
-                    base = {'aim_angle': q0}
+                    base = {aim_key: q0}
                 d[key] = {**base, **value}
         lim = d.get('limit')
         if isinstance(lim, dict) and 'lower' in lim and 'upper' in lim \
                 and not lim['lower'] <= q0 <= lim['upper']:
-            raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} rad is outside '
+            raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} '
+                             f'{"m" if sliding else "rad"} is outside '
                              f'the joint\'s limit [{lim["lower"]:g}, {lim["upper"]:g}]; the limit '
                              f'would throw it back at once (widen it with joints: {{{j.name}: '
                              '{limit: ...}}, or limits: false)')

@@ -16,12 +16,12 @@ import operator
 import numpy as np
 
 from .model import Model, compile_scene
-from .scene import MAX_ABS_AIM, Scene
+from .scene import EFFORT_UNIT, MAX_ABS_AIM, PRISMATIC, REVOLUTE, Scene
 from .solver.report import Status, StepReport
 from .solver.resident import Resident
 from .solver.solver import Solver
 from .state import Control, State
-from .terms import ENERGY_TERMS, revolute, torque
+from .terms import ENERGY_TERMS, prismatic, revolute, torque
 
 __all__ = ['World', 'StepReport', 'Status']
 
@@ -46,11 +46,18 @@ class World:
         self._resident = Resident(m.body_count, m.joint_count)
         self._joint_index = {n: k for k, n in enumerate(m.joint_names)}
         self._torque_slot = {m.joint_names[j]: k for k, j in enumerate(m.torque_joints)}
-        self._actuated = tuple(m.joint_names[j] for j in m.torque_joints)
-        # the effort limits as an array (set_torques) and as Python floats (set_torque)
-        self._effort_limit_array = np.array(m.torque_effort_limit, dtype=np.float64)
+        # the rows of Control's effort arrays: UID 668 torques, then UID 667 forces
+        effort_joints = np.concatenate([m.torque_joints, m.prismatic_force_joints]).astype(np.int64)
+        self._effort_joints = effort_joints
+        self._effort_slot = {m.joint_names[j]: k for k, j in enumerate(effort_joints)}
+        self._actuated = tuple(m.joint_names[j] for j in effort_joints)
+        # the effort limits as an array (set_efforts) and as Python floats (set_effort)
+        self._effort_limit_array = np.concatenate([m.torque_effort_limit, m.prismatic_force_effort_limit])
         self._effort_limit = self._effort_limit_array.tolist()
-        self._drive_slot = {m.joint_names[j]: k for k, j in enumerate(m.drive_joints)}
+        # the rows of Control's drive arrays: UID 19 drives, then UID 21 drives
+        self._drive_slot = {m.joint_names[j]: k for k, j in
+                            enumerate(np.concatenate([m.drive_joints, m.prismatic_drive_joints]).tolist())}
+        self._types = tuple(PRISMATIC if s else REVOLUTE for s in m.joint_slides)
         self.reset()
 
     # -- introspection ------------------------------------------------------------------
@@ -83,26 +90,53 @@ class World:
 
     @property
     def actuated_joint_names(self) -> tuple:
-        """Joints carrying the external torque (UID 668), in scene order (`set_torques`'s)."""
+        """Joints carrying an external effort, in `set_efforts`' order: those with the torque
+        (UID 668, revolute) in scene order, then those with the force (UID 667, prismatic)."""
         return self._actuated
+
+    @property
+    def effort_limits(self) -> np.ndarray:
+        """The effort limit of each actuated joint, in `actuated_joint_names` order: N m on a
+        revolute joint, N on a prismatic one (inf: none). A copy."""
+        return self._effort_limit_array.copy()
+
+    @property
+    def joint_types(self) -> tuple:
+        """'revolute' or 'prismatic' per joint, in joint_names order."""
+        return self._types
 
     @property
     def body_names(self) -> tuple:
         return self.model.body_names
 
+    def joint_positions(self) -> np.ndarray:
+        """Per joint its position: the multi-turn angle including init_angle [rad] of a
+        revolute joint, the distance including init_distance [m] of a prismatic one. (J,)"""
+        return self._resident.joint_values(0)
+
     def joint_angles(self) -> np.ndarray:
-        """Multi-turn angles including init_angle. [rad] (J,)"""
+        """`joint_positions` (the name from revolute-only scenes): rad, or m on a prismatic
+        joint. (J,)"""
         return self._resident.joint_values(0)
 
     def joint_velocities(self) -> np.ndarray:
-        """Time derivative of the joint angles. [rad/s] (J,)"""
+        """Time derivative of the joint positions. [rad/s | m/s] (J,)"""
         return self._resident.joint_values(1)
 
     def applied_torques(self) -> np.ndarray:
-        """Torque applied at the next step per joint; 0 where disabled or not actuated. [N m] (J,)"""
+        """Torque applied at the next step per joint; 0 where disabled or not actuated, and on
+        prismatic joints (applied_efforts has their forces). [N m] (J,)"""
+        out = np.zeros(self.model.joint_count)
+        c, T = self.control, len(self.model.torque_joints)
+        out[self.model.torque_joints] = np.where(c.torque_enabled[:T], c.torque_value[:T], 0.0)
+        return out
+
+    def applied_efforts(self) -> np.ndarray:
+        """Effort applied at the next step per joint: the torque [N m] of a revolute joint, the
+        force [N] of a prismatic one; 0 where disabled or not actuated. (J,)"""
         out = np.zeros(self.model.joint_count)
         c = self.control
-        out[self.model.torque_joints] = np.where(c.torque_enabled, c.torque_value, 0.0)
+        out[self._effort_joints] = np.where(c.torque_enabled, c.torque_value, 0.0)
         return out
 
     def body_pose(self, body: str):
@@ -122,20 +156,54 @@ class World:
             raise KeyError(f'unknown joint {joint!r}; joints: {", ".join(self.model.joint_names)}')
         raise ValueError(f'joint {joint!r} has no {what}')
 
+    def set_effort(self, joint: str, value: float) -> float:
+        """Set a joint's effort, applied from the next step: the torque [N m] of a revolute
+        joint (UID 668), the force [N] along a prismatic one (UID 667; positive f increases its
+        distance). Values beyond the joint's effort_limit are clamped; the applied value is
+        returned. A value that is not a number or not finite raises ValueError naming the joint
+        and unit, and changes nothing."""
+        k = self._effort_slot.get(joint) if type(joint) is str else None
+        if k is None:
+            self._slot(self._effort_slot, joint, 'external effort (external_torque or '
+                                                 'external_force: not actuated)')   # raises
+        kind = self._types[self._joint_index[joint]]
+        value = torque.clamp_command(_number(value, joint, f'effort ({EFFORT_UNIT[kind]})'),
+                                     self._effort_limit[k])
+        self.control.torque_value[k] = value
+        return value
+
+    def set_effort_enabled(self, joint: str, enabled: bool) -> None:
+        """Switch a joint's external effort (torque or force) on or off from the next step."""
+        k = self._slot(self._effort_slot, joint, 'external effort (not actuated)')
+        self.control.torque_enabled[k] = _flag(enabled, joint, 'enabled')
+
+    def effort_enabled(self, joint: str) -> bool:
+        return bool(self.control.torque_enabled[self._slot(self._effort_slot, joint, 'external effort')])
+
+    def set_efforts(self, values) -> np.ndarray:
+        """Set the effort of every actuated joint at once, in `actuated_joint_names` order
+        (N m on revolute, N on prismatic joints); see `set_torques`."""
+        return self.set_torques(values)
+
     def set_torque(self, joint: str, value: float) -> float:
-        """Set the UID 668 torque of a joint, applied from the next step. Values beyond the
-        joint's effort_limit are clamped; the applied value is returned. A value that is not
-        a number or not finite raises ValueError naming the joint, and changes nothing."""
+        """Set the UID 668 torque of a revolute joint, applied from the next step. Values beyond
+        the joint's effort_limit are clamped; the applied value is returned. A value that is not
+        a number or not finite raises ValueError naming the joint, and changes nothing. (A
+        prismatic joint's force: `set_effort`.)"""
         k = self._torque_slot.get(joint) if type(joint) is str else None
         if k is None:
+            if type(joint) is str and joint in self._effort_slot:
+                raise ValueError(f'joint {joint!r} is prismatic: its effort is a force (UID 667, N); '
+                                 'set it with set_effort')
             self._slot(self._torque_slot, joint, 'external_torque (not actuated)')   # raises
         value = torque.clamp_command(_number(value, joint, 'torque'), self._effort_limit[k])
         self.control.torque_value[k] = value
         return value
 
     def set_torques(self, values) -> np.ndarray:
-        """Set the UID 668 torque of every actuated joint at once, in `actuated_joint_names`
-        order, applied from the next step: a controller's per-step call, one array instead of
+        """Set the effort of every actuated joint at once (the UID 668 torque [N m], and on a
+        prismatic joint the UID 667 force [N]), in `actuated_joint_names` order, applied from
+        the next step: a controller's per-step call, one array instead of
         a `set_torque` per joint. Values beyond each joint's effort_limit are clamped; returns
         the applied values (a copy). A wrong length, a value that is not a number or not
         finite raises ValueError naming it, and then no torque is changed."""
@@ -168,15 +236,17 @@ class World:
 
     def set_drive(self, joint: str, *, aim: float | None = None, enabled: bool | None = None,
                   passive: bool | None = None) -> None:
-        """Change a joint's driving (UID 19) aim angle [rad, absolute], enable or passive flag.
-        All three are checked before any is applied: an aim that is not a finite number or a
-        flag that is not True or False raises ValueError naming the joint, and changes
-        nothing."""
+        """Change a joint's driving aim (absolute: the angle [rad] of a revolute joint's UID 19,
+        the distance [m] of a prismatic joint's UID 21), enable or passive flag. All three
+        are checked before any is applied: an aim that is not a finite number or a flag that
+        is not True or False raises ValueError naming the joint, and changes nothing."""
         k = self._slot(self._drive_slot, joint, 'driving')
-        aim = None if aim is None else _number(aim, joint, 'aim angle')
+        kind = self._types[self._joint_index[joint]]
+        what, unit = ('aim distance', 'm') if kind == PRISMATIC else ('aim angle', 'rad')
+        aim = None if aim is None else _number(aim, joint, what)
         if aim is not None and abs(aim) > MAX_ABS_AIM:
-            raise ValueError(f'joint {joint!r}: aim angle {aim} rad is outside the supported range '
-                             f'|aim| <= {MAX_ABS_AIM:g} rad; rejected')
+            raise ValueError(f'joint {joint!r}: {what} {aim} {unit} is outside the supported range '
+                             f'|aim| <= {MAX_ABS_AIM:g} {unit}; rejected')
         enabled = None if enabled is None else _flag(enabled, joint, 'enabled')
         passive = None if passive is None else _flag(passive, joint, 'passive')
         if aim is not None:
@@ -199,8 +269,14 @@ class World:
 
     # -- diagnostics --------------------------------------------------------------------
     def max_joint_separation(self) -> float:
-        """The largest distance between the two bodies' copies of a joint anchor. [m]"""
-        return float(revolute.max_separation(self.state.q, self.solver.data))
+        """The largest joint separation [m]: the distance between the two bodies' copies of a
+        revolute joint's anchor, or of a prismatic joint's axis point from the other body's
+        axis."""
+        q, data = self.state.q, self.solver.data
+        out = float(revolute.max_separation(q, data))
+        if len(self.model.prismatic_joints):
+            out = max(out, float(prismatic.check_separations(q, data)[0]))
+        return out
 
     def momentum(self):
         """(linear (3,), angular about the world origin (3,)) of the free bodies."""

@@ -57,7 +57,8 @@ COLUMNS = ('engine', 'backend', 'scene', 'integrator', 'velocity_tol', 'tau_samp
 def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end'):
     """Simulate one point; returns a row dict (see COLUMNS)."""
     w = common.make_world(case.scene(dt, integrator, velocity_tol))
-    w.set_torque_enabled('hinge', True)
+    joint = w.actuated_joint_names[0]       # the hinge's torque [N m], or the slider's force [N]
+    w.set_effort_enabled(joint, True)
     n = int(round(horizon / dt))
     times, angles = np.empty(n), np.empty(n)
     its = ls = unconv = subs = 0
@@ -69,7 +70,7 @@ def run_point(case, dt, integrator, velocity_tol, horizon, tau_sample='end'):
     try:
         for k in range(n):
             t0 = time.perf_counter()
-            w.set_torque('hinge', case.torque(w.time + offset))
+            w.set_effort(joint, case.torque(w.time + offset))
             rep = w.step()
             wall += time.perf_counter() - t0
             times[k], angles[k] = w.time, w.joint_angles()[0]

@@ -69,6 +69,29 @@ def hinge_scene(dt=1e-2, integrator='bdf1', velocity_tol=0.05, tau=100.0, gravit
     }
 
 
+def slider_scene(dt=1e-2, integrator='bdf1', velocity_tol=0.05, force=10.0, size=0.4, density=1000.0,
+                 kappa=1e8, strength_ratio=100.0, velocity=0.0, limit=None, newton=None):
+    """Fixed cube at x = −0.6, free cube centred at x = +0.6, a prismatic joint along +x
+    through both (UID 20) with the force `force` [N] along it (UID 667); `velocity` [m/s] starts
+    the child sliding along the axis; `limit` (lower, upper) [m] adds UID 669."""
+    joint = {'name': 'slide', 'type': 'prismatic', 'parent': 'base', 'child': 'arm',
+             'p0': [0.0, 0.0, 0.0], 'p1': [1.0, 0.0, 0.0], 'strength_ratio': float(strength_ratio),
+             'external_force': {'force': float(force), 'enabled': True}}
+    if limit is not None:
+        joint['limit'] = {'lower': float(limit[0]), 'upper': float(limit[1])}
+    return {
+        'name': 'study_slider', 'dt': float(dt), 'gravity': [0.0, 0.0, 0.0],
+        'integrator': integrator, 'newton': newton or _newton(velocity_tol),
+        'bodies': [
+            {'name': 'base', 'box': [size] * 3, 'density': float(density), 'kappa': float(kappa),
+             'position': [-0.6, 0.0, 0.0], 'fixed': True},
+            {'name': 'arm', 'box': [size] * 3, 'density': float(density), 'kappa': float(kappa),
+             'position': [0.6, 0.0, 0.0], 'velocity': [float(velocity), 0.0, 0.0]},
+        ],
+        'joints': [joint],
+    }
+
+
 def hinge_inertia(size=0.4, density=1000.0, child_box=None, d=0.6):
     """I about the hinge axis (z through the origin) of the child box centred at x = d."""
     a, b, c = child_box if child_box is not None else (size, size, size)
@@ -236,4 +259,23 @@ class PendulumSine(Case):
         return pendulum_reference(self.tau0, self.omega, t_end=max(t_end, 1.0))
 
 
-CASES = {c.name: c for c in (HingeConstant(), FreePair(), PendulumSine())}
+class SliderSine(Case):
+    name = 'slider_sine'
+    description = ('fixed cube + free cube on a prismatic joint, force f(t) = 50 sin(2 pi t) N along '
+                   'it, no gravity; d = (f0/m)(t/omega - sin(omega t)/omega^2)')
+    f0 = 50.0
+    omega = 2.0 * math.pi
+    mass = 1000.0 * 0.4 ** 3
+
+    def scene(self, dt, integrator, velocity_tol):
+        return slider_scene(dt, integrator, velocity_tol, force=0.0)
+
+    def torque(self, t):
+        return self.f0 * math.sin(self.omega * t)
+
+    def reference(self, t_end):
+        a, w = self.f0 / self.mass, self.omega
+        return lambda t: a * (np.asarray(t, float) / w - np.sin(w * np.asarray(t, float)) / w ** 2)
+
+
+CASES = {c.name: c for c in (HingeConstant(), FreePair(), PendulumSine(), SliderSine())}

@@ -143,3 +143,98 @@ def torque_force(model, q, taus):
             E = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
             F[b, 3:12] += (0.5 * taus[k] * E @ np.linalg.inv(A).T).ravel()
     return F
+
+
+# -- the prismatic family (UID 20, 21, 667, 669), from docs/physics.md -------------------------
+def prismatic_frame(model, q, j):
+    """(c_i, c_j, t_i, t_j, n_i, n_j, b_i, b_j) of prismatic joint j: each body's copy of the
+    joint point P0 (translation included) and of the axis t = (P1 − P0)/|P1 − P0| and the
+    normals n, b (rotation only), from the joint's rest anchors and angle basis."""
+    out = {}
+    for side, b in ((0, model.joint_parent[j]), (1, model.joint_child[j])):
+        _, A = affine(q, b)
+        x0, x1 = model.joint_anchor0[j, side], model.joint_anchor1[j, side]
+        out['c', side] = point(q, b, x0)
+        out['t', side] = A @ ((x1 - x0) / np.linalg.norm(x1 - x0))
+        out['n', side] = A @ model.joint_nbar[j, side]
+        out['b', side] = A @ model.joint_bbar[j, side]
+    return out
+
+
+def prismatic_distance(model, q, j):
+    """d = ½ (c_j − c_i)·(t_i + t_j), relative to the joint's creation. [m]"""
+    f = prismatic_frame(model, q, j)
+    return 0.5 * (f['c', 1] - f['c', 0]) @ (f['t', 0] + f['t', 1])
+
+
+def prismatic_energy(model, q):
+    """UID 20: K/2 (|(c_j − c_i) × t_i|² + |(c_i − c_j) × t_j|² + |n_i − n_j|² + |b_i − b_j|²)."""
+    E = 0.0
+    for j in model.prismatic_joints:
+        f = prismatic_frame(model, q, j)
+        r = f['c', 1] - f['c', 0]
+        C = [np.cross(r, f['t', 0]), np.cross(-r, f['t', 1]), f['n', 0] - f['n', 1], f['b', 0] - f['b', 1]]
+        E += 0.5 * model.joint_K[j] * sum(c @ c for c in C)
+    return E
+
+
+def prismatic_driving_energy(model, q, targets, on):
+    """UID 21: K/2 (t_i·(c_j − c_i) − d̃)² + K/2 (t_j·(c_j − c_i) − d̃)² per enabled drive."""
+    E = 0.0
+    for k, j in enumerate(model.prismatic_drive_joints):
+        if on[k]:
+            f = prismatic_frame(model, q, j)
+            r = f['c', 1] - f['c', 0]
+            E += 0.5 * model.prismatic_drive_K[k] * ((f['t', 0] @ r - targets[k]) ** 2
+                                                     + (f['t', 1] @ r - targets[k]) ** 2)
+    return E
+
+
+def prismatic_limit_energy(model, q):
+    """UID 669: UID 670's cubic on the distance, bounds relative to init_distance."""
+    E = 0.0
+    for k, j in enumerate(model.prismatic_limit_joints):
+        x = prismatic_distance(model, q, j)
+        lo = model.prismatic_limit_lower[k] - model.joint_init_angle[j]
+        up = model.prismatic_limit_upper[k] - model.joint_init_angle[j]
+        s, w = model.prismatic_limit_strength[k], up - lo
+        if w == 0:
+            E += s * abs(x - lo) ** 3
+        elif x > up:
+            E += s * ((x - up) / w) ** 3
+        elif x < lo:
+            E += s * ((lo - x) / w) ** 3
+    return E
+
+
+def prismatic_force(model, q, forces):
+    """UID 667: F_k = J(c̄_k)ᵀ (f t̂_k), t̂_j = ½(t̃_i + t̃_j), t̂_i = −t̂_j, t̃_k the normalised
+    axis of body k from its own anchors."""
+    F = np.zeros((model.body_count, 12))
+    for k, j in enumerate(model.prismatic_force_joints):
+        raw = []
+        for side, b in ((0, model.joint_parent[j]), (1, model.joint_child[j])):
+            _, A = affine(q, b)
+            e = A @ (model.joint_anchor1[j, side] - model.joint_anchor0[j, side])
+            raw.append(e / np.linalg.norm(e))
+        t_j = 0.5 * (raw[0] + raw[1])
+        for side, b, t in ((0, model.joint_parent[j], -t_j), (1, model.joint_child[j], t_j)):
+            w = forces[k] * t
+            F[b, :3] += w
+            F[b, 3:12] += np.outer(w, model.joint_anchor0[j, side]).ravel()
+    return F
+
+
+def prismatic_damping_energy(model, q, q_prev, start, h, bdf2):
+    """Prismatic joint damping: the potential whose d-derivative is h² c ḋ, ḋ the integrator's
+    rate at the end of the step (BDF1 (d − dⁿ)/h, BDF2 (3d − 4dⁿ + dⁿ⁻¹)/(2h), dⁿ⁻¹ at
+    q_prev): ḋ is linear in d with slope r, so E = h² c ḋ² / (2r)."""
+    E = 0.0
+    for k, j in enumerate(model.prismatic_damping_joints):
+        c, now, x = model.prismatic_damping_coeff[k], start[j], prismatic_distance(model, q, j)
+        if bdf2:
+            rate, r = (3 * x - 4 * now + prismatic_distance(model, q_prev, j)) / (2 * h), 3 / (2 * h)
+        else:
+            rate, r = (x - now) / h, 1 / h
+        E += h * h * c * rate ** 2 / (2 * r)
+    return E

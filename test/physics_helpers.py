@@ -114,7 +114,7 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
     """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are
     written to `skipped` (parent side of every joint first, then child side); returns their
     count."""
-    if not torque._any_active(torque_value, torque_enabled):
+    if not torque._any_active(torque_value, torque_enabled, m.torque_joints.size):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
     e = np.empty((tj.size + 2, 3))

@@ -409,3 +409,57 @@ def test_stepping_thread_paces_real_time_and_stops_with_pause_and_close(domain_i
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_a_prismatic_joint_is_published_in_m_and_n_and_commanded_by_force():
+    """/joint_states carries a sliding joint's distance [m], rate [m/s] and applied force [N];
+    a joint_commands effort on it is a force (clamped to its effort_limit in N); beside it a
+    revolute joint keeps rad and N m."""
+    from abd_joint_sim.ros.loop import SimLoop
+    cube = dict(box=[0.4, 0.4, 0.4], density=1000.0)      # 64 kg
+    scene = Scene.from_dict(dict(dt=0.01, bodies=[
+        dict(name='base', position=[0, 0, 0], fixed=True, **cube),
+        dict(name='cart', position=[0.6, 0, 0], **cube),
+        dict(name='arm', position=[0.6, 0, 0.6], **cube)], joints=[
+        dict(name='rail', type='prismatic', parent='base', child='cart', p0=[0.3, 0, 0], p1=[1.3, 0, 0],
+             external_force=dict(enabled=True, effort_limit=64.0)),
+        dict(name='hinge', parent='cart', child='arm', p0=[0.4, 0, 0.4], p1=[0.8, 0, 0.4],   # along the rail
+             external_torque=dict(enabled=True))]))
+    out = Collect()
+    loop = SimLoop(scene, config_from_values({'scene': 'default', 'publish_rate': 0.0}), output=out)
+    # the actuated joints: those with a torque, then those with a force
+    assert loop.world.actuated_joint_names == ('hinge', 'rail')
+    assert loop.world.effort_limits.tolist() == [float('inf'), 64.0]
+    loop.commands.command_torque('rail', 100.0)           # clamped to 64 N
+    for _ in range(20):
+        loop.step_once()
+    t_ns = max(out.states)
+    position, velocity, effort = out.states[t_ns]
+    assert effort == [64.0, 0.0]
+    # 64 N on 128 kg (the arm rides on the cart): d = ½ a t² (+ BDF1's ½ a h t)
+    t, h = t_ns * 1e-9, loop.world.dt
+    assert position[0] == pytest.approx(0.5 * 0.5 * t * t + 0.5 * 0.5 * h * t, rel=2e-2)
+    assert velocity[0] == pytest.approx(0.5 * t, rel=2e-2)
+
+
+def test_a_disabled_prismatic_force_is_warned_in_newtons():
+    from abd_joint_sim.ros.loop import SimLoop
+
+    class Logged(Collect):
+        def __init__(self):
+            super().__init__()
+            self.lines = []
+
+        def log(self, level, text, key=None):
+            self.lines.append((level, text))
+    cube = dict(box=[0.4, 0.4, 0.4], density=1000.0)
+    scene = Scene.from_dict(dict(dt=0.01, bodies=[
+        dict(name='base', position=[0, 0, 0], fixed=True, **cube), dict(name='cart', position=[0.6, 0, 0], **cube)],
+        joints=[dict(name='rail', type='prismatic', parent='base', child='cart', p0=[0.3, 0, 0], p1=[1.3, 0, 0],
+                     external_force=dict(enabled=False))]))
+    out = Logged()
+    loop = SimLoop(scene, config_from_values({'scene': 'default', 'publish_rate': 0.0}), output=out)
+    loop.commands.command_torque('rail', 5.0)
+    loop.step_once()
+    assert any(level == 'warn' and "joint 'rail': force 5 N stored but the force is disabled" in text
+               for level, text in out.lines), out.lines

@@ -253,7 +253,7 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
     n = InProcess(scene='hinge', real_time_factor=0.0, publish_rate=0.0, record=str(bag))
     try:
         world = n.sim.world
-        real_step, real_efforts = world.step, world.applied_torques
+        real_step, real_efforts = world.step, world.applied_efforts
         n.spin_until(lambda: n.sim.steps >= 20, 20.0, '20 steps')
 
         def failing_step(*a, **k):
@@ -292,12 +292,12 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
         # A world that goes non-finite without raising (here the effort it reports, which
         # both the one-step and the batched publish read): guarded in the publish path.
         states_before = len(n.states)
-        world.applied_torques = lambda: np.full(len(world.joint_names), np.nan)
+        world.applied_efforts = lambda: np.full(len(world.joint_names), np.nan)
         n.spin_until(lambda: n.sim.paused, 10.0, 'the node to pause on NaN')
         print(f'non-finite state -> log: {n.log.text("error").splitlines()[-1]!r}')
         assert 'non-finite state' in n.log.text('error')
         assert 'non-finite' in n.sim.fault
-        world.applied_torques = real_efforts
+        world.applied_efforts = real_efforts
         n.spin_for(0.3)
         assert len(n.states) > states_before > 0
         assert _finite_states(n.states), 'a non-finite joint state was published'

@@ -16,11 +16,11 @@ class FakeWorld:
         self.enabled = {n: True for n in names}
         self.calls = []
 
-    def set_torque(self, joint, value):
+    def set_effort(self, joint, value):
         self.calls.append(('torque', joint, value))
         self.torque[joint] = value
 
-    def set_torque_enabled(self, joint, flag):
+    def set_effort_enabled(self, joint, flag):
         self.calls.append(('enable', joint, flag))
         self.enabled[joint] = flag
 

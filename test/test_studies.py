@@ -75,7 +75,8 @@ def test_checks_can_fail():
     assert any('order' in p for p in problems) and any('2%' in p for p in problems)
 
 
-QUICK_GROUPS = ('kappa', 'strength_ratio', 'torque', 'dt', 'thin', 'singular_A', 'step_rotation', 'chain')
+QUICK_GROUPS = ('kappa', 'strength_ratio', 'torque', 'dt', 'thin', 'singular_A', 'step_rotation', 'chain',
+                'prismatic')
 
 
 @pytest.fixture(scope='module')
@@ -101,6 +102,17 @@ def test_stability_core_cases_pass(stability_rows):
         assert r['max_sep_rel'] < ST.SEP_FRAC
         if not math.isnan(r['energy_max_rise_rel']):
             assert r['energy_drop_rel'] >= 0
+
+
+def test_prismatic_cases_pass(stability_rows):
+    """Sliders: stiff bodies, large forces (d = ½ f/m t²), a limit hit at speed (energy never
+    above the start's)."""
+    rows = [r for r in stability_rows if r['group'] == 'prismatic']
+    assert len(rows) == 6
+    for r in rows:
+        assert r['verdict'] == 'pass' and r['max_sep_rel'] < ST.SEP_FRAC, r
+    hits = [r for r in rows if 'hits its limit' in r['case']]
+    assert all(r['energy_drop_rel'] > 0.0 for r in hits)
 
 
 def test_singular_affine_state_is_reported(stability_rows):

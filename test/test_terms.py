@@ -86,31 +86,35 @@ def _oracle_energy(name, q, ctx):
     return oracle.limit_energy(MODEL, q, ctx.angle_start)
 
 
-def dense(term, q, ctx, project):
-    """(E, ∇E (12B,), ∇²E (12B,12B)) of a compiled term, the blocks assembled densely."""
-    B, J = MODEL.body_count, MODEL.joint_count
+def dense(term, q, ctx, project, model=None, data=None):
+    """(E, ∇E (12B,), ∇²E (12B,12B)) of a compiled term, the blocks assembled densely (on
+    MODEL, DATA unless another model and its compiled data are given)."""
+    model, data = (MODEL, DATA) if model is None else (model, data)
+    B, J = model.body_count, model.joint_count
     grad, diag, pair = np.zeros((B, 12)), np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
-    term.accumulate(q, DATA, ctx, grad, diag, pair, project)
+    term.accumulate(q, data, ctx, grad, diag, pair, project)
     H = np.zeros((12 * B, 12 * B))
     for b in range(B):
         H[12 * b:12 * b + 12, 12 * b:12 * b + 12] += diag[b]
     for j in range(J):
-        i_b, j_b = MODEL.joint_parent[j], MODEL.joint_child[j]
+        i_b, j_b = model.joint_parent[j], model.joint_child[j]
         H[12 * i_b:12 * i_b + 12, 12 * j_b:12 * j_b + 12] += pair[j]
         H[12 * j_b:12 * j_b + 12, 12 * i_b:12 * i_b + 12] += pair[j].T
-    return term.energy(q, DATA, ctx), grad.ravel(), H
+    return term.energy(q, data, ctx), grad.ravel(), H
 
 
 def _rel(a, b):
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), np.max(np.abs(a)), 1e-300))
 
 
-def check_term(term, q, ctx, *, eps=1e-6, rtol=2e-5, name='term'):
+def check_term(term, q, ctx, *, eps=1e-6, rtol=2e-5, name='term', model=None, data=None):
     """Raise ValueError if the term's derivatives at q disagree with finite differences of
-    its own energy / gradient, its Hessian is asymmetric, or its projection is not PSD."""
-    E, g, H = dense(term, q, ctx, project=False)
-    _, _, Hp = dense(term, q, ctx, project=True)
-    dofs = np.concatenate([np.arange(12 * b, 12 * b + 12) for b in np.flatnonzero(~MODEL.body_fixed)])
+    its own energy / gradient, its Hessian is asymmetric, or its projection is not PSD (on
+    MODEL, DATA unless another model and its compiled data are given)."""
+    model, data = (MODEL, DATA) if model is None else (model, data)
+    E, g, H = dense(term, q, ctx, False, model, data)
+    _, _, Hp = dense(term, q, ctx, True, model, data)
+    dofs = np.concatenate([np.arange(12 * b, 12 * b + 12) for b in np.flatnonzero(~model.body_fixed)])
     flat = q.ravel()
     g_fd = np.zeros(len(dofs))
     H_fd = np.zeros((len(dofs), len(dofs)))
@@ -120,8 +124,9 @@ def check_term(term, q, ctx, *, eps=1e-6, rtol=2e-5, name='term'):
         qp[d] += step
         qm[d] -= step
         qp, qm = qp.reshape(q.shape), qm.reshape(q.shape)
-        g_fd[k] = (term.energy(qp, DATA, ctx) - term.energy(qm, DATA, ctx)) / (2 * step)
-        H_fd[:, k] = (dense(term, qp, ctx, False)[1][dofs] - dense(term, qm, ctx, False)[1][dofs]) / (2 * step)
+        g_fd[k] = (term.energy(qp, data, ctx) - term.energy(qm, data, ctx)) / (2 * step)
+        H_fd[:, k] = (dense(term, qp, ctx, False, model, data)[1][dofs]
+                      - dense(term, qm, ctx, False, model, data)[1][dofs]) / (2 * step)
     if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
         raise ValueError(f'{name}: non-finite gradient or Hessian')
     err = _rel(g[dofs], g_fd)
@@ -1020,5 +1025,5 @@ def test_the_compiled_model_is_its_terms_fields():
         assert sorted(built) == sorted(n for n, _ in term.FIELDS), term.__name__
         values.update(built)
     assert Solver(MODEL).terms == ('ortho_potential', 'revolute_joint', 'driving', 'limit',
-                                   'joint_damping', 'external_torque')
+                                   'joint_damping', 'external_torque')     # no prismatic term
 

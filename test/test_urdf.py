@@ -160,7 +160,7 @@ def test_matrix_rpy_round_trip_including_gimbal_lock():
         assert np.allclose(rpy_matrix(matrix_rpy(R)), R, atol=1e-12)
 
 
-@pytest.mark.parametrize('jtype', ['prismatic', 'planar', 'floating'])
+@pytest.mark.parametrize('jtype', ['planar', 'floating', 'spherical'])
 def test_unsupported_joint_is_one_clear_error_and_lock_holds_it(jtype):
     text = robot(link('a', inertial(1)), link('b', inertial(1)), link('c', inertial(1)),
                  joint('j1', 'revolute', 'a', 'b', extra='<limit lower="-1" upper="1" effort="1" velocity="1"/>'),
@@ -182,15 +182,40 @@ def test_several_unsupported_joints_in_one_error_and_a_trailing_nul():
                  link('d', inertial(1)),
                  joint('ball', 'spherical', 'a', 'b'),
                  joint('hinge', 'revolute', 'b', 'c', extra='<limit lower="-1" upper="1" effort="1" velocity="1"/>'),
-                 joint('slide', 'prismatic', 'c', 'd', axis='1 0 0',
+                 joint('slide', 'planar', 'c', 'd', axis='1 0 0',
                        extra='<limit lower="0" upper="0.1" effort="1" velocity="1"/>')) + '\x00'
     with pytest.raises(SceneError) as err:
         Scene.from_urdf(text)
     msg = str(err.value)
     assert ("2 joints cannot be simulated" in msg and "'ball' (spherical)" in msg
-            and "'slide' (prismatic)" in msg and 'lock: [ball, slide]' in msg), msg
+            and "'slide' (planar)" in msg and 'lock: [ball, slide]' in msg), msg
     scene = Scene.from_urdf(text, lock=['ball', 'slide'])
     assert scene.joint_names == ('hinge',) and scene.body_names == ('a', 'c')
+
+
+def test_prismatic_joint_loads_with_its_limit_effort_and_initial_position():
+    """URDF prismatic -> UID 20 along <axis> from the joint origin, <limit lower upper> [m]
+    -> UID 669, effort -> the UID 667 force limit [N], initial_positions [m] ->
+    init_distance (the child placed along the axis), <dynamics damping> -> its damping [N s/m]."""
+    import warnings
+    from abd_joint_sim.urdf import UrdfWarning
+    text = robot(link('a', inertial(1)), link('b', inertial(1)),
+                 joint('slide', 'prismatic', 'a', 'b', xyz='0 0 0.2', axis='0 2 0',
+                       extra='<limit lower="-0.1" upper="0.3" effort="40" velocity="1"/>'
+                             '<dynamics damping="3"/>'))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        scene = Scene.from_urdf(text, initial_positions={'slide': 0.05})
+    assert [str(w.message) for w in caught if issubclass(w.category, UrdfWarning)] == []
+    (j,) = scene.joints
+    assert j.type == 'prismatic' and j.init_distance == 0.05 and j.damping == 3.0
+    assert np.allclose(j.p0, [0, 0, 0.2]) and np.allclose(np.subtract(j.p1, j.p0), [0, 1, 0])
+    assert (j.limit.lower, j.limit.upper) == (-0.1, 0.3) and j.external_force.effort_limit == 40.0
+    assert np.allclose(scene.bodies[1].position, [0, 0.05, 0.2])
+    w = World(scene)
+    w.set_effort('slide', 5.0)
+    w.step(10)
+    assert w.joint_positions()[0] > 0.05
 
 
 def test_mimic_joint_refused_naming_it():

@@ -68,9 +68,9 @@ def run_ours(path, q0, dt=5e-4, **options):
     world = World(scene)
     names = list(scene.joint_names)
     assert np.allclose(world.joint_angles(), [q0.get(n, 0.0) for n in names], atol=1e-12)
-    torques = torques_for(len(names))
+    torques = torques_for(len(names))       # N m on a revolute joint, N on a prismatic one
     for n, tau in zip(names, torques):
-        world.set_torque(n, tau)
+        world.set_effort(n, tau)
     world.step(int(round(T_END / dt)))
     return world, names, torques
 
@@ -96,6 +96,15 @@ def test_joint_motion_agrees_with_pybullet(rel_path, q0):
     names, dv, dq = compare(rel_path, q0)
     print(f'{rel_path} q0={q0}: velocity {dv:.2e}, angle {dq:.2e} (relative)')
     assert len(names) >= 5
+    assert dv < 0.01 and dq < 0.01
+
+
+def test_cartpole_cart_force_and_pole_torque_agree_with_pybullet():
+    """pybullet_data's cartpole: a prismatic cart (2 N along its rail) and a continuous pole
+    (−1.8 N m): joint velocities and position changes after 40 ms within 1 %."""
+    names, dv, dq = compare('cartpole.urdf', {})
+    print(f'cartpole.urdf: velocity {dv:.2e}, position {dq:.2e} (relative)')
+    assert names == ['slider_to_cart', 'cart_to_pole']
     assert dv < 0.01 and dq < 0.01
 
 
@@ -143,6 +152,10 @@ def run_mujoco(path, names, torques, q0, dt=1e-4, lock=()):
     # joint 4's [-3.07, -0.07], where the two engines' limits push differently)
     ('franka_panda/panda.urdf', {'panda_joint4': -1.5, 'panda_joint6': 1.5},
      ['panda_finger_joint1', 'panda_finger_joint2']),
+    # a sliding finger (the other mimics it: held rigid), from inside its [0, 0.04] m range
+    ('franka_panda/panda.urdf', {'panda_joint4': -1.5, 'panda_joint6': 1.5, 'panda_finger_joint1': 0.02},
+     ['panda_finger_joint2']),
+    ('cartpole.urdf', {}, []),                  # a prismatic cart (N) and a continuous pole (N m)
 ])
 def test_joint_motion_agrees_with_mujoco(rel_path, q0, lock):
     """The same runs against MuJoCo loading the same file (a second engine; MuJoCo RK4 and
@@ -218,10 +231,11 @@ def test_real_files_load_with_warnings_not_errors(rel_path, lock, joints, warned
 
 
 # What a refusal of a pybullet_data file may say (docs/urdf.md "Every URDF of pybullet_data"):
-# a joint type this simulator lacks, a number ROS's urdfdom refuses too, an unexpanded
+# a joint type this simulator lacks, a mimic joint (the Panda's second finger), a number ROS's urdfdom refuses too, an unexpanded
 # substitution, a robot without links. Anything else would be a new refusal to look at.
-REFUSALS = (r'cannot be simulated \(only revolute and continuous', r"is (prismatic|spherical|planar|floating): only "
-            r'revolute and continuous joints are simulated; `lock: \[', r"is not \d number\(s\)$",
+REFUSALS = (r'cannot be simulated \(only revolute, continuous and prismatic', r"is (spherical|planar|floating): only "
+            r'revolute, continuous and prismatic joints are simulated; `lock: \[',
+            r'mimics joint .*: mimic joints are not simulated; `lock: \[', r"is not \d number\(s\)$",
             r'must be 3 finite number\(s\)$', r'unexpanded xacro/launch substitution', r'no <link> in the robot$')
 
 
@@ -258,15 +272,30 @@ def test_every_urdf_of_pybullet_data_loads_or_is_one_clear_refusal():
         assert np.all(np.isfinite(world.joint_angles()))
 
 
-def test_panda_fingers_are_one_clear_error_without_lock():
+def test_panda_loads_with_its_sliding_finger():
+    """The Panda's prismatic finger loads and moves under a force; its second finger mimics
+    the first (mimic joints are not simulated: one clear error, `lock` holds it); locking both
+    merges them into the hand."""
+    import warnings
     from abd_joint_sim.errors import SceneError
     path = os.path.join(pybullet_data.getDataPath(), 'franka_panda/panda.urdf')
-    with pytest.raises(SceneError, match=r"2 joints cannot be simulated.*'panda_finger_joint1' "
-                       r"\(prismatic\), 'panda_finger_joint2' \(prismatic\); "
-                       r"`lock: \[panda_finger_joint1, panda_finger_joint2\]`"):
+    fingers = ['panda_finger_joint1', 'panda_finger_joint2']
+    with pytest.raises(SceneError, match=r"joint 'panda_finger_joint2' \(prismatic\) mimics joint "
+                       r"'panda_finger_joint1'.*`lock: \[panda_finger_joint2\]`"):
         Scene.from_urdf(path)
-    scene = Scene.from_urdf(path, lock=['panda_finger_joint1', 'panda_finger_joint2'])
-    assert len(scene.joint_names) == 7
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        scene = Scene.from_urdf(path, lock=fingers[1:])
+    assert len(scene.joint_names) == 8 and scene.joints[-1].name == fingers[0]
+    assert scene.joints[-1].type == 'prismatic'
+    world = World(scene)
+    start = world.joint_positions()[-1]
+    world.set_effort(fingers[0], 5.0)
+    world.step(20)
+    assert world.joint_positions()[-1] > start and np.all(np.isfinite(world.joint_positions()))
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        assert len(Scene.from_urdf(path, lock=fingers).joint_names) == 7
 
 
 @pytest.mark.parametrize('rel_path', ['a1/a1.urdf', 'aliengo/aliengo.urdf',

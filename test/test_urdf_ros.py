@@ -173,7 +173,7 @@ def test_sim_node_from_robot_description(tmp_path, how):
 
 def test_sim_node_bad_urdf_is_one_line(tmp_path):
     bad = tmp_path / 'bad.urdf'
-    bad.write_text(DEMO.read_text().replace('type="fixed"', 'type="prismatic"'))
+    bad.write_text(DEMO.read_text().replace('type="fixed"', 'type="planar"'))
     node = NodeProcess.sim_node(tmp_path, next_domain_id(), {'scene': str(bad)})
     try:
         node.proc.wait(60)
@@ -182,7 +182,7 @@ def test_sim_node_bad_urdf_is_one_line(tmp_path):
             node.stop(signal.SIGKILL)
     out = node.output()
     assert node.proc.returncode == 1, out
-    assert "cannot start:" in out and "joint 'tool_mount' is prismatic" in out and 'lock: [tool_mount]' in out
+    assert "cannot start:" in out and "joint 'tool_mount' is planar" in out and 'lock: [tool_mount]' in out
     assert 'Traceback' not in out
 
 

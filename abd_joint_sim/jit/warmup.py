@@ -65,14 +65,31 @@ def _loop_scene():
     return Scene.from_dict(dict(dt=0.01, bodies=bodies, joints=joints))
 
 
+def _slide_scene():
+    """A prismatic joint with its force, drive and limit beside a revolute one (BDF2)."""
+    box = dict(box=[0.2, 0.1, 0.1], density=1000.0)
+    from ..scene import Scene
+    return Scene.from_dict(dict(
+        dt=0.01, integrator='bdf2',
+        bodies=[dict(name='base', position=[0.0, 0.0, 0.0], fixed=True, **box),
+                dict(name='a', position=[0.2, 0.0, 0.0], **box),
+                dict(name='b', position=[0.4, 0.0, 0.0], **box)],
+        joints=[dict(name='hinge', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05]),
+                dict(name='slide', type='prismatic', parent='a', child='b', p0=[0.3, 0, 0],
+                     p1=[0.4, 0, 0], external_force=dict(force=1.0, enabled=True),
+                     driving=dict(aim_distance=0.01, enabled=True),
+                     limit=dict(lower=-0.01, upper=0.01), damping=0.5)]))
+
+
 def _run_kernels():
     """Call every kernel entry point the simulator calls from Python, on both linear solves."""
+    import numpy as np
     from ..model import compile_scene
     from ..solver.resident import Resident
     from ..solver.solver import Solver
     from ..state import Control, State
-    from ..terms import driving, limit, ortho, revolute, torque
-    for scene in (_tiny_scene(), _loop_scene()):
+    from ..terms import driving, limit, ortho, prismatic, prismatic_driving, prismatic_limit, revolute, torque
+    for scene in (_tiny_scene(), _loop_scene(), _slide_scene()):
         model = compile_scene(scene)
         solver = Solver(model)
         state, control = State.initial(model), Control.initial(model)
@@ -85,14 +102,15 @@ def _run_kernels():
         _helper_wait()
         state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
         solver.clean_steps(state, control, 2)
-        torque.clamp_commands(control.torque_value.copy(), model.torque_effort_limit, control.torque_value)
+        limits = np.concatenate([model.torque_effort_limit, model.prismatic_force_effort_limit])
+        torque.clamp_commands(control.torque_value.copy(), limits, control.torque_value)
         torque.clamp_command(1.0, 2.0)
         revolute.max_separation(state.q, solver.data)
+        prismatic.check_separations(state.q, solver.data)
         ctx = solver.context(state, control, model.dt)
-        for term in (ortho, revolute, driving, limit):
+        for term in (ortho, revolute, driving, limit, prismatic, prismatic_driving, prismatic_limit):
             term.energy(state.q, solver.data, ctx)
     # the body markers' poses (ros/markers.py)
-    import numpy as np
     from ..smallmat import frame_poses
     one = np.zeros(1, dtype=np.intp)
     frame_poses(np.zeros((1, 3)), np.eye(3)[None], one, np.zeros((1, 3)), np.eye(3)[None], one,

@@ -34,9 +34,9 @@ class CommandTarget(Protocol):
 
     time: float
 
-    def set_torque(self, joint_name: str, value: float) -> None: ...
+    def set_effort(self, joint_name: str, value: float) -> None: ...
 
-    def set_torque_enabled(self, joint_name: str, flag: bool) -> None: ...
+    def set_effort_enabled(self, joint_name: str, flag: bool) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -323,10 +323,10 @@ class CommandBuffer:
         now = float(world.time)
         out = Applied(time=now, array=self._pending_array, enable_all=self._pending_enable_all)
         for joint, flag in self._pending_enable.items():
-            world.set_torque_enabled(joint, flag)
+            world.set_effort_enabled(joint, flag)
             out.enables[joint] = flag
         for joint, (value, source) in self._pending_torque.items():
-            result = world.set_torque(joint, value)
+            result = world.set_effort(joint, value)   # N m (revolute) or N (prismatic)
             if isinstance(result, float):   # the world's own clamp, if any
                 value = result
             out.torques[joint] = value
@@ -349,7 +349,7 @@ class CommandBuffer:
                 if now - t_cmd >= self.command_timeout - 1e-9:
                     self._timed_out.add(joint)
                     if self._last_value.get(joint, 0.0) != 0.0:
-                        world.set_torque(joint, 0.0)
+                        world.set_effort(joint, 0.0)
                         out.timed_out.append(joint)
         return out
 

@@ -166,7 +166,7 @@ class SimLoop:
         self._warned_disabled: set[str] = set()
 
     def _scene_effort_limits(self) -> dict[str, float]:
-        limits = getattr(getattr(self.world, 'model', None), 'torque_effort_limit', None)
+        limits = getattr(self.world, 'effort_limits', None)    # N m or N, actuated order
         if limits is None:
             return {}
         return {j: float(v) for j, v in zip(self.actuated, limits)}
@@ -261,7 +261,7 @@ class SimLoop:
         states = self.world.last_clean_q
         stamps = self._batch_stamps(times)
         # the efforts of every joint state in the batch: no command changes inside it
-        effort = np.asarray(self.world.applied_torques(), dtype=float).tolist()
+        effort = np.asarray(self.world.applied_efforts(), dtype=float).tolist()
         out.batch_begin()
         try:
             i = 0
@@ -315,12 +315,15 @@ class SimLoop:
                             f'{self.commands.command_timeout:g} s (simulated) -> torque set '
                             'to 0 until the next command')
         for joint, value in applied.torques.items():
-            if value != 0.0 and not self.world.torque_enabled(joint) \
+            if value != 0.0 and not self.world.effort_enabled(joint) \
                     and joint not in self._warned_disabled:
                 self._warned_disabled.add(joint)
+                types = getattr(self.world, 'joint_types', None)
+                sliding = types is not None and types[self.world.joint_names.index(joint)] == 'prismatic'
+                what, unit = ('force', 'N') if sliding else ('torque', 'N m')
                 # Throttled too: a sender toggling the enable would re-arm it each time.
                 self.output.log(
-                    'warn', f'joint {joint!r}: torque {value:g} N m stored but the torque is '
+                    'warn', f'joint {joint!r}: {what} {value:g} {unit} stored but the {what} is '
                     f'disabled; publish true on {TOPIC_ENABLE_JOINT.format(joint=joint)} to '
                     'apply it', key=('disabled', joint))
         for joint, flag in applied.enables.items():
@@ -388,7 +391,7 @@ class SimLoop:
         position = np.asarray(position, dtype=float).tolist()
         velocity = np.asarray(velocity, dtype=float).tolist()
         if effort is None:
-            effort = np.asarray(w.applied_torques(), dtype=float).tolist()
+            effort = np.asarray(w.applied_efforts(), dtype=float).tolist()
         if not all(map(math.isfinite, position + velocity + effort)):
             bad = [f'{name} {arr}' for name, arr in
                    (('position', position), ('velocity', velocity), ('effort', effort))
@@ -418,7 +421,7 @@ class SimLoop:
         self.world.reset()
         self.commands.clear()
         for joint in self.actuated:
-            self.world.set_torque(joint, 0.0)
+            self.world.set_effort(joint, 0.0)
         self._warned_disabled.clear()
         self.publish_schedule.restart()
         self.fault = None

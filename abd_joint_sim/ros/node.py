@@ -713,7 +713,7 @@ class SimNode(Node):
     def _log_start(self) -> None:
         c = self.config
         rtf = 'as fast as possible' if c.real_time_factor == 0 else f'{c.real_time_factor:g}'
-        enabled = [j for j in self.actuated if self.world.torque_enabled(j)]
+        enabled = [j for j in self.actuated if self.world.effort_enabled(j)]
         limits = (', '.join(f'{j}={v:g}' for j, v in self.commands.limits.items())
                   or 'none')
         ns = self.get_namespace().rstrip('/')

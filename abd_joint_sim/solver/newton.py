@@ -23,7 +23,8 @@ import math
 
 
 from ..jit import flat, kernel
-from ..terms import damping, driving, inertia, limit, ortho, revolute
+from ..terms import (damping, driving, inertia, limit, ortho, prismatic, prismatic_damping, prismatic_driving,
+                     prismatic_limit, revolute)
 from . import linsolve
 from .retraction import retract
 
@@ -39,7 +40,8 @@ def potential(q, m, ctx):
     """Π(q)."""
     E = inertia.energy(q, m, ctx)
     E += ortho.energy(q, m, ctx)            # UID 1, shape
-    E += revolute.energy(q, m, ctx)         # UID 18
+    if m.revolute_joints.size:
+        E += revolute.energy(q, m, ctx)     # UID 18
     # a term the model lacks is not called (its E would be 0.0, and the call would cost its
     # arguments' reference counts, docs/speed.md)
     if m.drive_joints.size:
@@ -48,6 +50,14 @@ def potential(q, m, ctx):
         E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)
     if m.damping_joints.size:
         E += damping.energy(q, m, ctx)      # joint damping (not a libuipc term)
+    if m.prismatic_joints.size:
+        E += prismatic.energy(q, m, ctx)    # UID 20
+    if m.prismatic_drive_joints.size:
+        E += prismatic_driving.energy(q, m, ctx)    # UID 21
+    if m.prismatic_limit_joints.size:
+        E += prismatic_limit.energy(q, m, ctx)      # UID 669 (0 inside the limits)
+    if m.prismatic_damping_joints.size:
+        E += prismatic_damping.energy(q, m, ctx)    # prismatic joint damping
     return E
 
 
@@ -70,18 +80,28 @@ def assemble(q, m, ctx, grad, diag, pair):
     else:                                   # another s (a caller's own context)
         flat.copy(diag, m.constant_diag)
         E = inertia.accumulate(q, m, ctx, grad, diag, pair, True)
-    if m.drive_joints.size == 0 and m.limit_joints.size == 0 and m.damping_joints.size == 0:
+    if m.drive_joints.size == 0 and m.limit_joints.size == 0 and m.damping_joints.size == 0 \
+            and m.prismatic_joints.size == 0:
         pair = m.constant_pair              # read only: no term below adds to it
     else:
         flat.copy(pair, m.constant_pair)
     E += ortho.accumulate(q, m, ctx, grad, diag, pair, True)          # UID 1
-    E += revolute.accumulate_gradient(q, m, ctx, grad)                # UID 18 (Hessian: constant_*)
+    if m.revolute_joints.size:
+        E += revolute.accumulate_gradient(q, m, ctx, grad)            # UID 18 (Hessian: constant_*)
     if m.drive_joints.size:
         E += driving.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 19
     if m.limit_joints.size:
         E += limit.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 670
     if m.damping_joints.size:
         E += damping.accumulate(q, m, ctx, grad, diag, pair, True)    # joint damping
+    if m.prismatic_joints.size:
+        E += prismatic.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 20
+    if m.prismatic_drive_joints.size:
+        E += prismatic_driving.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 21
+    if m.prismatic_limit_joints.size:
+        E += prismatic_limit.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 669
+    if m.prismatic_damping_joints.size:
+        E += prismatic_damping.accumulate(q, m, ctx, grad, diag, pair, True)  # prismatic damping
     return pair, E
 
 

@@ -24,6 +24,7 @@ from ..model import axis_inertia
 from ..state import Control, State
 from ..terms import TERMS, angle, damping, limit
 from ..terms.context import StepContext
+from ..terms import prismatic, prismatic_damping
 from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
 from ..terms.torque import SINGULAR_RATIO
 from . import model_data, step as compiled, workspace
@@ -149,8 +150,9 @@ class Solver:
         dampers linearised at state.q (their energy there is 0)."""
         m = self.model
         start = state.joint_angle - m.joint_init_angle
-        init = m.joint_init_angle[m.drive_joints]
-        target = np.where(control.drive_passive, start[m.drive_joints], control.drive_aim - init)
+        drives = np.concatenate([m.drive_joints, m.prismatic_drive_joints])     # UID 19, then UID 21
+        init = m.joint_init_angle[drives]
+        target = np.where(control.drive_passive, start[drives], control.drive_aim - init)
         return StepContext(float(h), 1.0, state.q if q_tilde is None else q_tilde, start,
                            np.ascontiguousarray(target, dtype=float),
                            np.ascontiguousarray(control.drive_enabled, dtype=bool),
@@ -163,6 +165,8 @@ class Solver:
         if len(self.model.damping_joints):
             damping.references(self.data, state.q, state.q_prev, start, float(h), False,
                                np.empty(angle.ANGLE_WORK_SHAPE), ref)
+        if len(self.model.prismatic_damping_joints):
+            prismatic_damping.references(self.data, state.q_prev, start, float(h), False, ref)
         return limit.references(self.data, start, ref)
 
     # -- one step, with recovery ---------------------------------------------------------
@@ -429,13 +433,21 @@ class Solver:
             return 'step produced a non-finite state'
         if failure == compiled.FAIL_JOINT_APART:
             j = int(out[compiled.OUT_APART_JOINT])
-            apart = float(joint_separation(q, self.data, j))
+            apart = self.joint_separation(q, j)[0]
             return (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
                     f"(> {SEPARATION_FAULT:g} x the bodies' size)")
         tally.max_step_rotation = max(tally.max_step_rotation, rotation)
         tally.max_joint_separation = float(out[compiled.OUT_SEPARATION])
         tally.overloaded = bool(out[compiled.OUT_OVERLOADED])
         return None
+
+    def joint_separation(self, q, j) -> tuple:
+        """(separation [m], its warning threshold [m]) of joint j at body states q: UID 18's
+        anchor distance, or UID 20's axis offset (terms/prismatic.py)."""
+        k = int(self.data.prismatic_slot[j])
+        if k >= 0:
+            return float(prismatic.joint_separation(q, self.data, j)), float(self.data.prismatic_warn_separation[k])
+        return float(joint_separation(q, self.data, j)), float(self.data.joint_warn_separation[j])
 
     def _skipped_warnings(self, count) -> list:
         """The warnings of a step whose torque skipped `count` bodies (listed in _skipped)."""
@@ -449,8 +461,8 @@ class Solver:
         m, out = self.model, []
         if overloaded:
             for j in range(m.joint_count):
-                sep = float(joint_separation(q, self.data, j))
-                if sep > self.data.joint_warn_separation[j]:
+                sep, warn = self.joint_separation(q, j)
+                if sep > warn:
                     out.append(f't={time:.6g}s: joint {m.joint_names[j]!r} anchors {sep:.3g} m apart '
                                f'(> {SEPARATION_WARN:.0%} of the smaller body): the joint is overloaded; '
                                'lower the torque or dt, or raise strength_ratio')

@@ -1,6 +1,6 @@
 """One (sub-)step, compiled (docs/physics.md "Time integration", "Newton"):
 
-    1. forces: a = g_q + M⁻¹F at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2)     terms/gravity, terms/torque
+    1. forces: a = g_q + M⁻¹F at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2)     terms/gravity, torque, prismatic_force
     2. prediction q̃ (bdf.predict); may_split: refuse a step whose linearised joint rotation
        ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (BDF1 saturates the solved rotation below
        any limit, so only the prediction can see a too-large step)
@@ -9,7 +9,8 @@
        step; 2 warm_start − warm_start_prev when two are known), or from q̃ + c h² warm_start
        or q̃ where Π is lower                                                 newton.minimize
     4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), unwrapped joint angles and
-       θ̇ = ∇θ·v, the largest joint rotation of the step, joint separations.
+       θ̇ = ∇θ·v (prismatic joints: their distance d and ḋ = ∇d·v), the largest joint
+       rotation of the step, joint separations.
 
 `step` reads its inputs only and writes the new state into the caller's arrays; what
 happened goes into a row `outcome` whose columns are named below (solver.py turns it into a
@@ -23,7 +24,8 @@ import math
 import numpy as np
 
 from ..jit import flat, kernel, refcounts, subnormals
-from ..terms import angle, damping, gravity, limit, revolute, torque
+from ..terms import (angle, damping, gravity, limit, prismatic, prismatic_damping, prismatic_driving, prismatic_force,
+                     revolute, torque)
 from . import bdf, newton
 
 # columns of a step's outcome row
@@ -61,6 +63,12 @@ def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
     acc = ws.acc
     flat.fill(acc, 0.0)
     gravity.add_acceleration(q, m, acc)
+    if m.prismatic_force_joints.size and prismatic_force.any_active(m, torque_value, torque_enabled):
+        if bdf2:                            # (UID 667: rows T.. of the effort arrays)
+            bdf.force_point(q, q_prev, bdf2, ws.q_force)
+            prismatic_force.add_acceleration(ws.q_force, m, torque_value, torque_enabled, acc)
+        else:
+            prismatic_force.add_acceleration(q, m, torque_value, torque_enabled, acc)
     if not torque.any_active(m, torque_value, torque_enabled):
         return 0
     if bdf2:
@@ -72,13 +80,23 @@ def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
 
 @kernel
 def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
-    """Section 4's joint angles: new_angles (2,J) = unwrapped θ + init_angle, θ̇ = ∇θ·v; returns
-    (the largest |θ − θ_start| or |θ̇| h, NaN wins; whether every θ is finite)."""
+    """Section 4's joint angles: new_angles (2,J) = unwrapped θ + init_angle, θ̇ = ∇θ·v (a
+    prismatic joint: d + init_distance, ḋ = ∇d·v); returns (the largest |θ − θ_start| or
+    |θ̇| h over the revolute joints, NaN wins; whether every θ and d is finite)."""
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     init_angle = m.joint_init_angle
+    slot = m.prismatic_slot
     rotation = 0.0
     finite = True
     for j in range(parent.size):
+        if slot[j] >= 0:
+            d, rate = prismatic.distance_and_rate(q_new, v_new, parent[j], child[j], m.prismatic_frame,
+                                                  slot[j], np.empty((16, 3)))
+            new_angles[0, j] = d + init_angle[j]
+            new_angles[1, j] = rate
+            if not (math.isfinite(d) and math.isfinite(rate)):
+                finite = False
+            continue
         c, s, rate = angle.cos_sin_slope_at(q_new, v_new, zero, parent, child, nbar, bbar, j)   # θ̇ = ∇θ·v
         th = math.atan2(s, c)
         rel = angle.unwrap(th, angle_start[j])
@@ -157,6 +175,8 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
     for k in range(drive_joints.size):
         j = drive_joints[k]
         drive_target[k] = angle_start[j] if drive_passive[k] else drive_aim[k] - init_angle[j]
+    if m.prismatic_drive_joints.size:       # UID 21: rows D.. of the drive arrays
+        prismatic_driving.targets(m, angle_start, drive_aim, drive_passive, drive_target)
     cw = h * h / scale
     q_new, q_alt = ws.q_new, ws.q_alt
     # The correction (q − q̃)/(c h²) is the acceleration the stiff terms add to the explicit
@@ -194,12 +214,14 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
     if m.damping_joints.size:
         damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
     limit.references(m, angle_start, ws.angle_ref)
+    if m.prismatic_damping_joints.size:
+        prismatic_damping.references(m, q_prev, angle_start, h, bdf2, ws.angle_ref)
     # the Workspace's context (over q_tilde, angle_start, drive_target, angle_ref and its own
     # drive_on): a reference where a context built here would be copied into every term call
     ctx = refcounts.struct(ws.ctx)
     ctx.h, ctx.scale = h, scale
     drive_on = ctx.drive_on
-    for k in range(drive_joints.size):
+    for k in range(drive_on.size):
         drive_on[k] = drive_enabled[k]
     status, iterations, halvings = newton.minimize(m, ctx, q_new, ws, extrapolate)
     v_new = new_qvw[1]
@@ -227,6 +249,13 @@ def step_flushed(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_star
         repeat += 1
     outcome[OUT_ROTATION] = rotation
     separation, overloaded, apart = revolute.check_separations(q_new, m)
+    if m.prismatic_joints.size:
+        s2, o2, a2 = prismatic.check_separations(q_new, m)
+        if s2 > separation or s2 != s2:
+            separation = s2
+        overloaded = overloaded or o2
+        if apart < 0:
+            apart = a2
     outcome[OUT_SEPARATION] = separation
     outcome[OUT_OVERLOADED] = 1.0 if overloaded else 0.0
     if apart >= 0:

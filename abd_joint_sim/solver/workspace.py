@@ -23,9 +23,9 @@ FIELDS = (
     ('q_new', '(B,12) Newton iterate'),
     ('q_alt', "(B,12) Newton's other start: q̃ + c h² warm_start, not extrapolated"),
     ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
-    ('drive_target', '(D,) UID 19 target'),
-    ('angle_ref', '(L + P, 3 or damping.ROW) the step\'s limit.references and '
-                  'damping.references (StepContext.angle_ref)'),
+    ('drive_target', '(D + Ds,) UID 19 targets, then UID 21\'s'),
+    ('angle_ref', '(L + P + Ps, 3 or damping.ROW) the step\'s limit.references, '
+                  'damping.references and prismatic_damping.references (StepContext.angle_ref)'),
     ('grad', '(B,12) ∇Π'),
     ('diag', '(B,12,12) diagonal blocks of ∇²Π'),
     ('pair', '(J,12,12) joint blocks of ∇²Π'),
@@ -40,7 +40,7 @@ FIELDS = (
     ('torque_axes', '(T+2,3) UID 668 torque axes ê of the T torque joints, and 2 rows of scratch'),
     ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
     ('angle_work', '(25,18) angle.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
-    ('drive_on', '(D,) bool: which drives are on in this step (StepContext.drive_on)'),
+    ('drive_on', '(D + Ds,) bool: which drives (UID 19, then UID 21) are on in this step (StepContext.drive_on)'),
     ('ctx', "the step's StepContext over q_tilde, angle_start, drive_target, drive_on, angle_work "
             'and angle_ref (the step sets h and scale in it)'),
 )
@@ -61,7 +61,8 @@ structref.define_proxy(Workspace, WorkspaceType, [name for name, _ in FIELDS])
 
 def build(model, data) -> Workspace:
     """The Workspace of a Model whose ModelData is `data`."""
-    B, J, D = model.body_count, model.joint_count, len(model.drive_joints)
+    B, J = model.body_count, model.joint_count
+    D = len(model.drive_joints) + len(model.prismatic_drive_joints)
     F = int(data.free_bodies.size)
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), q_alt=(B, 12),

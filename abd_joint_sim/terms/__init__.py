@@ -17,17 +17,20 @@ Every term module holds:
 and `pair` (J,12,12) per joint for its (parent row, child column) block, the block
 pattern the linear solver factorises. `project` asks for the PSD-projected Hessian (Newton
 always does; the derivative tests also check the raw one). angle.py is the joint angle the
-angle terms (driving, limit, damping) share.
+angle terms (driving, limit, damping) share; prismatic.py's distance is the prismatic
+terms' (prismatic_driving, prismatic_limit, prismatic_force's readout).
 
 numba cannot loop over modules: solver/newton.py `potential` and `assemble` call the energy
 terms one by one, in ENERGY_TERMS' order (the order Π is summed in), and
 test_terms.py checks them against this list.
 """
-from . import damping, driving, gravity, inertia, limit, ortho, revolute, torque
+from . import (damping, driving, gravity, inertia, limit, ortho, prismatic, prismatic_damping,
+               prismatic_driving, prismatic_force, prismatic_limit, revolute, torque)
 
 #: the terms of the incremental potential Π, in the order Newton sums them
-ENERGY_TERMS = (inertia, ortho, revolute, driving, limit, damping)
+ENERGY_TERMS = (inertia, ortho, revolute, driving, limit, damping, prismatic, prismatic_driving,
+                prismatic_limit, prismatic_damping)
 #: the forces without energy, which enter only the prediction
-FORCE_TERMS = (gravity, torque)
+FORCE_TERMS = (gravity, torque, prismatic_force)
 #: every term
 TERMS = ENERGY_TERMS + FORCE_TERMS

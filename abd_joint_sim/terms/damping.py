@@ -69,9 +69,10 @@ RELINEARISE_MAX = 3
 
 
 def reference_shape(model):
-    """Shape of StepContext.angle_ref for a Model: a row per limit (3 columns) and per damper."""
+    """Shape of StepContext.angle_ref for a Model: a row per limit (3 columns), per damper and
+    per prismatic damper (terms/prismatic_damping.py, after them)."""
     L, P = len(model.limit_joints), len(model.damping_joints)
-    return (L + P, ROW if P else 3)
+    return (L + P + len(model.prismatic_damping_joints), ROW if P else 3)
 
 
 @kernel

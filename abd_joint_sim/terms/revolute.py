@@ -29,16 +29,17 @@ SEPARATION_WARN = 0.01
 SEPARATION_FAULT = 1e3
 #: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
+    ('revolute_joints', '(R,) the revolute joints (UID 18; the others are prismatic, UID 20)'),
     ('joint_x_bar', '[m] (J,2,2,3) anchors x̄: [joint, side (i, j), anchor (P0, P1), xyz]'),
     ('joint_K', '[kg] (J,) UID 18 stiffness K = γ (m_i + m_j)'),
-    ('joint_hessian', '(J,24,24) constant Hessian of the UID 18 energy'),
+    ('joint_hessian', '(J,24,24) constant Hessian of the UID 18 energy (0 on a prismatic joint)'),
     ('joint_warn_separation', '[m] (J,) anchor separation above which a step warns (overloaded joint)'),
     ('joint_fault_separation', '[m] (J,) anchor separation above which a joint has come apart (a fault)'),
 )
 
 
 def used(model) -> bool:
-    return model.joint_count > 0
+    return len(model.revolute_joints) > 0
 
 
 def stiffness(strength_ratio, mass_i, mass_j):
@@ -74,10 +75,12 @@ def build(model, data) -> dict:
     J = m.joint_count
     size, parent, child = m.body_size, m.joint_parent, m.joint_child
     return dict(
+        revolute_joints=flat.array(m.revolute_joints, np.int64),
         joint_x_bar=flat.array(np.stack([m.joint_anchor0, m.joint_anchor1], axis=2).reshape(J, 2, 2, 3),
                                np.float64),
         joint_K=flat.array(m.joint_K, np.float64),
-        joint_hessian=flat.array(constant_hessian(m.joint_K, m.joint_anchor0, m.joint_anchor1), np.float64),
+        joint_hessian=flat.array(constant_hessian(np.where(m.joint_slides, 0.0, m.joint_K), m.joint_anchor0,
+                                                  m.joint_anchor1), np.float64),
         joint_warn_separation=flat.array(SEPARATION_WARN * np.minimum(size[parent], size[child]), np.float64),
         joint_fault_separation=flat.array(SEPARATION_FAULT * np.maximum(size[parent], size[child]), np.float64))
 
@@ -123,10 +126,10 @@ def _separation_norm(q, i_body, j_body, x_bar, j):
 
 @kernel
 def max_separation(q, m):
-    """The largest joint separation over all joints (0 without joints; NaN wins). [m]"""
+    """The largest separation over the revolute joints (0 without; NaN wins). [m]"""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
     out = 0.0
-    for j in range(parent.size):
+    for j in m.revolute_joints:
         n = _separation_norm(q, parent[j], child[j], x_bar, j)
         if n > out or n != n:
             out = n
@@ -136,13 +139,13 @@ def max_separation(q, m):
 @kernel
 def check_separations(q, m):
     """(largest separation, whether a joint exceeds m.joint_warn_separation, the first joint
-    beyond m.joint_fault_separation or -1). [m]"""
+    beyond m.joint_fault_separation or -1), over the revolute joints. [m]"""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
     warn, fault = m.joint_warn_separation, m.joint_fault_separation
     largest = 0.0
     overloaded = False
     apart = -1
-    for j in range(parent.size):
+    for j in m.revolute_joints:
         n = _separation_norm(q, parent[j], child[j], x_bar, j)
         if n > largest or n != n:
             largest = n
@@ -156,10 +159,11 @@ def check_separations(q, m):
 @kernel
 def energy(q, m, ctx):
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
-    if parent.size == 0:
+    joints = m.revolute_joints
+    if joints.size == 0:
         return 0.0
     E = 0.0
-    for j in range(parent.size):
+    for j in joints:
         acc = 0.0
         for a in range(2):
             d0, d1, d2 = separation(q, parent[j], child[j], x_bar, j, a)
@@ -177,7 +181,8 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
 
 @kernel
 def add_constant_hessian(parent, child, H, diag, pair):
-    """The joints' constant Hessians H (J,24,24) added into the blocks diag and pair."""
+    """The joints' constant Hessians H (J,24,24) added into the blocks diag and pair (a
+    prismatic joint's are 0)."""
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         for r in range(12):
@@ -193,10 +198,11 @@ def accumulate_gradient(q, m, ctx, grad):
     (model_data.constant_blocks), so the step adds just this. Returns E (the bits of
     `energy`)."""
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
-    if parent.size == 0:
+    joints = m.revolute_joints
+    if joints.size == 0:
         return 0.0
     E = 0.0
-    for j in range(parent.size):
+    for j in joints:
         i_body, j_body = parent[j], child[j]
         d0, d1, d2 = separation(q, i_body, j_body, x_bar, j, 0)
         acc = d0 * d0 + d1 * d1 + d2 * d2

@@ -113,12 +113,13 @@ def clamp_commands(values, effort_limit, out):
 @kernel
 def any_active(m, torque_value, torque_enabled):
     """Whether some joint's torque is enabled and nonzero (else F = 0)."""
-    return _any_active(torque_value, torque_enabled)
+    return _any_active(torque_value, torque_enabled, m.torque_joints.size)
 
 
 @kernel
-def _any_active(torque_value, torque_enabled):
-    for k in range(torque_value.size):
+def _any_active(torque_value, torque_enabled, T):
+    """Over the T UID 668 rows (the effort arrays' rows after them are UID 667's forces)."""
+    for k in range(T):
         if torque_enabled[k] and torque_value[k] != 0.0:
             return True
     return False
@@ -213,7 +214,7 @@ def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
     (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product.
     A fixed body (a robot's base) gets none: its acceleration is never read (bdf.predict
     keeps it where it is). e (T+2,3): work array for the axes (Workspace.torque_axes)."""
-    if not _any_active(torque_value, torque_enabled):
+    if not _any_active(torque_value, torque_enabled, m.torque_joints.size):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
     _axes(q, tj, parent, child, m.joint_x_bar, torque_value, torque_enabled, e)

@@ -1,0 +1,119 @@
+"""Viscous damping of a prismatic joint (docs/physics.md "Prismatic joint damping"): a force
+−c ḋ along the slide, c [N s/m] from the scene (`damping:`) or a URDF's `<dynamics
+damping>`, as MuJoCo and PyBullet apply it. Not a libuipc constitution.
+
+Implicit, as the revolute joints' damping (terms/damping.py): the incremental potential of
+the force at the end of the step, where the integrator's rate is ḋ = (d − d*)/(c_I h):
+
+    BDF1: d* = dⁿ,                 c_I = 1
+    BDF2: d* = (4dⁿ − dⁿ⁻¹)/3,     c_I = 2/3
+    E = K/2 (d(q) − d*)²,   K = h c / c_I
+
+(∂E/∂d = h² c ḋ). d(q) = ½ (c_j − c_i)·(t_i + t_j) (prismatic.py) is bilinear in the two
+bodies' q, with no branch to pick, so it is used as it is (no linearisation): ∇E = K (d − d*)
+∇d, Newton's Hessian the Gauss-Newton K ∇d∇dᵀ (PSD), the raw one adds K (d − d*) ∇²d.
+Per step, `references` writes K and d* of damper k into row L + P + k of
+StepContext.angle_ref (after the L limits' and P revolute dampers' rows).
+Requirement: a prismatic joint (UID 20).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..jit import flat, kernel
+from . import prismatic
+
+NAME = 'prismatic_damping'  #: in Solver.terms
+STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = False
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('prismatic_damping_joints', '(Ps,) prismatic joints with viscous damping'),
+    ('prismatic_damping_coeff', '[N s/m] (Ps,) their damping coefficients c'),
+)
+BDF2_RATE = 2.0 / 3.0       # c_I of BDF2: ḋ = (3d − 4dⁿ + dⁿ⁻¹)/(2h) = (d − d*)/(c_I h)
+
+
+def used(model) -> bool:
+    return len(model.prismatic_damping_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return dict(prismatic_damping_joints=flat.array(model.prismatic_damping_joints, np.int64),
+                prismatic_damping_coeff=flat.array(model.prismatic_damping_coeff, np.float64))
+
+
+@kernel
+def first_row(m):
+    """The row of damper 0 in StepContext.angle_ref: after the limits' and revolute dampers'."""
+    return m.limit_joints.size + m.damping_joints.size
+
+
+@kernel
+def references(m, q_prev, angle_start, h, bdf2, out):
+    """Rows first_row + k of out (angle_ref): K = h c / c_I and d* of damper k for a step of
+    size h from the joint positions at its start, angle_start (dⁿ, relative to
+    init_distance), and, with bdf2, the bodies one step back, q_prev (for dⁿ⁻¹). Returns out."""
+    joints, c = m.prismatic_damping_joints, m.prismatic_damping_coeff
+    parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
+    row = first_row(m)
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    for k in range(joints.size):
+        j = joints[k]
+        now = angle_start[j]
+        if bdf2:
+            before = prismatic.distance_at(q_prev, parent[j], child[j], fr, slot[j], W)
+            target, rate = (4.0 * now - before) / 3.0, BDF2_RATE
+        else:
+            target, rate = now, 1.0
+        out[row + k, 0] = h * c[k] / rate
+        out[row + k, 1] = target
+    return out
+
+
+@kernel
+def energy(q, m, ctx):
+    joints, parent, child, fr, slot = (m.prismatic_damping_joints, m.joint_parent, m.joint_child,
+                                       m.prismatic_frame, m.prismatic_slot)
+    ref = ctx.angle_ref
+    row = first_row(m)
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    E = 0.0
+    for k in range(joints.size):
+        j = joints[k]
+        e = prismatic.distance_at(q, parent[j], child[j], fr, slot[j], W) - ref[row + k, 1]
+        E += 0.5 * ref[row + k, 0] * e * e
+    return E
+
+
+@kernel
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    """∇E and ∇²E (Gauss-Newton with `project`); returns E (the bits of `energy`)."""
+    joints, parent, child, fr, slot = (m.prismatic_damping_joints, m.joint_parent, m.joint_child,
+                                       m.prismatic_frame, m.prismatic_slot)
+    ref = ctx.angle_ref
+    row = first_row(m)
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    L = np.empty((8, 3, 24))
+    gd = np.empty(24)
+    work = np.empty(24)
+    g = np.empty(24)
+    H = np.empty((24, 24))
+    E = 0.0
+    for k in range(joints.size):
+        j = joints[k]
+        i_body, j_body, s = parent[j], child[j], slot[j]
+        K = ref[row + k, 0]
+        e = prismatic.distance_at(q, i_body, j_body, fr, s, W) - ref[row + k, 1]
+        E += 0.5 * K * e * e
+        prismatic.linear_maps(fr, s, L)
+        prismatic.distance_gradient(W, L, gd, work)
+        for a in range(24):
+            g[a] = K * e * gd[a]
+            for b in range(24):
+                H[a, b] = K * (gd[a] * gd[b])
+        if not project:
+            prismatic.add_distance_curvature(L, K * e, H)
+        prismatic.add_blocks(H, g, i_body, j_body, j, grad, diag, pair)
+    return E

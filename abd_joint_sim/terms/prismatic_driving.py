@@ -1,0 +1,116 @@
+"""Prismatic joint driving, libuipc UID 21 (docs/physics.md "Prismatic driving (UID 21)"): a
+spring pulling a prismatic joint (UID 20) toward a target distance d̃,
+
+    E = K/2 (u_i − d̃)² + K/2 (u_j − d̃)²,   u_k = t_k·(c_j − c_i),   K = γ (m_i + m_j)
+
+(γ = driving strength_ratio) for each enabled drive: u_i, u_j are the slide measured along
+each body's own axis (d = ½ (u_i + u_j), prismatic.py). d̃ is the aim minus init_distance,
+or the distance at the start of the step when the drive is passive (it holds the joint). No
+h² (physical potential E/h²). ∇E = K Σ_k (u_k − d̃) ∇u_k; Newton's Hessian is the
+Gauss-Newton K Σ_k ∇u_k∇u_kᵀ (PSD), the raw one adds K Σ_k (u_k − d̃) ∇²u_k.
+The targets are rows D.. of StepContext.drive_target and drive_on, after the D revolute
+drives (UID 19); their aims, switches and passive flags are the same rows of Control's
+drive_aim, drive_enabled and drive_passive.
+Requirement: a prismatic joint (the scene refuses `aim_angle` on one).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..jit import flat, kernel
+from . import prismatic
+
+NAME = 'prismatic_driving'  #: in Solver.terms
+STORED = True               #: E/h² is stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = False
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('prismatic_drive_joints', '(Ds,) joints with UID 21'),
+    ('prismatic_drive_K', '[kg] (Ds,) UID 21 stiffness γ (m_i + m_j)'),
+)
+
+
+def used(model) -> bool:
+    return len(model.prismatic_drive_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return dict(prismatic_drive_joints=flat.array(model.prismatic_drive_joints, np.int64),
+                prismatic_drive_K=flat.array(model.prismatic_drive_K, np.float64))
+
+
+@kernel
+def targets(m, angle_start, drive_aim, drive_passive, target):
+    """target[D + k] = d̃ of UID 21 drive k (D = the revolute drives, rows before): its aim
+    minus init_distance, or its joint's distance at the step's start when passive
+    (angle_start: joint positions minus their init values)."""
+    D = m.drive_joints.size
+    joints, init = m.prismatic_drive_joints, m.joint_init_angle
+    for k in range(joints.size):
+        j = joints[k]
+        target[D + k] = angle_start[j] if drive_passive[D + k] else drive_aim[D + k] - init[j]
+
+
+@kernel
+def energy(q, m, ctx):
+    joints, K = m.prismatic_drive_joints, m.prismatic_drive_K
+    parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
+    D = m.drive_joints.size
+    on, target = ctx.drive_on, ctx.drive_target
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    E = 0.0
+    for k in range(joints.size):
+        if on[D + k]:
+            j = joints[k]
+            prismatic.frames(q, parent[j], child[j], fr, slot[j], W)
+            ui = uj = 0.0
+            for r in range(3):
+                rr = W[1, r] - W[0, r]
+                ui += W[2, r] * rr
+                uj += W[3, r] * rr
+            ei, ej = ui - target[D + k], uj - target[D + k]
+            E += 0.5 * K[k] * (ei * ei + ej * ej)
+    return E
+
+
+@kernel
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    """∇E and ∇²E (Gauss-Newton with `project`); returns E (the bits of `energy`)."""
+    joints, K = m.prismatic_drive_joints, m.prismatic_drive_K
+    parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
+    D = m.drive_joints.size
+    on, target = ctx.drive_on, ctx.drive_target
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    L = np.empty((8, 3, 24))
+    gi = np.empty(24)
+    gj = np.empty(24)
+    g = np.empty(24)
+    H = np.empty((24, 24))
+    E = 0.0
+    for k in range(joints.size):
+        if not on[D + k]:
+            continue
+        j = joints[k]
+        i_body, j_body, s = parent[j], child[j], slot[j]
+        prismatic.frames(q, i_body, j_body, fr, s, W)
+        ui = uj = 0.0
+        for r in range(3):
+            rr = W[1, r] - W[0, r]
+            ui += W[2, r] * rr
+            uj += W[3, r] * rr
+        ei, ej = ui - target[D + k], uj - target[D + k]
+        E += 0.5 * K[k] * (ei * ei + ej * ej)
+        prismatic.linear_maps(fr, s, L)
+        prismatic.slide_gradient(W, L, 0, gi)
+        prismatic.slide_gradient(W, L, 1, gj)
+        Kk = K[k]
+        for a in range(24):
+            g[a] = Kk * (ei * gi[a] + ej * gj[a])
+            for b in range(24):
+                H[a, b] = Kk * (gi[a] * gi[b] + gj[a] * gj[b])
+        if not project:
+            prismatic.add_slide_curvature(L, 0, Kk * ei, H)
+            prismatic.add_slide_curvature(L, 1, Kk * ej, H)
+        prismatic.add_blocks(H, g, i_body, j_body, j, grad, diag, pair)
+    return E

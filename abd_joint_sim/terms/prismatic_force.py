@@ -1,0 +1,123 @@
+"""External force along a prismatic joint's axis, libuipc UID 667 (docs/physics.md
+"Prismatic external force (UID 667)"): a generalized force without energy, entering the
+prediction q̃ only, as UID 668's torque. For each enabled joint with force f [N], from qⁿ
+(BDF2: 2qⁿ − qⁿ⁻¹, as the torque):
+
+    t̃_k = A_k t̄_k / |A_k t̄_k|          each body from its OWN axis (t̄_k: its anchors P0 → P1)
+    t̂_j = ½ (t̃_i + t̃_j),   t̂_i = −t̂_j    same-order anchors: an exact antisymmetric pair
+    F_k = J(c̄_k)ᵀ (f t̂_k)                  the force f t̂_k acting at the joint's point P0 on body k
+
+J(c̄_k)ᵀ w = [w ; w ⊗ c̄_k] (the rows of A get w_r c̄_k). Both forces act on the axis line, so
+they are equal, opposite and collinear: the pair's linear and angular momentum are unchanged
+(Newton's third law, docs/decisions.md). A positive f pushes the child along +t relative to
+the parent: it increases the joint's distance. Runtime control: per joint the force and an
+enable flag; they are rows T.. of Control.torque_value and torque_enabled, after the T
+revolute joints' UID 668 torques (World.set_effort).
+Requirement: a prismatic joint (UID 20; the scene refuses external_force on a revolute one).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..jit import flat, kernel
+
+NAME = 'external_force'     #: in Solver.terms
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('prismatic_force_joints', '(F,) joints with UID 667'),
+)
+AXIS_EPS = 1e-12
+
+
+def used(model) -> bool:
+    return len(model.prismatic_force_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    return dict(prismatic_force_joints=flat.array(model.prismatic_force_joints, np.int64))
+
+
+@kernel
+def any_active(m, effort_value, effort_enabled):
+    """Whether some UID 667 force is enabled and nonzero (rows T.. of the effort arrays)."""
+    T = m.torque_joints.size
+    for k in range(m.prismatic_force_joints.size):
+        if effort_enabled[T + k] and effort_value[T + k] != 0.0:
+            return True
+    return False
+
+
+@kernel
+def axis(q, m, j, e):
+    """e (3,) = t̂_j of joint j (a prismatic joint): the child's force direction (0 when
+    neither body's axis is usable: not finite or of norm ≤ AXIS_EPS)."""
+    parent, child, fr, k = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot[j]
+    usable = 0
+    for r in range(3):
+        e[r] = 0.0
+    raw = np.empty(3)
+    for side in range(2):
+        b = parent[j] if side == 0 else child[j]
+        for r in range(3):
+            x = 0.0
+            for c in range(3):
+                x += q[b, 3 + 3 * r + c] * fr[k, side, 1, c]
+            raw[r] = x
+        n = math.sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2])
+        if math.isfinite(n) and n > AXIS_EPS:
+            usable += 1
+            for r in range(3):
+                e[r] += raw[r] / n
+    half = 0.5 if usable == 2 else 1.0
+    for r in range(3):
+        e[r] *= half
+
+
+@kernel
+def generalized_force(q, m, effort_value, effort_enabled, F):
+    """Adds F_k of every enabled UID 667 joint to F (B,12)."""
+    T = m.torque_joints.size
+    joints, parent, child, fr, slot = (m.prismatic_force_joints, m.joint_parent, m.joint_child,
+                                       m.prismatic_frame, m.prismatic_slot)
+    e = np.empty(3)
+    for k in range(joints.size):
+        f = effort_value[T + k] if effort_enabled[T + k] else 0.0
+        if f == 0.0:
+            continue
+        j = joints[k]
+        axis(q, m, j, e)
+        for side in range(2):
+            b = parent[j] if side == 0 else child[j]
+            sf = -f if side == 0 else f               # t̂_i = −t̂_j
+            for r in range(3):
+                w = sf * e[r]
+                F[b, r] += w
+                for c in range(3):
+                    F[b, 3 + 3 * r + c] += w * fr[slot[j], side, 0, c]
+
+
+@kernel
+def add_acceleration(q, m, effort_value, effort_enabled, acc):
+    """acc += M⁻¹F of the UID 667 forces on the free bodies (a fixed body's acceleration is
+    never read)."""
+    B = q.shape[0]
+    F = np.zeros((B, 12))
+    generalized_force(q, m, effort_value, effort_enabled, F)
+    Minv, fixed = m.body_Minv, m.body_fixed
+    for b in range(B):
+        if fixed[b]:
+            continue
+        nonzero = False
+        for c in range(12):
+            if F[b, c] != 0.0:
+                nonzero = True
+        if not nonzero:
+            continue
+        for r in range(12):
+            x = 0.0
+            for c in range(12):
+                x += Minv[b, r, c] * F[b, c]
+            acc[b, r] += x

@@ -1,0 +1,90 @@
+"""Prismatic joint limit, libuipc UID 669 (docs/physics.md "Prismatic limit (UID 669)"): the
+cubic barrier of UID 670 (limit.phi) on the distance x = d(q) of a prismatic joint
+(prismatic.py), relative to init_distance, with l = lower − init_distance,
+u = upper − init_distance, w = u − l and strength s:
+
+    x > u:  E = s ((x − u)/w)³          x < l:  E = s ((l − x)/w)³          inside: E = 0
+    w = 0:  E = s |x − l|³ (a locked joint)
+
+∇E = E' ∇d; Newton's Hessian is E''∇d∇dᵀ (PSD: E'' ≥ 0), the raw one adds E' ∇²d.
+Requirement: a prismatic joint (UID 20); bounds in m.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..jit import flat, kernel
+from . import limit, prismatic
+
+NAME = 'prismatic_limit'    #: in Solver.terms
+STORED = True               #: E/h² is stored energy (World.mechanical_energy)
+CONSTANT_HESSIAN = False
+#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+FIELDS = (
+    ('prismatic_limit_joints', '(Ls,) joints with UID 669'),
+    ('prismatic_limit_lower', '[m] (Ls,) lower bound relative to init_distance'),
+    ('prismatic_limit_upper', '[m] (Ls,) upper bound relative to init_distance'),
+    ('prismatic_limit_strength', '(Ls,) s of UID 669'),
+)
+
+
+def used(model) -> bool:
+    return len(model.prismatic_limit_joints) > 0
+
+
+def build(model, data) -> dict:
+    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
+    lj, init = model.prismatic_limit_joints, model.joint_init_angle
+    return dict(prismatic_limit_joints=flat.array(lj, np.int64),
+                prismatic_limit_lower=flat.array(model.prismatic_limit_lower - init[lj], np.float64),
+                prismatic_limit_upper=flat.array(model.prismatic_limit_upper - init[lj], np.float64),
+                prismatic_limit_strength=flat.array(model.prismatic_limit_strength, np.float64))
+
+
+@kernel
+def energy(q, m, ctx):
+    joints, lower, upper, strength = (m.prismatic_limit_joints, m.prismatic_limit_lower,
+                                      m.prismatic_limit_upper, m.prismatic_limit_strength)
+    parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    E = 0.0
+    for k in range(joints.size):
+        j = joints[k]
+        x = prismatic.distance_at(q, parent[j], child[j], fr, slot[j], W)
+        if limit.active(x, lower[k], upper[k]):
+            E += limit.phi(x, lower[k], upper[k], strength[k])[0]
+    return E
+
+
+@kernel
+def accumulate(q, m, ctx, grad, diag, pair, project):
+    """∇E and ∇²E of the limits outside their range (Gauss-Newton with `project`); returns E
+    (the bits of `energy`)."""
+    joints, lower, upper, strength = (m.prismatic_limit_joints, m.prismatic_limit_lower,
+                                      m.prismatic_limit_upper, m.prismatic_limit_strength)
+    parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
+    W = np.empty((prismatic.WORK_ROWS, 3))
+    L = np.empty((8, 3, 24))
+    gd = np.empty(24)
+    work = np.empty(24)
+    g = np.empty(24)
+    H = np.empty((24, 24))
+    E = 0.0
+    for k in range(joints.size):
+        j = joints[k]
+        i_body, j_body, s = parent[j], child[j], slot[j]
+        x = prismatic.distance_at(q, i_body, j_body, fr, s, W)
+        if not limit.active(x, lower[k], upper[k]):
+            continue
+        e, d1, d2 = limit.phi(x, lower[k], upper[k], strength[k])
+        E += e
+        prismatic.linear_maps(fr, s, L)
+        prismatic.distance_gradient(W, L, gd, work)
+        for a in range(24):
+            g[a] = d1 * gd[a]
+            for b in range(24):
+                H[a, b] = d2 * (gd[a] * gd[b])
+        if not project:
+            prismatic.add_distance_curvature(L, d1, H)
+        prismatic.add_blocks(H, g, i_body, j_body, j, grad, diag, pair)
+    return E
