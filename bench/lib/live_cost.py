@@ -28,7 +28,7 @@ from abd_joint_sim.ros.loop import SimLoop  # noqa: E402
 from abd_joint_sim.ros.params import config_from_values  # noqa: E402
 from live_client import free_port_pair, LiveClient  # noqa: E402
 
-parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser = argparse.ArgumentParser(prog='bench/node_load.py live', description=__doc__.splitlines()[0])
 parser.add_argument('--steps', type=int, default=4000)
 parser.add_argument('--no-browser', action='store_true')
 

@@ -182,7 +182,7 @@ def table(results: list) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(prog='bench/peers.py sweeps', description=__doc__.split('\n')[0])
     ap.add_argument('--cases', type=int, default=16)
     ap.add_argument('--duration', type=float, default=0.5, help='simulated s per case')
     ap.add_argument('--workers', type=int, nargs='*', default=[1, 2])
