@@ -373,7 +373,10 @@ def test_markers_node_running_on_the_grid(tmp_path):
     step_ns = round(dt * 1e9)
     expected = [-(-(-(-k * 10 ** 9 // round(rate))) // step_ns) * step_ns
                 for k in range(len(recorded))]
-    assert [t for t, _ in recorded] == expected
+    times = [t for t, _ in recorded]
+    bad = next((k for k, (a, b) in enumerate(zip(times, expected)) if a != b), None)
+    assert bad is None, (f'marker {bad} of {len(times)} recorded at {times[bad]} ns, expected '
+                         f'{expected[bad]} ns; around it: {times[max(bad - 2, 0):bad + 3]}')
     world = World(Scene.from_yaml(scene_file), dt=dt)
     for t, msg in recorded:
         while round(world.time * 1e9) < t:
