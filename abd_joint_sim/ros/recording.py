@@ -179,8 +179,13 @@ class Recording:
     """
 
     def __init__(self, writer: Any, resolve: Resolve, node_fqn: str,
-                 on_error: Optional[Callable[[str], None]] = None) -> None:
+                 on_error: Optional[Callable[[str], None]] = None,
+                 zero_padding: bool = False) -> None:
         self.writer = writer            #: an open BagWriter with the node's topics; None: closed
+        #: messages serialised here get their alignment padding zeroed (cdr.without_padding):
+        #: the serialiser leaves its buffer's bytes there, so bags that must compare equal
+        #: byte for byte (sweep cases) ask for it
+        self.zero_padding = zero_padding
         self.resolve = resolve
         self.node_fqn = node_fqn
         self.on_error = on_error
@@ -196,7 +201,8 @@ class Recording:
     def open(cls, path: str, bag_data: tuple[dict[str, str], dict[str, bytes]],
              actuated: Iterable[str], resolve: Resolve, node_fqn: str, markers: bool,
              on_error: Optional[Callable[[str], None]] = None,
-             attachment_time_ns: Optional[int] = None) -> 'Recording':
+             attachment_time_ns: Optional[int] = None,
+             zero_padding: bool = False) -> 'Recording':
         """A new bag at `path` with `bag_data` (custom data and attachments:
         :func:`bag_custom_data`) and the node's topics (:func:`add_node_topics`); the writer
         is closed again if registering them fails. `attachment_time_ns`: as BagWriter's."""
@@ -210,7 +216,7 @@ class Recording:
         except BaseException:
             writer.close()
             raise
-        return cls(writer, resolve, node_fqn, on_error)
+        return cls(writer, resolve, node_fqn, on_error, zero_padding)
 
     def write(self, topic: str, stamp_ns: int, msg: Any, serialized: bool = False) -> None:
         """One message (`serialized`: its CDR bytes) on the resolved `topic`."""
@@ -220,6 +226,10 @@ class Recording:
         if writer is None:
             return
         try:
+            if not serialized and self.zero_padding:
+                from rclpy.serialization import serialize_message
+                from abd_joint_sim.record.cdr import without_padding
+                msg, serialized = without_padding(serialize_message(msg), msg), True
             if serialized:
                 writer.write_serialized(topic, stamp_ns, msg)
             else:

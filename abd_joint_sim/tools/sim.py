@@ -165,7 +165,7 @@ class BagRecorder(LoopOutput):
 
     def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
                  extra_custom: Optional[dict[str, str]] = None, urdf_text: str = '',
-                 attachment_time_ns: Optional[int] = None):
+                 attachment_time_ns: Optional[int] = None, zero_padding: bool = False):
         self.sim = sim
         self._clock = convert.ClockEncoder()
         self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
@@ -173,7 +173,8 @@ class BagRecorder(LoopOutput):
                                    sim.commands.order, extra_custom, urdf_text)
         self.recording = Recording.open(path, bag_data, sim.actuated, resolve_root, NODE_FQN,
                                         markers=sim.loop.markers is not None,
-                                        attachment_time_ns=attachment_time_ns)
+                                        attachment_time_ns=attachment_time_ns,
+                                        zero_padding=zero_padding)
         self.counts = self.recording.counts
         # One /diagnostics per simulated second, on the loop's grid.
         sim.loop.diagnostics_period_ns = DIAGNOSTICS_PERIOD_NS

@@ -492,21 +492,17 @@ def _outputs():
 
         def __init__(self, path, sim, scene_path, scene_text, extra_custom, urdf_text):
             Metrics.__init__(self, sim)
+            # the messages serialised by the recording (diagnostics, commands, parameter
+            # events) with their padding bytes zeroed: the serialiser leaves them as its
+            # buffer had them
             BagRecorder.__init__(self, path, sim, scene_path, scene_text, extra_custom,
-                                 urdf_text=urdf_text, attachment_time_ns=ATTACHMENT_TIME_NS)
-
-        def _write(self, topic: str, t_ns: int, msg) -> None:
-            # the messages serialised here (diagnostics, commands, parameter events) with
-            # their padding bytes zeroed: the serialiser leaves them as its buffer had them
-            from rclpy.serialization import serialize_message
-            from abd_joint_sim.record import cdr
-            self._write_serialized(topic, t_ns,
-                                   cdr.without_padding(serialize_message(msg), msg))
+                                 urdf_text=urdf_text, attachment_time_ns=ATTACHMENT_TIME_NS,
+                                 zero_padding=True)
 
         def diagnostics(self, t_ns: int) -> None:
             from abd_joint_sim.ros.params import NODE_NAME
-            from abd_joint_sim.ros.recording import TOPIC_DIAGNOSTICS
-            self._write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
+            from abd_joint_sim.ros.topics import TOPIC_DIAGNOSTICS
+            self.recording.write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
                 t_ns, f'{NODE_NAME}: solver', real_time_factor_requested=0.0,
                 real_time_factor_achieved=0.0, recording=True))
 
