@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SceneError
-from .geometry import point_jacobian, rpy_matrix, skew
+from .geometry import rpy_matrix, skew
 from .scene import PRISMATIC, Scene, check_dt
 from .terms.revolute import stiffness
 

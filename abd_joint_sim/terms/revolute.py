@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from ..geometry import point_jacobian
 from ..jit import flat, kernel
 
 NAME = 'revolute_joint'     #: in Solver.terms
@@ -46,16 +47,6 @@ def stiffness(strength_ratio, mass_i, mass_j):
     """K = γ (m_i + m_j) [kg] of a joint between bodies of masses m_i, m_j (UID 18; UID 19's
     drive stiffness is the same formula with its own γ)."""
     return strength_ratio * (mass_i + mass_j)
-
-
-def point_jacobian(xbar) -> np.ndarray:
-    """J(x̄) = [I3 | I3 ⊗ x̄ᵀ], shape (..., 3, 12): x = J(x̄) q."""
-    xbar = np.asarray(xbar, dtype=float)
-    J = np.zeros(xbar.shape[:-1] + (3, 12))
-    for r in range(3):
-        J[..., r, r] = 1.0
-        J[..., r, 3 + 3 * r:6 + 3 * r] = xbar
-    return J
 
 
 def constant_hessian(K, anchor0, anchor1) -> np.ndarray:
