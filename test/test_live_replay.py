@@ -25,8 +25,11 @@ def _tool(tmp_path, module, *args):
 def test_replay_bag_live(tmp_path):
     from abd_joint_sim.tools.bagrun import load_bag
     bag = tmp_path / 'run'
+    # every step recorded, so that every state the live view sends (after some step, at a
+    # wall-clock rate) has its recorded twin; long enough that the replay, at real time, is
+    # still running when the client has connected on a slow start
     rec = _tool(tmp_path, 'run_headless', '--schedule', str(SCHEDULE), '--out', str(bag),
-                '--duration', '2')
+                '--duration', '10', '--publish-every', '1')
     assert rec.wait(120) == 0, rec.stderr.read()
     recorded = load_bag(str(bag)).states[0]
     port = free_port_pair()
@@ -44,7 +47,8 @@ def test_replay_bag_live(tmp_path):
             if topic == '/joint_states' and t_ns in recorded:
                 assert m['position'] == recorded[t_ns][0].position
                 matched += 1
-        assert matched >= 1, 'no replayed state at a recorded stamp'
+        assert matched >= 1, ('no replayed state at a recorded stamp',
+                              [t for tp, t, _ in msgs if tp == '/joint_states'][:8])
         assert client.call('pause')['success']
         client.messages_for(0.3)
         assert client.messages_for(0.8) == []

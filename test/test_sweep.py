@@ -57,7 +57,7 @@ grid:
 
 LONG_SPEC = """\
 scene: default
-duration: 1.0
+duration: 4.0
 schedule:
   events:
     - {t: 0.0, torque: {shoulder: 1.0, elbow: -0.5}}
