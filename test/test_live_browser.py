@@ -61,6 +61,7 @@ def _view_pixels(png: bytes) -> np.ndarray:
     return image[:, :1280 - 320]                 # the 3D view (the side panel is 320 px)
 
 
+@pytest.mark.slow
 def test_page_draws_the_arm_moving_and_pauses(tmp_path, domain_id):
     from playwright.sync_api import sync_playwright
     from std_msgs.msg import Float64MultiArray

@@ -8,6 +8,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from conftest import REPO, ros_env
 from live_client import free_port_pair, LiveClient
 
@@ -33,6 +35,7 @@ def _messages(bag) -> list:
     return out
 
 
+@pytest.mark.slow
 def test_run_headless_live_is_paced_pausable_and_records_the_same_bag(tmp_path):
     port = free_port_pair()
     proc = _run_headless(tmp_path, '--schedule', str(SCHEDULE), '--out',
@@ -79,6 +82,7 @@ def test_run_headless_live_is_paced_pausable_and_records_the_same_bag(tmp_path):
     assert [m[:2] for m in live_msgs] == [m[:2] for m in plain_msgs]
 
 
+@pytest.mark.slow
 def test_run_headless_live_bad_port(tmp_path):
     port = free_port_pair()
     with socket.socket() as taken:

@@ -35,6 +35,7 @@ def _reference_tf(steps: int):
     return {n: loop.world.body_pose(n) for n in loop.world.body_names}
 
 
+@pytest.mark.slow
 def test_node_live_view(tmp_path, domain_id):
     port = free_port_pair()
     node = NodeProcess.sim_node(tmp_path, domain_id, {'scene': 'demo_arm', 'live_port': port})
@@ -107,6 +108,7 @@ def test_node_live_view(tmp_path, domain_id):
         s.listen(1)
 
 
+@pytest.mark.slow
 def test_node_port_in_use_goes_on_without_the_live_view(tmp_path, domain_id):
     port = free_port_pair()
     with socket.socket() as taken:

@@ -22,6 +22,7 @@ def _tool(tmp_path, module, *args):
                             stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
 
 
+@pytest.mark.slow
 def test_replay_bag_live(tmp_path):
     from abd_joint_sim.tools.bagrun import load_bag
     bag = tmp_path / 'run'

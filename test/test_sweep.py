@@ -185,6 +185,7 @@ def reference(tmp_path_factory):
     return spec, tmp / 'out'
 
 
+@pytest.mark.slow
 def test_grid_and_random_sweep_gives_one_row_per_case(reference):
     spec, out = reference
     rows = _rows(out)
@@ -208,6 +209,7 @@ def test_grid_and_random_sweep_gives_one_row_per_case(reference):
     assert '8 of 8 cases: 8 ok' in summary and (out / 'figure.png').stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_rows_and_bags_are_identical_on_1_and_2_workers_and_on_local_ray(reference, cluster,
                                                                           tmp_path):
     spec, ref = reference
@@ -225,6 +227,7 @@ def test_rows_and_bags_are_identical_on_1_and_2_workers_and_on_local_ray(referen
     assert not [p for p in _pids_under(tempfile.gettempdir() + '/ray-sweep-')]
 
 
+@pytest.mark.slow
 def test_two_node_cluster_runs_a_case_on_each_node(reference, cluster, tmp_path):
     """One CPU per node and two workers of one CPU each: one worker on each node."""
     spec, ref = reference
@@ -234,6 +237,7 @@ def test_two_node_cluster_runs_a_case_on_each_node(reference, cluster, tmp_path)
     assert _without_wall(_rows(tmp_path / 'two')) == _without_wall(_rows(ref))
 
 
+@pytest.mark.slow
 def test_bags_of_a_sweep_replay(reference):
     from abd_joint_sim.tools.replay_check import replay
     _, out = reference
@@ -244,6 +248,7 @@ def test_bags_of_a_sweep_replay(reference):
         assert result.ok, (bag, result)
 
 
+@pytest.mark.slow
 def test_a_faulting_case_is_a_row_and_the_others_finish(cluster, tmp_path):
     spec = _write(tmp_path, 'fault.yaml', FAULT_SPEC)
     proc = _sweep(spec, tmp_path / 'out', '--address', cluster, '--bags')
@@ -259,6 +264,7 @@ def test_a_faulting_case_is_a_row_and_the_others_finish(cluster, tmp_path):
     assert replay(str(tmp_path / 'out' / 'bags' / 'case_0001')).ok
 
 
+@pytest.mark.slow
 def test_ctrl_c_keeps_finished_cases_and_a_rerun_resumes(cluster, tmp_path):
     spec = _write(tmp_path, 'long.yaml', LONG_SPEC)
     out = tmp_path / 'out'
@@ -302,6 +308,7 @@ def test_ctrl_c_keeps_finished_cases_and_a_rerun_resumes(cluster, tmp_path):
     assert replay(str(out / 'bags' / f'case_{done:04d}')).ok   # the one re-run from scratch
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_is_replaced_and_its_case_retried(cluster, tmp_path):
     spec = _write(tmp_path, 'long.yaml', LONG_SPEC)
     out = tmp_path / 'out'
@@ -481,6 +488,7 @@ def test_two_runs_write_the_same_bag_bytes(tmp_path):
     assert a and a == b
 
 
+@pytest.mark.slow
 def test_an_address_with_no_ray_is_one_line_at_once(tmp_path):
     spec = _write(tmp_path, 'spec.yaml', 'scene: hinge\nduration: 0.02\n')
     t0 = time.monotonic()
