@@ -11,6 +11,9 @@ from typing import Optional
 from websockets.sync.client import connect
 
 SUBPROTOCOLS = ['foxglove.sdk.v1', 'foxglove.websocket.v1']
+# the protocol's playback control (client opcode 3) and playback state (server opcode 5)
+PLAYBACK_COMMANDS = ('play', 'pause')
+PLAYBACK_STATUS = ('playing', 'paused', 'buffering', 'ended')
 
 
 def free_port_pair() -> int:
@@ -50,6 +53,7 @@ class LiveClient:
         self.services: dict[str, dict] = {}
         self.times: list[int] = []
         self.statuses: list[dict] = []
+        self.playback_states: list[dict] = []
         self._subs: dict[int, str] = {}
         self._next_sub = 1
         self._next_call = 1
@@ -102,6 +106,11 @@ class LiveClient:
         elif opcode == 3:
             _sid, call, n = struct.unpack_from('<III', frame, 1)
             self._responses[call] = json.loads(frame[13 + n:])
+        elif opcode == 5:
+            status, now, speed, did_seek, n = struct.unpack_from('<BQfBI', frame, 1)
+            self.playback_states.append({
+                'status': PLAYBACK_STATUS[status], 'current_time': now, 'speed': speed,
+                'did_seek': bool(did_seek), 'request_id': frame[19:19 + n].decode()})
         return None
 
     def next_message(self, timeout: float = 5.0, topic: Optional[str] = None):
@@ -144,6 +153,25 @@ class LiveClient:
             if item is not None:
                 self._backlog.append(item)
         return self._responses.pop(call)
+
+    def playback(self, command: str, speed: float = 1.0, seek_ns: Optional[int] = None,
+                 timeout: float = 10.0) -> dict:
+        """Send Foxglove's playback control request (command 'play' or 'pause', a speed, an
+        optional seek time) and return the server's playback state answering it."""
+        request_id = f'req{self._next_call}'
+        self._next_call += 1
+        self.ws.send(struct.pack('<BBfBQI', 3, PLAYBACK_COMMANDS.index(command), speed,
+                                 seek_ns is not None, seek_ns or 0, len(request_id))
+                     + request_id.encode())
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for state in self.playback_states:
+                if state['request_id'] == request_id:
+                    return state
+            item = self._read(0.2)
+            if item is not None:
+                self._backlog.append(item)
+        raise AssertionError(f'no playback state answering {command!r}')
 
     def close(self) -> None:
         self._cm.__exit__(None, None, None)

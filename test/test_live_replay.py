@@ -58,6 +58,24 @@ def test_replay_bag_live(tmp_path):
         assert client.call('unpause')['success']
         after = [m for topic, _, m in client.messages_for(0.6) if topic == '/status']
         assert after and after[0]['sim_time'] < 0.5, after[:1]
+
+        # Foxglove's playback bar: pause, then seek forward and play at double speed
+        state = client.playback('pause')
+        assert state['status'] == 'paused' and not state['did_seek'], state
+        client.messages_for(0.3)
+        assert client.messages_for(0.8) == []
+        state = client.playback('play', speed=2.0, seek_ns=6_000_000_000)
+        assert state['did_seek'] and state['current_time'] == 6_000_000_000, state
+        msgs = client.messages_for(1.0)
+        times = [m['sim_time'] for topic, _, m in msgs if topic == '/status']
+        assert times and times[0] >= 6.0 - 1e-9, times[:3]
+        # twice real time: ~2 s simulated per wall second (loose: a loaded machine lags)
+        assert 0.5 < times[-1] - times[0] < 2.5, (times[0], times[-1])
+        # the states after the seek are still the recorded ones
+        after_seek = [(t_ns, m) for topic, t_ns, m in msgs
+                      if topic == '/joint_states' and t_ns in recorded]
+        assert after_seek and all(m['position'] == recorded[t_ns][0].position
+                                  for t_ns, m in after_seek)
         client.close()
     finally:
         proc.send_signal(signal.SIGINT)
