@@ -35,7 +35,7 @@ setup(
             'sim_node = abd_joint_sim.ros.node:main',
             'run_headless = abd_joint_sim.tools.run_headless:main',
             'replay_check = abd_joint_sim.tools.replay_check:main',
-            'bag_recover = abd_joint_sim.ros.bag_recover:main',
+            'bag_recover = abd_joint_sim.tools.bag_recover:main',
             'plot_bag = abd_joint_sim.tools.plot_bag:main',
             'replay_bag = abd_joint_sim.tools.replay_bag:main',
             'sweep = abd_joint_sim.tools.sweep:main',

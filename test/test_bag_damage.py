@@ -102,7 +102,7 @@ def test_recover_skips_a_damaged_chunk_and_keeps_every_intact_one(tmp_path):
     damaged = file.read_bytes()
     with pytest.raises(BagDamageError, match=r'chunk 0 at byte \d+.*bag_recover'):
         values_of(bag)
-    out = cli('abd_joint_sim.ros.bag_recover', str(bag))
+    out = cli('abd_joint_sim.tools.bag_recover', str(bag))
     print(out.stdout + out.stderr)
     lost = [k for k in range(1000) if times[0][0] <= k * 1_000_000 <= times[0][1]]
     assert out.returncode == 1, out.stdout + out.stderr
@@ -114,7 +114,7 @@ def test_recover_skips_a_damaged_chunk_and_keeps_every_intact_one(tmp_path):
     assert info['starting_time']['nanoseconds_since_epoch'] == (lost[-1] + 1) * 1_000_000
     assert yaml.safe_load((bag / 'metadata.yaml.orig').read_text())[
         'rosbag2_bagfile_information']['message_count'] == 1000
-    again = cli('abd_joint_sim.ros.bag_recover', str(bag))
+    again = cli('abd_joint_sim.tools.bag_recover', str(bag))
     assert again.returncode == 0 and 'intact and complete already' in again.stdout, again
 
 
@@ -156,7 +156,7 @@ def test_recover_killed_bag_whose_first_chunk_is_damaged(tmp_path):
     assert len(offsets) >= 4
     times = chunk_times(tmp_path / 'full' / 'full_0.mcap')
     flip(file, offsets[0] + 150)
-    out = cli('abd_joint_sim.ros.bag_recover', str(killed))
+    out = cli('abd_joint_sim.tools.bag_recover', str(killed))
     print(out.stdout + out.stderr)
     assert out.returncode == 1, out.stdout + out.stderr
     assert 'dropped chunk 0' in out.stdout and 'topic /e: channel record lost' in out.stdout
@@ -182,7 +182,7 @@ def test_bag_cut_inside_its_summary_is_repaired_without_loss(tmp_path):
     file.write_bytes(data[:data_end + 13 + 40])       # DataEnd, then 40 summary bytes
     with pytest.raises(BagDamageError, match='bag_recover'):
         values_of(bag)
-    out = cli('abd_joint_sim.ros.bag_recover', str(bag))
+    out = cli('abd_joint_sim.tools.bag_recover', str(bag))
     assert out.returncode == 0 and 'recovered 1000 messages' in out.stdout, out
     assert values_of(bag) == [float(k) for k in range(1000)]
     assert read_attachments(bag) == {'scene.yaml': b'x: 1'}
@@ -193,7 +193,7 @@ def test_recover_refuses_a_file_without_header(tmp_path):
     bag = tmp_path / 'b'
     write_bag(bag, count=10)
     (bag / 'b_0.mcap').write_bytes(b'')
-    out = cli('abd_joint_sim.ros.bag_recover', str(bag))
+    out = cli('abd_joint_sim.tools.bag_recover', str(bag))
     assert out.returncode == 2 and out.stderr.count('\n') == 1, out
     assert 'no readable MCAP header' in out.stderr
     assert not (bag / 'b_0.mcap.orig').exists()

@@ -450,7 +450,7 @@ def test_sigkill_bag_recovers_and_replays(tmp_path):
             node.stop(signal.SIGKILL)
     assert node.proc.returncode == -signal.SIGKILL
     env = ros_env(domain, tmp_path)
-    out = subprocess.run([sys.executable, '-m', 'abd_joint_sim.ros.bag_recover', str(bag)],
+    out = subprocess.run([sys.executable, '-m', 'abd_joint_sim.tools.bag_recover', str(bag)],
                          capture_output=True, text=True, env=env, cwd=str(REPO), timeout=60)
     print('\n' + out.stdout + out.stderr)
     # exit 1: the chunk being filled at the kill is dropped (and said so)

@@ -35,7 +35,7 @@ OP_HEADER, OP_FOOTER, OP_CHUNK, OP_MESSAGE_INDEX = 0x01, 0x02, 0x06, 0x07
 OP_ATTACHMENT, OP_DATA_END = 0x09, 0x0F
 
 RECOVER_HINT = ('run `ros2 run abd_joint_sim bag_recover {bag}` (or `python -m '
-                'abd_joint_sim.ros.bag_recover {bag}`) to keep its intact chunks')
+                'abd_joint_sim.tools.bag_recover {bag}`) to keep its intact chunks')
 
 
 class BagDamageError(BagError):

@@ -684,7 +684,7 @@ class SimNode(Node):
         self.recording_error = why
         self.get_logger().error(
             f'recording stopped: {why}. The simulation goes on; complete the bag with '
-            f'`python -m abd_joint_sim.ros.bag_recover {self.config.record}`')
+            f'`python -m abd_joint_sim.tools.bag_recover {self.config.record}`')
         self._close_recorder()
         self._publish_diagnostics()
 

@@ -42,6 +42,8 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from abd_joint_sim.tools import cli
+
 PROG = 'plot_bag'
 #: [s] each body's path drawn in a pose panel: the last this many seconds before it
 TRAIL_SECONDS = 0.5
@@ -517,7 +519,7 @@ def _times(text: str) -> list[float]:
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = cli.Parser(
         prog=PROG, description='Turn a recorded abd_joint_sim bag into PNG pictures: joint '
         'angles, velocities and efforts against simulated time (joints.png) and a strip of '
         'the bodies at chosen times from the recorded markers (poses.png).')
@@ -532,7 +534,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser.add_argument('--title', default=None,
                         help='title (default: the scene or robot name and the bag name)')
     parser.add_argument('-q', '--quiet', action='store_true', help='no summary line')
-    args = parser.parse_args(argv)
+    args = parser.parse_args(cli.own_args(argv))
     plt = _pyplot()
     if plt is None:
         print(f'{PROG}: matplotlib is not installed (it is optional); install it with '

@@ -17,19 +17,15 @@ import math
 import sys
 from typing import Optional, Sequence
 
+from abd_joint_sim.tools import cli
+
 PROG = 'replay_bag'
 STORED = ('time_step', 'publish_rate', 'command_timeout', 'effort_limits', 'joints', 'frame_id')
 """The bag's parameters the replay takes (as run_headless --from-bag)."""
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
-        raise SystemExit(2)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description=(
+    p = cli.Parser(prog=PROG, description=(
         'Replay a recorded abd_joint_sim bag at real time into the live view (a page in the '
         'browser, or Foxglove with its playback bar). docs/live.md.'))
     p.add_argument('bag', metavar='BAG', help='bag directory (or .mcap file) to replay')
@@ -43,19 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if '--ros-args' in argv:
-        argv = argv[:argv.index('--ros-args')]
-    args = build_parser().parse_args(argv)
-    try:
-        return _run(args)
-    except _InputError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
-
-
-class _InputError(Exception):
-    pass
+    return cli.run(PROG, build_parser(), _run, argv)
 
 
 def _run(args) -> int:
@@ -70,9 +54,9 @@ def _run(args) -> int:
     try:
         check_port(args.live, '--live')
     except ValueError as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     if not (math.isfinite(args.speed) and 0.0 < args.speed <= 1e3):
-        raise _InputError(f'--speed {args.speed}: must be a number in (0, 1000]')
+        raise cli.InputError(f'--speed {args.speed}: must be a number in (0, 1000]')
     try:
         run = load_bag(args.bag)
         scene = scene_from_text(run.scene_text, f'{args.bag}: scene.yaml')
@@ -80,7 +64,7 @@ def _run(args) -> int:
                             scene_path=run.scene_path)
         sim = HeadlessSim(scene, config, clamp=False)
     except (BagInputError, SceneError, ValueError) as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     plan = run.plan
     end_ns = max(seg.end_ns for seg in plan.segments)
     pacer = RealTimePacer(sim.loop, speed=args.speed, end_ns=end_ns)
@@ -92,7 +76,7 @@ def _run(args) -> int:
                           log=lambda level, text: print(f'{PROG}: {level}: {text}',
                                                         file=sys.stderr)).start()
     except LiveError as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     pacer.live = live
     print(f'{PROG}: {args.bag}: {end_ns / 1e9:g} s of simulated time; {live.describe()}; '
           'Ctrl-C ends', file=sys.stderr, flush=True)

@@ -23,6 +23,7 @@ import time
 from typing import Optional, Sequence
 
 from abd_joint_sim.ros.loop import LoopOutput
+from abd_joint_sim.tools import cli
 
 PROG = 'replay_check'
 
@@ -234,12 +235,6 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
     return result
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
-        raise SystemExit(2)
-
-
 def _tolerance(text: str) -> float:
     value = float(text)
     if not (math.isfinite(value) and value >= 0.0):
@@ -248,7 +243,7 @@ def _tolerance(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description=(
+    p = cli.Parser(prog=PROG, description=(
         'Re-simulate the commands recorded in an abd_joint_sim bag with its stored scene and '
         'parameters and compare every recorded joint state. Exit 0 = reproduced within '
         'tolerance, 1 = not, 2 = unusable input. See docs/replay.md.'))
@@ -263,10 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if '--ros-args' in argv:
-        argv = argv[:argv.index('--ros-args')]
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(cli.own_args(argv))
     try:
         result = replay(args.bag, {'position': args.atol_angle,
                                    'velocity': args.atol_velocity,

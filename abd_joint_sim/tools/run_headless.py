@@ -18,18 +18,14 @@ import sys
 import time
 from typing import Optional, Sequence
 
+from abd_joint_sim.tools import cli
+
 PROG = 'run_headless'
 MAX_WARNINGS = 10     # clamp warnings listed one by one; the rest are counted
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, exit 2 (argparse prints usage too)
-        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
-        raise SystemExit(2)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description=(
+    p = cli.Parser(prog=PROG, description=(
         'Run an abd_joint_sim scene headless (no DDS, as fast as possible) with a torque/'
         'enable schedule and record the same rosbag2 (MCAP) bag sim_node records. '
         'Schedule format: docs/replay.md.'))
@@ -65,25 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _strip_ros_args(argv: Sequence[str]) -> list[str]:
-    """`ros2 run`/launch may append `--ros-args ...`; nothing there is for us."""
-    argv = list(argv)
-    if '--ros-args' in argv:
-        argv = argv[:argv.index('--ros-args')]
-    return argv
-
-
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    args = build_parser().parse_args(_strip_ros_args(sys.argv[1:] if argv is None else argv))
-    try:
-        return _run(args)
-    except _InputError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
-
-
-class _InputError(Exception):
-    pass
+    return cli.run(PROG, build_parser(), _run, argv)
 
 
 def _run(args) -> int:
@@ -112,25 +91,25 @@ def _run(args) -> int:
                                       'effort_limits', 'joints', 'frame_id')}
             provenance = f'commands of bag {args.from_bag}'
     except (ScheduleError, BagInputError) as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
 
     overrides = dict(stored_params)
     for name, value in (('--dt', args.dt), ('--duration', args.duration),
                         ('--publish-rate', args.publish_rate)):
         if value is not None and (not math.isfinite(value) or value < 0.0
                                   or (value == 0.0 and name != '--publish-rate')):
-            raise _InputError(f'{name} {value}: must be a finite number > 0'
+            raise cli.InputError(f'{name} {value}: must be a finite number > 0'
                               + (' (or 0)' if name == '--publish-rate' else ''))
     if args.duration is not None and args.duration > MAX_TIME:
-        raise _InputError(f'--duration {args.duration:g}: beyond the supported {MAX_TIME:g} s')
+        raise cli.InputError(f'--duration {args.duration:g}: beyond the supported {MAX_TIME:g} s')
     if args.live is not None:
         from abd_joint_sim.live import check_port
         try:
             check_port(args.live, '--live')
         except ValueError as exc:
-            raise _InputError(str(exc)) from None
+            raise cli.InputError(str(exc)) from None
     if args.publish_every is not None and args.publish_every < 1:
-        raise _InputError(f'--publish-every {args.publish_every}: must be >= 1')
+        raise cli.InputError(f'--publish-every {args.publish_every}: must be >= 1')
     if args.dt is not None:
         overrides['time_step'] = args.dt
     if args.publish_rate is not None:
@@ -147,7 +126,7 @@ def _run(args) -> int:
             scene = scene_from_text(run.scene_text, f'{args.from_bag}: scene.yaml')
             urdf_text = run.custom.get('abd_joint_sim.urdf', '')    # kept in the new bag
     except SceneError as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     scene_text = getattr(scene, 'source_text', '') or ''
 
     # -- parameters (same validation as sim_node's) ----------------------------------------
@@ -159,7 +138,7 @@ def _run(args) -> int:
                 1.0 / (args.publish_every * dt)
         sim = HeadlessSim(scene, config, clamp=bool(args.schedule))
     except (ValueError, SceneError) as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     config.record = args.out
 
     if args.duration is not None:
@@ -167,7 +146,7 @@ def _run(args) -> int:
     try:
         check_plan(plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
     except ScheduleError as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     late = [(cmd, seg) for seg in plan.segments for cmd in seg.commands if cmd.t_ns >= seg.end_ns]
     if late:
         cmd, seg = late[0]
@@ -186,7 +165,7 @@ def _run(args) -> int:
     except BagError as exc:
         if live is not None:
             live.close()
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     wall0 = time.monotonic()
     status = 0
     try:
@@ -236,7 +215,7 @@ def _start_live(args, scene, sim):
                           log=lambda level, text: print(f'{PROG}: {level}: {text}',
                                                         file=sys.stderr)).start()
     except LiveError as exc:
-        raise _InputError(str(exc)) from None
+        raise cli.InputError(str(exc)) from None
     pace.live = live
     print(f'{PROG}: {live.describe()}', file=sys.stderr, flush=True)
     return live, pace

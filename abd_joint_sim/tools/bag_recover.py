@@ -1,7 +1,7 @@
 """bag_recover: repair a bag whose recorder was killed (SIGKILL, power cut, full disk) or
 whose file is damaged (a flipped bit, a copy cut short).
 
-    python -m abd_joint_sim.ros.bag_recover BAG [BAG ...]
+    python -m abd_joint_sim.tools.bag_recover BAG [BAG ...]
     ros2 run abd_joint_sim bag_recover BAG
 
 sim_node closes its current MCAP chunk every second and on pause, so a killed node's bag
@@ -21,9 +21,10 @@ dropped (listed); 2 a bag could not be recovered (one line on stderr).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import Optional, Sequence
+
+from abd_joint_sim.tools import cli
 
 PROG = 'bag_recover'
 
@@ -57,16 +58,13 @@ def describe(bag: str, report) -> list[str]:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if '--ros-args' in argv:
-        argv = argv[:argv.index('--ros-args')]
-    parser = argparse.ArgumentParser(prog=PROG, description=(
+    parser = cli.Parser(prog=PROG, description=(
         'Repair abd_joint_sim bags whose recorder was killed or whose file is damaged: keep '
         'every intact chunk, rewrite the summary and metadata.yaml (the replaced files are '
         'kept as *.orig, *.orig.1, ...). Exit 0 nothing dropped, 1 something dropped, '
         '2 a bag could not be recovered.'))
     parser.add_argument('bags', nargs='+', metavar='BAG', help='bag directory')
-    args = parser.parse_args(argv)
+    args = parser.parse_args(cli.own_args(argv))
     from abd_joint_sim.record import BagError, recover
     status = 0
     for bag in args.bags:
