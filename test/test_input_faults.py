@@ -119,6 +119,48 @@ def test_size_bounds_and_non_regular_files(tmp_path):
         '<link name="l0"></link>', '<link name="l0">' + '<x/>' * 150_000 + '</link>'))
 
 
+def visual_robot(links: int, visuals: int) -> str:
+    """A chain of `links` links, each with `visuals` boxes (about 90 bytes each)."""
+    vis = ''.join(f'<visual><origin xyz="{k * 1e-3:.4f} 0.01 0.02" rpy="0.1 0.2 0.3"/>'
+                  '<geometry><box size="0.01 0.02 0.03"/></geometry></visual>'
+                  for k in range(visuals))
+    return robot(*(link(f'l{i}', INERTIAL + vis) for i in range(links)),
+                 *(joint(f'j{i}', f'l{i - 1}', f'l{i}') for i in range(1, links)))
+
+
+def test_a_large_robot_loads_in_time_proportional_to_its_size(tmp_path):
+    """15 000 visuals (1.4 MB) cost per visual what 1 500 do; the scene's YAML text (the
+    lowered scene a bag records, seconds to write for such a robot) is written only when
+    asked for, and is then the lowered scene's `yaml.dump`."""
+    import yaml
+    from abd_joint_sim.scene import _DUMPER, _plain
+    from abd_joint_sim.urdf import scene_data_from_urdf
+    from abd_joint_sim.world import World
+    files = {}
+    for n in (30, 300):
+        files[n] = tmp_path / f'r{n}.urdf'
+        files[n].write_text(visual_robot(50, n))
+    assert files[300].stat().st_size > 1_000_000
+
+    def load(path):
+        t0 = time.perf_counter()
+        world = World(Scene.from_urdf(str(path)))
+        return time.perf_counter() - t0, world
+    load(files[30])                         # compiled kernels loaded once
+    small = min(load(files[30])[0] for _ in range(3))
+    big, world = load(files[300])
+    world.step(2)
+    per_visual = (big / 15_000) / (small / 1_500)
+    print(f'\nload + World: 1500 visuals {small:.3f} s, 15000 visuals {big:.3f} s; '
+          f'per visual x{per_visual:.2f}')
+    assert per_visual <= 3.0
+    assert not world.scene._text.written          # loading and stepping never wrote it
+    scene = Scene.from_urdf(str(files[30]))
+    data = scene_data_from_urdf(str(files[30]), {})[0]
+    assert scene.source_text == yaml.dump(_plain(data), Dumper=_DUMPER, sort_keys=False)
+    assert scene._text.written
+
+
 def test_small_ones(tmp_path):
     # a 1 MB attribute is quoted by its first characters
     msg = one_line_error(ARM.replace('ixx="0.01"', 'ixx="' + '9' * 1_000_000 + 'x"', 1))
