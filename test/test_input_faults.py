@@ -66,16 +66,72 @@ def test_bad_urdf_is_one_line_naming_the_place(text, expected):
         'no bogus repair warning before the error'
 
 
-@pytest.mark.parametrize('lower, upper', [(1, -1), (0, 0)])
-def test_a_limit_without_range_is_no_limit_and_said(lower, upper):
-    text = ARM.replace('lower="-1" upper="1"', f'lower="{lower}" upper="{upper}"')
-    with pytest.warns(UrdfWarning, match=r"lower >= upper taken as no limit .* on 1 joint\(s\): "
-                      rf"'j0' \[{lower}, {upper}\]"):
+def slide(name: str, parent: str, child: str, limit: str = LIMIT) -> str:
+    return joint(name, parent, child, limit).replace('type="revolute"', 'type="prismatic"')
+
+
+@pytest.mark.parametrize('kind', [joint, slide])
+def test_a_urdf_limit_with_lower_above_upper_is_no_limit_and_said(kind):
+    text = robot(link('root'), link('a'), kind('j0', 'root', 'a',
+                                              LIMIT.replace('lower="-1" upper="1"',
+                                                            'lower="1" upper="-1"')))
+    with pytest.warns(UrdfWarning, match=r"lower > upper taken as no limit \(as PyBullet does\) "
+                      r"on 1 joint\(s\): 'j0' \[1, -1\]"):
         scene = Scene.from_urdf(text)
     assert scene.joints[0].limit is None
-    with pytest.warns(UrdfWarning, match='lower >= upper'):      # the file's limit, overridden
-        held = Scene.from_urdf(text, joints={'j0': {'limit': {'lower': 0.0, 'upper': 0.0}}})
-    assert (held.joints[0].limit.lower, held.joints[0].limit.upper) == (0.0, 0.0)
+
+
+def held_at(scene, joint_name='j0', steps=300) -> float:
+    """The joint's position after `steps` steps pushed by 0.5 N m (or N)."""
+    from abd_joint_sim.world import World
+    world = World(scene)
+    world.set_effort_enabled(joint_name, True)
+    world.set_effort(joint_name, 0.5)
+    world.step(steps)
+    return float(world.joint_positions()[scene.joint_names.index(joint_name)])
+
+
+@pytest.mark.parametrize('kind', [joint, slide])
+@pytest.mark.parametrize('at', [0.0, 0.5])
+def test_a_zero_width_limit_holds_the_joint_in_urdf_as_in_yaml(kind, at):
+    """lower == upper is a zero-width limit in both formats: the joint is held at that
+    position (a URDF says so in a warning); without the limit the same push moves it."""
+    text = robot(link('root'), link('a'), kind('j0', 'root', 'a', LIMIT.replace(
+        'lower="-1" upper="1"', f'lower="{at}" upper="{at}"').replace(' velocity="1"', '')))
+    with pytest.warns(UrdfWarning, match=r"lower == upper holds the joint at that position "
+                      rf".* on 1 joint\(s\): 'j0' \[{at:g}, {at:g}\]; `joints: "
+                      r"\{name: \{limit: false\}\}` frees it"):
+        scene = Scene.from_urdf(text, gravity=[0, 0, 0])
+    lim = scene.joints[0].limit
+    assert (lim.lower, lim.upper) == (at, at)
+    held = abs(held_at(scene) - at)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', UrdfWarning)      # the override: nothing to say
+        free = Scene.from_urdf(text, gravity=[0, 0, 0], joints={'j0': {'limit': False}})
+    moved = abs(held_at(free))                   # from 0, the free joint's start
+    print(f'\n{kind.__name__} at {at}: held within {held:.2e}, free moved {moved:.2e}')
+    assert free.joints[0].limit is None and held < 0.05 * moved
+    # an explicit start away from the held position is accepted, as in YAML
+    with pytest.warns(UrdfWarning, match='lower == upper'):
+        Scene.from_urdf(text, gravity=[0, 0, 0], initial_positions={'j0': at + 0.3})
+    # the YAML scene of the same robot (its lowered scene) holds it the same way
+    data = scene.to_dict()
+    data['joints'][0][('init_angle' if kind is joint else 'init_distance')] = at + 0.3
+    yaml_scene = Scene.from_dict(data)
+    assert (yaml_scene.joints[0].limit.lower, yaml_scene.joints[0].limit.upper) == (at, at)
+    pulled = abs(held_at(yaml_scene, steps=600) - at)
+    print(f'YAML scene started 0.3 away: within {pulled:.2e} after 600 steps')
+    assert pulled < 0.1 * 0.3
+
+
+def test_a_urdf_limit_without_bounds_is_no_limit():
+    """<limit effort velocity/> on a revolute joint: no limit, as PyBullet and MuJoCo load it."""
+    text = ARM.replace('lower="-1" upper="1" ', '').replace(' velocity="1"', '')
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', UrdfWarning)
+        scene = Scene.from_urdf(text)
+    assert scene.joints[0].limit is None
+    assert scene.joints[0].external_torque.effort_limit == 5.0
 
 
 @pytest.mark.parametrize('options, expected', [
