@@ -185,7 +185,7 @@ def visual_robot(links: int, visuals: int) -> str:
 
 
 def test_a_large_robot_loads_in_time_proportional_to_its_size(tmp_path):
-    """15 000 visuals (1.4 MB) cost per visual what 1 500 do; the scene's YAML text (the
+    """15 000 visuals (1.75 MB) cost per visual what 1 500 do; the scene's YAML text (the
     lowered scene a bag records, seconds to write for such a robot) is written only when
     asked for, and is then the lowered scene's `yaml.dump`."""
     import yaml
