@@ -305,7 +305,9 @@ class _Reader:
                 self.fail(f'{where} <limit>: effort="{j.effort:g}" is negative; effort is the '
                           'largest torque (N m) or force (N) magnitude, >= 0 (0 or absent: no effort limit)')
             j.velocity = self.number(lim, 'velocity', f'{where} <limit>', 0.0)
-            if jtype in LIMITED:
+            if jtype in LIMITED and (lim.get('lower') is not None or lim.get('upper') is not None):
+                # Neither bound written: no limit, as PyBullet and MuJoCo load it (urdfdom's
+                # default 0 for both would hold the joint). One written: the other is 0.
                 j.lower = self.number(lim, 'lower', f'{where} <limit>', 0.0)
                 j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
         if el.find('mimic') is not None:
@@ -559,7 +561,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     def effective_limit(j):
         """(lower, upper) of the UID 670 limit the joint will get, or None."""
         lim = ({'lower': j.lower, 'upper': j.upper} if opt.limits and j.type in LIMITED
-               and j.lower is not None and j.upper > j.lower else None)
+               and j.lower is not None and j.upper >= j.lower else None)
         over = opt.overrides.get(j.name, {})
         if 'limit' in over:
             lim = None if over['limit'] in (None, False) else {**(lim or {}), **over['limit']}
@@ -578,18 +580,30 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
             j.lower = j.upper = None
 
-    # <limit lower upper> that gives no range: lower > upper (PyBullet's way of writing
-    # "no limit") and lower == upper (a YAML scene's zero-width limit holds its joint; a file
-    # with 0 and 0 rarely means that) are both taken as no limit, said once per file.
-    odd = [j for j in joints.values() if j.type == 'revolute' and moving(j)
-           and j.lower is not None and j.upper <= j.lower]
+    # <limit lower upper> that gives no range. lower > upper is PyBullet's way of writing
+    # "no limit" (MuJoCo ignores it too): no limit. lower == upper is a zero-width limit that
+    # holds the joint at that position, as in a YAML scene and in PyBullet (MuJoCo ignores
+    # it, with a warning). Each said once per file, naming the joints and the way out.
+    def shown(js):
+        return ', '.join(f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in js[:8]) + (
+            f' and {len(js) - 8} more' if len(js) > 8 else '')
+    ranged = [j for j in joints.values() if j.type in LIMITED and moving(j) and opt.limits
+              and j.lower is not None and 'limit' not in opt.overrides.get(j.name, {})]
+    odd = [j for j in ranged if j.upper < j.lower]
+    held = [j for j in ranged if j.upper == j.lower]
     if odd:
-        shown = ', '.join(f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in odd[:8]) + (
-            f' and {len(odd) - 8} more' if len(odd) > 8 else '')
-        msg = (f'{source}: <limit> with lower >= upper taken as no limit (a continuous joint) '
-               f'on {len(odd)} joint(s): {shown}; `joints: {{name: {{limit: {{lower: a, '
-               'upper: b}}}` sets one (a == b holds the joint at a, as in a YAML scene), '
-               '`lock: [name]` holds it rigid')
+        msg = (f'{source}: <limit> with lower > upper taken as no limit (as PyBullet does) '
+               f'on {len(odd)} joint(s): {shown(odd)}; `joints: {{name: {{limit: {{lower: a, '
+               'upper: b}}}` sets one, `lock: [name]` holds the joint rigid')
+        notes.append(msg)
+        warnings.warn(msg, UrdfWarning, stacklevel=4)
+        for j in odd:
+            j.lower = j.upper = None
+    if held:
+        msg = (f'{source}: <limit> with lower == upper holds the joint at that position (a '
+               f'zero-width limit, as in a YAML scene and in PyBullet) on {len(held)} joint(s): '
+               f'{shown(held)}; `joints: {{name: {{limit: false}}}}` frees it, `joints: {{name: '
+               '{limit: {lower: a, upper: b}}}` sets a range')
         notes.append(msg)
         warnings.warn(msg, UrdfWarning, stacklevel=4)
 
@@ -791,7 +805,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             if j.effort is not None and j.effort > 0.0:
                 et['effort_limit'] = j.effort
             d[effort_key] = et
-        if opt.limits and j.type in LIMITED and j.lower is not None and j.upper > j.lower:
+        if opt.limits and j.type in LIMITED and j.lower is not None and j.upper >= j.lower:
             d['limit'] = {'lower': j.lower, 'upper': j.upper}
         if opt.driving is not None:         # UID 19 / 21 on every moving joint, holding its pose
             d['driving'] = {aim_key: q0, **opt.driving}
@@ -813,7 +827,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 d[key] = {**base, **value}
         lim = d.get('limit')
         if isinstance(lim, dict) and 'lower' in lim and 'upper' in lim \
-                and not lim['lower'] <= q0 <= lim['upper']:
+                and lim['upper'] > lim['lower'] and not lim['lower'] <= q0 <= lim['upper']:
+            # (a zero-width limit holds the joint from wherever it starts, as in YAML)
             raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} '
                              f'{"m" if sliding else "rad"} is outside '
                              f'the joint\'s limit [{lim["lower"]:g}, {lim["upper"]:g}]; the limit '

@@ -493,6 +493,23 @@ def test_live_node_bag_replays(tmp_path):
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['duration']['nanoseconds'] == max(logs) - min(logs) == \
         clocks[back[0] - 1][1] + clocks[-1][1]
+    # Every /joint_states (publish_rate 50) and /markers (marker_rate 30) the schedule says
+    # was published is in the bag, no more: in each segment, the first step at or after
+    # each k / rate of the segment's simulated time (the headless recorder's schedule too,
+    # test_replay_tamper.py).
+    def scheduled(rate: float) -> list[int]:
+        period, due = round(1e9 / rate), []
+        for seg in (clocks[:back[0]], clocks[back[0]:]):
+            base, stamps = seg[0][0] - seg[0][1], [c[1] for c in seg]
+            due += sorted({base + next(t for t in stamps if t >= g)
+                           for g in range(0, stamps[-1] + 1, period)})
+        return due
+    with open(next(bag.glob('*.mcap')), 'rb') as f:
+        for topic, rate in (('/joint_states', 50.0), ('/markers', 30.0)):
+            f.seek(0)
+            got = [m.log_time for _s, c, m in NonSeekingReader(f).iter_messages(
+                log_time_order=False) if c.topic == topic]
+            assert got == scheduled(rate), (topic, len(got), len(scheduled(rate)))
 
     # Independent readers agree with metadata.yaml on every topic's count.
     from mcap_ros2.reader import read_ros2_messages
