@@ -1,6 +1,11 @@
 """Error against run time: sweep dt x integrator x Newton tolerance on scenes with known answers.
 
-    python study/error_vs_runtime.py --out out/error_study [--quick] [--img-dir DIR]
+    python -m study.error_vs_runtime --out out/error_study [--quick] [--img-dir DIR]
+        [--workers N | --address ADDR | --in-process]
+
+Every point (ours and MuJoCo's) is a case of one sweep run through
+abd_joint_sim/tools/sweep.py (study/sweeps.py); the tables and plots are made from the
+sweep's results.csv (--from-sweep DIR: from a sweep run earlier).
 
 Scenes (study/scenes.py): fixed hinge with constant torque (closed form), free pair with
 internal torque (closed form for the relative angle; momentum must stay zero), pendulum

@@ -1,6 +1,10 @@
 """Stability on stiff and extreme cases: one table, pass/fail per case with the reason.
 
-    python study/stability.py --out out/stability [--quick]
+    python -m study.stability --out out/stability [--quick] [--workers N | --address ADDR | --in-process]
+
+The cases run as one sweep through abd_joint_sim/tools/sweep.py (study/sweeps.py): on every
+core by default, on a Ray cluster with --address, serially with --in-process; the tables are
+written from the sweep's results.csv (--from-sweep DIR: from a sweep run earlier).
 
 Each case runs one or two phases on a small scene (study/scenes.py):
   forced  — from rest with a joint torque; where the answer is known (fixed hinge, constant
