@@ -4,7 +4,7 @@
 * A subset of both studies runs through the sweep engine on a local Ray with 2 workers; the
   rows the analysis reads back from results.csv equal the serial computation (run_case,
   run_point) in every column but the measured times, in the studies' order, and the
-  analysis writes the same table rows (~40 s on the loaded 2-core machine, most of it Ray
+  analysis writes the same table rows (25–35 s on the loaded 2-core machine, most of it Ray
   starting).
 * A runner spec in process: listed cases, a runner's error as a row, bad runner specs as one
   line with nothing run.
