@@ -1,6 +1,11 @@
 """Error against run time: sweep dt x integrator x Newton tolerance on scenes with known answers.
 
-    python study/error_vs_runtime.py --out out/error_study [--quick] [--img-dir DIR]
+    python -m study.error_vs_runtime --out out/error_study [--quick] [--img-dir DIR]
+        [--workers N | --address ADDR | --in-process]
+
+Every point (ours and MuJoCo's) is a case of one sweep run through
+abd_joint_sim/tools/sweep.py (study/sweeps.py); the tables and plots are made from the
+sweep's results.csv (--from-sweep DIR: from a sweep run earlier).
 
 Scenes (study/scenes.py): fixed hinge with constant torque (closed form), free pair with
 internal torque (closed form for the relative angle; momentum must stay zero), pendulum
@@ -36,9 +41,11 @@ from abd_joint_sim import SimulationError  # noqa: E402
 try:
     from . import scenes as S
     from . import mujoco_peer as M
+    from . import sweeps as study_sweeps
 except ImportError:
     import scenes as S  # type: ignore
     import mujoco_peer as M  # type: ignore
+    import sweeps as study_sweeps  # type: ignore
 
 # mj_dts: MuJoCo's first-order integrators cost ~3 us per step, so it also gets smaller steps
 # (the equal-error ratios need its envelope to reach 1e-5)
@@ -345,7 +352,7 @@ def ours_vs_mujoco(rows, mj_rows):
 def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco_note, elapsed, argv,
                mj_rows=(), mj_orders=(), mj_ratios=()):
     lines = ['# Error against run time', '',
-             f'Command: `python study/error_vs_runtime.py {" ".join(argv)}`'
+             f'Command: `{_command(argv)}`'
              f' ({"quick" if quick else "full"} mode, {elapsed:.0f} s). {common.machine()}. '
              f'{common.backend_note()}', '',
              f'Horizon {cfg["horizon"]} s; dt in {", ".join(f"{d:g}" for d in cfg["dts"])}; Newton '
@@ -393,6 +400,81 @@ def summary_md(rows, order_rows, par, ratios, cfg, problems, pngs, quick, mujoco
     return '\n'.join(lines)
 
 
+def _command(argv):
+    """The command line a summary names: argv, or a str naming the whole command."""
+    return argv if isinstance(argv, str) else ' '.join(['python -m study.error_vs_runtime'] + list(argv))
+
+
+# -- the study as a sweep (study/sweeps.py) ---------------------------------------------
+AXES = ('engine', 'scene', 'integrator', 'velocity_tol', 'tau_sample', 'dt')
+SWEEP_TYPES = {'engine': str, 'backend': str, 'scene': str, 'integrator': str, 'tau_sample': str,
+               'error': str, 'steps': int, 'unconverged_steps': int, 'substep_steps': int, 'warnings': int}
+
+
+def sweep_cases(quick=False, scenes=None, tols=None, mujoco_scenes=()):
+    """The study's points as sweep cases (axes study, index, engine, scene, integrator,
+    velocity_tol, tau_sample, dt, horizon), ours in sweep()'s order, then MuJoCo's in
+    mujoco_peer.sweep()'s; `cost` estimates each point's run time [s]."""
+    cfg = dict(QUICK if quick else FULL)
+    if tols:
+        cfg['tols'] = tuple(tols)
+    names = scenes or list(S.CASES)
+    plan = [(n, i, tol, 'end') for n in names for i in INTEGRATORS for tol in cfg['tols']]
+    if 'pendulum_sine' in names:
+        plan += [('pendulum_sine', i, min(cfg['tols']), 'start') for i in INTEGRATORS]
+    out = []
+
+    def add(engine, name, integ, tol, samp, dt, cost):
+        out.append({'study': 'error_vs_runtime', 'index': len(out), 'engine': engine, 'scene': name,
+                    'integrator': integ, 'velocity_tol': tol, 'tau_sample': samp, 'dt': dt,
+                    'horizon': cfg['horizon'], 'cost': cost})
+
+    for name, integ, tol, samp in plan:
+        for dt in cfg['dts']:
+            add('abd', name, integ, tol, samp, dt, 4.5e-5 * cfg['horizon'] / dt)
+    for name in mujoco_scenes:                   # median of 3 runs at ~4 us per step
+        for integ in M.INTEGRATORS:
+            for dt in tuple(cfg['dts']) + tuple(cfg['mj_extra_dts']):
+                add('mujoco', name, integ, '-', 'mid', dt, 3 * 4e-6 * cfg['horizon'] / dt)
+    return out
+
+
+def sweep_check(values):
+    if values.get('scene') not in S.CASES:
+        raise ValueError(f'error_vs_runtime: no scene {values.get("scene")!r}')
+    if values.get('integrator') not in INTEGRATORS + tuple(M.INTEGRATORS):
+        raise ValueError(f'error_vs_runtime: no integrator {values.get("integrator")!r}')
+
+
+def sweep_case(values):
+    """One point in a sweep worker: run_point's (or MuJoCo's) row without the axes, its
+    stepping time as `study_wall_s` (`wall_s` is the sweep's own column)."""
+    case = S.CASES[values['scene']]
+    if values['engine'] == 'mujoco':
+        row = M.run_point(case, values['dt'], values['integrator'], values['horizon'])
+    else:
+        row = run_point(case, values['dt'], values['integrator'], values['velocity_tol'],
+                        values['horizon'], values['tau_sample'])
+    row['study_wall_s'] = row.pop('wall_s')
+    return {k: v for k, v in row.items() if k not in AXES}
+
+
+def from_sweep_row(r):
+    """A study row (COLUMNS, in order) from a typed sweep row."""
+    r = dict(r, wall_s=r['study_wall_s'])
+    return {c: r[c] for c in COLUMNS}
+
+
+def log_row(r, log=print):
+    if r['engine'] == 'abd':
+        log(f'{r["scene"]:14s} {r["integrator"]} tol={r["velocity_tol"]:<6g} tau@{r["tau_sample"]:5s} '
+            f'dt={r["dt"]:<7g} err_max={r["err_max"]:.3e} final={r["err_final"]:.3e} sep={r["max_sep"]:.1e} '
+            f'newton/step={r["newton_per_step"]:.2f} {r["ms_per_step"]:.2f} ms/step')
+    else:
+        log(f'{r["scene"]:14s} {r["integrator"]:15s} tau@mid  dt={r["dt"]:<7g} err_max={r["err_max"]:.3e} '
+            f'final={r["err_final"]:.3e} {r["ms_per_step"] * 1e3:.1f} us/step')
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
@@ -403,15 +485,36 @@ def main(argv=None):
     ap.add_argument('--no-mujoco', action='store_true', help='skip the MuJoCo side-by-side run')
     ap.add_argument('--replot', action='store_true',
                     help='no run: redraw the PNGs from OUT/results.csv (a committed study)')
+    study_sweeps.add_arguments(ap)
     args = ap.parse_args(argv)
     if args.replot:
         return replot(args.out, args.img_dir or args.out)
     t0 = time.perf_counter()
-    rows, cfg = sweep(args.quick, args.scenes)
+    mj_scenes, mujoco_note = mujoco_plan(args.scenes or list(S.CASES), args)
+    status, rows = study_sweeps.run(['error_vs_runtime'], args, {'error_vs_runtime': options(args, mj_scenes)})
+    if status > 1 or not rows.get('error_vs_runtime'):
+        return status or 1
+    return analyse(rows['error_vs_runtime'], args, argv, t0, mujoco_note, status)
+
+
+def options(args, mj_scenes):
+    """What sweep_cases takes, from the command line."""
+    return dict(quick=args.quick, scenes=args.scenes, mujoco_scenes=mj_scenes)
+
+
+def analyse(all_rows, args, argv, t0, mujoco_note, status=0, log=print):
+    """The study's outputs (results.csv, orders.csv, mujoco_equal_error.csv, summary.md, the
+    PNGs) from its rows (ours and MuJoCo's); the exit status."""
+    for r in all_rows:
+        log_row(r, log)
+    cfg = dict(QUICK if args.quick else FULL)
+    rows = [r for r in all_rows if r['engine'] == 'abd']
+    mj_rows = [r for r in all_rows if r['engine'] != 'abd']
+    if not mj_rows and 'ran' in mujoco_note:
+        mujoco_note = 'MuJoCo: no MuJoCo point in the sweep\'s results.'
     order_rows = orders(rows, cfg['fit_min_dt'])
     problems = check(rows, order_rows, cfg)
     par, ratios = pareto(rows), equal_error_ratios(rows)
-    mj_rows, mujoco_note = mujoco_run(rows, args, cfg)
     mj_orders = orders(mj_rows, cfg['fit_min_dt']) if mj_rows else []
     mj_ratios = ours_vs_mujoco(rows, mj_rows) if mj_rows else []
     args.out.mkdir(parents=True, exist_ok=True)
@@ -438,7 +541,7 @@ def main(argv=None):
     if problems:
         print('CHECK FAILED:\n  ' + '\n  '.join(problems), file=sys.stderr)
         return 1
-    return 0
+    return status
 
 
 def read_results(path):
@@ -467,18 +570,27 @@ def replot(out, img_dir):
 
 def mujoco_run(rows, args, cfg):
     """(MuJoCo rows, a note for the summary); no rows when MuJoCo is missing or skipped."""
+    scenes_, note = mujoco_plan([r['scene'] for r in rows], args)
+    if not scenes_:
+        return [], note
+    return M.sweep(tuple(cfg['dts']) + tuple(cfg['mj_extra_dts']), cfg['horizon'], scenes_), note
+
+
+def mujoco_plan(scene_names, args):
+    """(the MuJoCo scenes to run, a note for the summary); none when MuJoCo is missing or
+    skipped."""
+    cfg = QUICK if getattr(args, 'quick', False) else FULL
     if args.no_mujoco:
         return [], 'MuJoCo side-by-side run skipped (--no-mujoco).'
     mj = M.module()
     if mj is None:
         return [], ('MuJoCo is not installed, so the side-by-side comparison was skipped '
                     '(optional: `pip install -r requirements-bench.txt`).')
-    scenes_ = [n for n in M.SCENES if any(r['scene'] == n for r in rows)]
+    scenes_ = [n for n in M.SCENES if n in scene_names]
     if not scenes_:
         return [], 'MuJoCo: none of its scenes (hinge_const, pendulum_sine) was run.'
     I = M.hinge_inertia_of(S.CASES['hinge_const'])
-    mj_rows = M.sweep(tuple(cfg['dts']) + tuple(cfg['mj_extra_dts']), cfg['horizon'], scenes_)
-    return mj_rows, (f'MuJoCo {mj.__version__} ran `{"`, `".join(scenes_)}` in the same run (study/mujoco_peer.py): '
+    return scenes_, (f'MuJoCo {mj.__version__} ran `{"`, `".join(scenes_)}` in the same run (study/mujoco_peer.py): '
                      f'one body on a hinge joint with the same inertia about the hinge (MuJoCo reports '
                      f'{I:.5f} kg m^2), a motor actuator, the same gravity, dt and references; '
                      'integrators Euler (semi-implicit), implicitfast and RK4, dt also down to '

@@ -1,6 +1,10 @@
 """Stability on stiff and extreme cases: one table, pass/fail per case with the reason.
 
-    python study/stability.py --out out/stability [--quick]
+    python -m study.stability --out out/stability [--quick] [--workers N | --address ADDR | --in-process]
+
+The cases run as one sweep through abd_joint_sim/tools/sweep.py (study/sweeps.py): on every
+core by default, on a Ray cluster with --address, serially with --in-process; the tables are
+written from the sweep's results.csv (--from-sweep DIR: from a sweep run earlier).
 
 Each case runs one or two phases on a small scene (study/scenes.py):
   forced  — from rest with a joint torque; where the answer is known (fixed hinge, constant
@@ -39,6 +43,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -53,8 +58,10 @@ from abd_joint_sim import SimulationError, World  # noqa: E402,F401
 
 try:
     from . import scenes as S
+    from . import sweeps as study_sweeps
 except ImportError:
     import scenes as S  # type: ignore
+    import sweeps as study_sweeps  # type: ignore
 
 SEP_FRAC = 1e-2
 MOMENTUM_RTOL = 1e-3                  # of the angular impulse tau*t (Newton-tolerance limited)
@@ -347,15 +354,78 @@ def cases(quick=False):
     return out
 
 
+def _command(argv):
+    """The command line a summary names: argv, or a str naming the whole command."""
+    return argv if isinstance(argv, str) else ' '.join(['python -m study.stability'] + list(argv))
+
+
+# -- the study as a sweep (study/sweeps.py) ---------------------------------------------
+COLUMNS = ('group', 'case', 'expect', 'verdict', 'known', 'as_expected', 'reason', 'notes', 'steps',
+           'substep_steps', 'max_sep_rel', 'ref_rel_err', 'energy_max_rise_rel', 'energy_drop_rel',
+           'max_momentum', 'wall_s', 'backend')
+SWEEP_TYPES = {'name': str, 'quick': bool, 'group': str, 'expect': str, 'verdict': str, 'known': str,
+               'as_expected': bool, 'reason': str, 'notes': str, 'backend': str, 'steps': int,
+               'substep_steps': int}
+
+
+@lru_cache(maxsize=2)
+def _by_name(quick):
+    return {c.name: c for c in cases(quick)}
+
+
+def sweep_cases(quick=False, groups=None):
+    """The study's cases as sweep cases: axes study, index (the study's order), quick, name;
+    `cost` estimates the case's run time [s] (~45 us per step and body) so the longest go first."""
+    out = []
+    for c in cases(quick):
+        if groups and c.group not in groups:
+            continue
+        cost = 4.5e-5 * sum(p.steps * len(p.scene['bodies']) for p in c.phases)
+        out.append({'study': 'stability', 'index': len(out), 'quick': bool(quick), 'name': c.name,
+                    'cost': cost})
+    return out
+
+
+def sweep_check(values):
+    if values.get('name') not in _by_name(bool(values.get('quick'))):
+        raise ValueError(f'stability: no case named {values.get("name")!r}')
+
+
+def sweep_case(values):
+    """One case in a sweep worker: run_case's row, its name in the axis `name` and its
+    stepping time as `study_wall_s` (`case` and `wall_s` are the sweep's own columns)."""
+    row = run_case(_by_name(bool(values['quick']))[values['name']])
+    del row['case']
+    row['study_wall_s'] = row.pop('wall_s')
+    return row
+
+
+def from_sweep_row(r):
+    """A study row (run_case's columns and order) from a typed sweep row."""
+    r = dict(r, case=r['name'], wall_s=r['study_wall_s'])
+    return {c: r[c] for c in COLUMNS}
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--out', default='out/stability', type=Path)
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--group', nargs='*', default=None, help='only these groups')
+    study_sweeps.add_arguments(ap)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    rows = run_all(args.quick, args.group)
+    status, rows = study_sweeps.run(['stability'], args, {'stability': dict(quick=args.quick, groups=args.group)})
+    if status > 1 or not rows.get('stability'):
+        return status or 1
+    return analyse(rows['stability'], args, argv, t0, status)
+
+
+def analyse(rows, args, argv, t0, status=0, log=print):
+    """The study's outputs (stability.csv, summary.md) from its rows; the exit status."""
+    for r in rows:
+        log(f'{r["group"]:14s} {r["case"]:44s} {r["verdict"]:11s} sep/size={r["max_sep_rel"]:.1e} '
+            f'ref={r["ref_rel_err"]:.1e} dE={r["energy_max_rise_rel"]:.1e} {r["wall_s"]:.1f}s  {r["reason"][:90]}')
     args.out.mkdir(parents=True, exist_ok=True)
     cols = list(rows[0])
     common.write_csv(args.out / 'stability.csv', rows, cols)
@@ -368,7 +438,7 @@ def main(argv=None):
         print('UNEXPECTED:\n  ' + '\n  '.join(f'{r["case"]}: {r["verdict"]}: {r["reason"]}' for r in bad),
               file=sys.stderr)
         return 1
-    return 0
+    return status
 
 
 def unexpected(rows):
@@ -391,7 +461,7 @@ def run_all(quick=False, groups=None, log=print):
 def summary_md(rows, quick, elapsed, argv):
     counts = {v: sum(r['verdict'] == v for r in rows) for v in ('pass', 'fail-loud', 'FAIL-SILENT')}
     lines = ['# Stability on stiff and extreme cases', '',
-             f'Command: `python study/stability.py {" ".join(argv)}` ({"quick" if quick else "full"} mode, '
+             f'Command: `{_command(argv)}` ({"quick" if quick else "full"} mode, '
              f'{elapsed:.0f} s). {common.machine()}. '
              f'{common.backend_note()}', '',
              f'{len(rows)} cases: {counts["pass"]} pass, {counts["fail-loud"]} fail loudly (reported by the '

@@ -56,8 +56,11 @@ from typing import Any, Callable, Optional, Sequence
 PROG = 'sweep'
 DEFAULT_MAX_CASES = 10_000
 """Most cases a spec may ask for unless it (or --max-cases) raises the cap."""
-SPEC_KEYS = ('scene', 'urdf_options', 'duration', 'schedule', 'grid', 'random', 'max_cases',
-             'plot')
+SPEC_KEYS = ('scene', 'urdf_options', 'duration', 'schedule', 'grid', 'random', 'cases',
+             'runner', 'max_cases', 'plot')
+RUNNER_EXCLUDES = ('scene', 'urdf_options', 'duration', 'schedule')
+"""Keys of a loop case that a spec with a `runner:` does not take (the runner builds its case)."""
+RESERVED_COLUMNS = ('case', 'status', 'message', 'wall_s')
 RANDOM_KINDS = ('uniform', 'normal', 'choice')
 STATUSES = ('ok', 'fault', 'error', 'died')
 INSTALL_HINT = ("Ray is not installed: pip install -r requirements-sweep.txt (or "
@@ -118,6 +121,7 @@ class Setup:
     parameters: dict                # the schedule's sim_node parameters
     duration_ns: int
     axes: list                      # dotted paths, grid axes first
+    runner: str = ''                # 'module:function' running a case instead of the loop
 
 
 @dataclass
@@ -158,58 +162,83 @@ def _check_path(where: str, path: Any) -> str:
 
 def load_spec(path: str | Path, max_cases: Optional[int] = None) -> Spec:
     """Read, expand and check a spec; SpecError (one line) on the first problem."""
-    from abd_joint_sim.errors import SceneError
     from abd_joint_sim.scene import read_yaml_file
     path = Path(path)
     _, data = read_yaml_file(path, SpecError, 'sweep spec')
-    src = str(path)
+    return spec_from_data(data, str(path), path.resolve().parent, max_cases)
+
+
+def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = None) -> Spec:
+    """Expand and check a spec given as data (what the YAML holds): `src` names it in
+    messages, `here` is where its relative paths start. SpecError (one line) on a problem."""
+    from abd_joint_sim.errors import SceneError
     if not isinstance(data, dict):
         raise _fail(src, 'expected a mapping with scene, duration, grid and/or random '
                          '(docs/sweeps.md)')
     unknown = [k for k in data if k not in SPEC_KEYS]
     if unknown:
         raise _fail(f'{src}: {unknown[0]}', f'unknown key (allowed: {", ".join(SPEC_KEYS)})')
-    here = path.resolve().parent
-    try:
-        base, source, scene_path = _base_scene(src, here, data.get('scene', 'default'),
-                                               data.get('urdf_options'))
-    except SceneError as exc:
-        raise _fail(f'{src}: scene', str(exc)) from None
-    plan, parameters = _schedule(src, here, data.get('schedule'))
-    duration = data.get('duration')
-    if duration is None:
-        if plan is None or not plan.duration_given:
-            raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
-        duration_ns = plan.segments[-1].end_ns
+    runner = data.get('runner')
+    if runner is not None:
+        _load_runner(f'{src}: runner', runner)
+        extra = [k for k in RUNNER_EXCLUDES if k in data]
+        if extra:
+            raise _fail(f'{src}: {extra[0]}', 'a spec with a runner: builds its cases itself '
+                                              f'(leave out {", ".join(RUNNER_EXCLUDES)})')
+        base, source, scene_path, plan, parameters, duration_ns = {}, src, '', None, {}, 0
     else:
-        from .schedule import MAX_TIME
-        from abd_joint_sim.ros.convert import seconds_to_ns
-        duration = _finite(f'{src}: duration', duration)
-        if not 0.0 < duration <= MAX_TIME:
-            raise _fail(f'{src}: duration', f'{duration:g} must be > 0 and at most {MAX_TIME:g} s')
-        duration_ns = seconds_to_ns(duration)
-    if plan is None:
-        from .schedule import parse_schedule
-        plan = parse_schedule({'events': []}, f'{src}: (no schedule)')
-    plan.segments[-1].end_ns = duration_ns
+        try:
+            base, source, scene_path = _base_scene(src, here, data.get('scene', 'default'),
+                                                   data.get('urdf_options'))
+        except SceneError as exc:
+            raise _fail(f'{src}: scene', str(exc)) from None
+        plan, parameters = _schedule(src, here, data.get('schedule'))
+        duration = data.get('duration')
+        if duration is None:
+            if plan is None or not plan.duration_given:
+                raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
+            duration_ns = plan.segments[-1].end_ns
+        else:
+            from .schedule import MAX_TIME
+            from abd_joint_sim.ros.convert import seconds_to_ns
+            duration = _finite(f'{src}: duration', duration)
+            if not 0.0 < duration <= MAX_TIME:
+                raise _fail(f'{src}: duration', f'{duration:g} must be > 0 and at most {MAX_TIME:g} s')
+            duration_ns = seconds_to_ns(duration)
+        if plan is None:
+            from .schedule import parse_schedule
+            plan = parse_schedule({'events': []}, f'{src}: (no schedule)')
+        plan.segments[-1].end_ns = duration_ns
 
     grid = _grid(src, data.get('grid'))
     rnd = _random(src, data.get('random'))
+    listed = _listed(src, data.get('cases'), list(grid) + list(rnd['axes']))
     axes = list(grid) + list(rnd['axes'])
     dup = [a for a in axes if axes.count(a) > 1]
     if dup:
         raise _fail(src, f'axis {dup[0]} is given twice')
+    for values in listed:
+        axes += [a for a in values if a not in axes]
+    if runner is not None:
+        bad = [a for a in axes if a in RESERVED_COLUMNS]
+        if bad:
+            raise _fail(src, f'axis {bad[0]!r} is a result column of every sweep (reserved: '
+                             f'{", ".join(RESERVED_COLUMNS)})')
     cap = max_cases if max_cases is not None else data.get('max_cases', DEFAULT_MAX_CASES)
     if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
         raise _fail(f'{src}: max_cases', f'expected an integer >= 1, got {cap!r}')
-    count = math.prod(len(v) for v in grid.values()) * rnd['n']
+    crossed = grid or data.get('random') is not None or not listed
+    count = (math.prod(len(v) for v in grid.values()) * rnd['n'] if crossed else 0) + len(listed)
     if count > cap:
         raise _fail(src, f'{count} cases asked, more than the cap of {cap} (raise it with '
                          f'max_cases: in the spec or --max-cases)')
     samples = _samples(rnd)
     cases = [{**dict(zip(grid, combo)), **sample}
-             for combo in itertools.product(*grid.values()) for sample in samples]
-    setup = Setup(base, source, scene_path, plan, parameters, duration_ns, axes)
+             for combo in itertools.product(*grid.values()) for sample in samples] \
+        if crossed else []
+    cases += listed
+    setup = Setup(base, source, scene_path, plan, parameters, duration_ns, axes,
+                  runner or '')
     for k, values in enumerate(cases):
         check_case(setup, k, values)
     plot = data.get('plot') or {}
@@ -219,15 +248,51 @@ def load_spec(path: str | Path, max_cases: Optional[int] = None) -> Spec:
         if key in plot and plot[key] not in axes:
             raise _fail(f'{src}: plot.{key}', f'{plot[key]!r} is not an axis of the spec '
                                               f'(axes: {", ".join(axes) or "none"})')
-    if 'y' in plot and not (plot['y'] in FIXED_COLUMNS or str(plot['y']).startswith(
+    if 'y' in plot and not runner and not (plot['y'] in FIXED_COLUMNS or str(plot['y']).startswith(
             ('angle.', 'velocity.'))):
         raise _fail(f'{src}: plot.y', f'{plot["y"]!r} is not a result column (angle.<joint>, '
                                       f'velocity.<joint>, {", ".join(FIXED_COLUMNS[2:])})')
     digest = hashlib.sha256(json.dumps(
         {'base': base, 'source': source, 'duration_ns': duration_ns, 'parameters': parameters,
-         'plan': repr(plan.segments), 'cases': cases}, sort_keys=True, default=repr).encode()
+         'plan': repr(plan.segments) if plan is not None else '', 'runner': runner or '',
+         'cases': cases}, sort_keys=True, default=repr).encode()
     ).hexdigest()[:16]
     return Spec(setup, cases, digest, plot)
+
+
+def _listed(src: str, listed: Any, crossed_axes: list) -> list:
+    """The spec's `cases:`: a list of {axis: value}, run after the grid x random cases."""
+    if listed is None:
+        return []
+    where = f'{src}: cases'
+    if not isinstance(listed, list) or not listed:
+        raise _fail(where, f'expected a non-empty list of {{axis: value}}, got {listed!r}')
+    out = []
+    for k, values in enumerate(listed):
+        if not isinstance(values, dict) or not values:
+            raise _fail(f'{where}[{k}]', f'expected a mapping {{axis: value}}, got {values!r}')
+        for path in values:
+            _check_path(f'{where}[{k}]', path)
+        if crossed_axes and set(values) != set(crossed_axes):
+            raise _fail(f'{where}[{k}]', f'names {", ".join(sorted(values))}; beside grid/random '
+                                         f'a listed case names their axes ({", ".join(crossed_axes)})')
+        out.append(dict(values))
+    return out
+
+
+def _load_runner(where: str, runner: Any) -> Callable:
+    """The callable a `runner: module:function` names (SpecError when it does not import)."""
+    import importlib
+    if not isinstance(runner, str) or runner.count(':') != 1 or not all(runner.split(':')):
+        raise _fail(where, f'expected module:function, got {runner!r}')
+    module, name = runner.split(':')
+    try:
+        fn = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise _fail(where, f'{runner}: {type(exc).__name__}: {exc}') from None
+    if not callable(fn):
+        raise _fail(where, f'{runner} is not callable')
+    return fn
 
 
 def _base_scene(src: str, here: Path, scene: Any, urdf_options: Any) -> tuple[dict, str, str]:
@@ -432,8 +497,17 @@ _TOP_SCENE_KEYS = ('name', 'description', 'dt', 'gravity', 'integrator', 'newton
 
 
 def check_case(setup: Setup, index: int, values: dict) -> None:
-    """Build the case's scene and check the schedule against it (SpecError naming the case)."""
+    """Build the case's scene and check the schedule against it (SpecError naming the case).
+    With a runner: the runner's own `check(values)`, when it has one."""
     from abd_joint_sim.errors import SceneError
+    if setup.runner:
+        check = getattr(_load_runner('runner', setup.runner), 'check', None)
+        if check is not None:
+            try:
+                check(dict(values))
+            except (ValueError, KeyError, TypeError) as exc:
+                raise SpecError(f'{_describe(index, values)}: {exc}') from None
+        return
     from abd_joint_sim.ros.commands import CommandBuffer
     from .bagrun import config_for
     from .schedule import check_plan, ScheduleError
@@ -521,9 +595,40 @@ def incomplete_marker(bag: str) -> Path:
     return Path(bag + '.incomplete')
 
 
+def _plain(value: Any) -> Any:
+    """A numpy scalar as the Python number it holds (the table writes Python's repr)."""
+    item = getattr(value, 'item', None)
+    return item() if item is not None and type(value).__module__ == 'numpy' else value
+
+
+def run_runner_case(setup: Setup, job: Job) -> dict:
+    """One case of a spec with a runner: its columns are what the runner returns."""
+    wall0 = time.perf_counter()
+    row: dict = {'case': job.case, **job.values}
+    status, message = 'ok', ''
+    try:
+        result = _load_runner('runner', setup.runner)(dict(job.values))
+        if not isinstance(result, dict):
+            raise TypeError(f'the runner returned {type(result).__name__}, not a mapping '
+                            'of columns')
+        clash = [k for k in result if k in RESERVED_COLUMNS or k in setup.axes]
+        if clash:
+            raise KeyError(f'the runner returned column {clash[0]!r}, a reserved column or '
+                           'an axis')
+        row.update({str(k): _plain(v) for k, v in result.items()})
+    except Exception as exc:  # noqa: BLE001 - a case's failure is its row, not the sweep's
+        status, message = 'error', f'{type(exc).__name__}: {exc}'
+    row['status'] = status
+    row['message'] = message.replace('\n', ' ')
+    row['wall_s'] = time.perf_counter() - wall0
+    return row
+
+
 def run_case(setup: Setup, job: Job) -> dict:
     """Run one case; always returns its row (a failure is a status and a message)."""
     from abd_joint_sim.errors import SimulationError
+    if setup.runner:
+        return run_runner_case(setup, job)
     wall0 = time.perf_counter()
     row: dict = {'case': job.case, **job.values}
     status, message = 'ok', ''
@@ -607,7 +712,12 @@ class CaseWorker:
 
     def __init__(self, setup: Setup):
         self.setup = setup
-        warm_kernels()
+        if setup.runner:            # the runner's own warm-up, when it has one
+            warm = getattr(_load_runner('runner', setup.runner), 'warm', None)
+            if warm is not None:
+                warm()
+        else:
+            warm_kernels()
 
     def run(self, job: Job) -> dict:
         return run_case(self.setup, job)
@@ -755,7 +865,12 @@ FIXED_COLUMNS = ('status', 'message', 'sim_time', 'steps', 'energy_drift',
                  'substeps_max', 'not_converged', 'wall_s')
 
 
-def columns_of(rows: list, axes: list) -> list:
+def columns_of(rows: list, axes: list, runner: bool = False) -> list:
+    if runner:                  # the runner's columns, in the order it first gives them
+        extra: dict = {}
+        for row in rows:
+            extra.update((k, None) for k in row if k not in RESERVED_COLUMNS and k not in axes)
+        return ['case'] + list(axes) + ['status', 'message'] + list(extra) + ['wall_s']
     joints = []
     for row in rows:
         for key in row:
@@ -898,7 +1013,26 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
 
 
-def _run(args, argv) -> int:
+def run_spec(data: dict, out: str | Path, *, workers: Optional[int] = None,
+             address: Optional[str] = None, in_process: bool = False, quiet: bool = False,
+             temp_dir: Optional[str] = None, name: str = '<spec>',
+             here: str | Path = '.') -> int:
+    """The Python API: run a spec given as data (what a spec YAML holds) into `out`, as
+    `sweep` runs a file (same engine, resume, results.csv). `name` labels it in messages and
+    summary.md. Returns the exit status; a spec error is printed as one line (status 2)."""
+    args = argparse.Namespace(spec=name, out=str(out), workers=workers, address=address,
+                              in_process=in_process, quiet=quiet, temp_dir=temp_dir,
+                              max_cases=None, bags=False)
+    argv = [name, '--out', str(out)] + (['--workers', str(workers)] if workers else []) + \
+        (['--address', address] if address else []) + (['--in-process'] if in_process else [])
+    try:
+        return _run(args, argv, lambda: spec_from_data(data, name, Path(here)))
+    except SpecError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+
+
+def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
     if args.workers is not None and args.workers < 1:
         raise SpecError(f'--workers {args.workers}: must be >= 1')
     if args.max_cases is not None and args.max_cases < 1:
@@ -911,7 +1045,7 @@ def _run(args, argv) -> int:
             import ray  # noqa: F401
         except ImportError:
             raise SpecError(INSTALL_HINT) from None
-    spec = load_spec(args.spec, args.max_cases)
+    spec = make_spec() if make_spec else load_spec(args.spec, args.max_cases)
     out = Path(args.out)
     state_path = out / 'sweep.json'
     rows_path = out / 'rows.jsonl'
@@ -958,7 +1092,7 @@ def _run(args, argv) -> int:
                        f'{engine.nodes} node(s)'
                        + (f' of {args.address}' if args.address else ' (local)'))
     out.mkdir(parents=True, exist_ok=True)
-    state_path.write_text(json.dumps({'spec': os.path.abspath(args.spec),
+    state_path.write_text(json.dumps({'spec': args.spec if make_spec else os.path.abspath(args.spec),
                                       'digest': spec.digest, 'cases': len(spec.cases)}) + '\n')
     rows = dict(kept)
     progress = Progress(total, len(kept), quiet=args.quiet)
@@ -998,10 +1132,10 @@ def _run(args, argv) -> int:
                 interrupted = True
     wall = time.monotonic() - wall0
     ordered = [rows[case_name(k, total)] for k in range(total) if case_name(k, total) in rows]
-    columns = columns_of(ordered, spec.setup.axes)
+    columns = columns_of(ordered, spec.setup.axes, bool(spec.setup.runner))
     write_csv(out / 'results.csv', ordered, columns)
     figure = write_figure(out / 'figure.png', ordered, spec.setup.axes, spec.plot) \
-        if ordered else ''
+        if ordered and (spec.plot or not spec.setup.runner) else ''
     (out / 'summary.md').write_text(summary_md(args.spec, ordered, columns, total, wall,
                                                engine_name, figure, argv))
     counts = {s: sum(r.get('status') == s for r in ordered) for s in STATUSES}
