@@ -53,6 +53,8 @@ import sys
 import time
 from typing import Any, Callable, Optional, Sequence
 
+from abd_joint_sim.tools import cli
+
 PROG = 'sweep'
 DEFAULT_MAX_CASES = 10_000
 """Most cases a spec may ask for unless it (or --max-cases) raises the cap."""
@@ -73,14 +75,8 @@ class SpecError(Exception):
     """A spec that cannot run; one line."""
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, exit 2 (argparse prints usage too)
-        print(f'{self.prog}: error: {message} (see --help)', file=sys.stderr)
-        raise SystemExit(2)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description=(
+    p = cli.Parser(prog=PROG, description=(
         'Run a sweep over an abd_joint_sim scene: a grid and seeded random samples of scene '
         'fields, each case through the run_headless loop, on Ray (local cores or a cluster). '
         'Writes DIR/results.csv, summary.md and figure.png; re-running resumes. '
@@ -1004,7 +1000,7 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
 
 # -------------------------------------------------------------------------- main -----
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = cli.own_args(argv)
     args = build_parser().parse_args(argv)
     try:
         return _run(args, argv)
