@@ -50,6 +50,8 @@ FIELDS = (
     ('prismatic_frame', '[m] (S,2,4,3) per joint and side (parent, child): c̄, t̄, n̄, b̄ in the '
                         'body\'s rest frame'),
     ('prismatic_K', '[kg] (S,) UID 20 stiffness K = γ (m_i + m_j)'),
+    ('prismatic_outer', '(S,12,4,4) outer products of the rest vectors ȳ the Hessian blocks are made of '
+                        '(`outer_products`)'),
     ('prismatic_warn_separation', '[m] (S,) separation above which a step warns (overloaded joint)'),
     ('prismatic_fault_separation', '[m] (S,) separation above which the joint has come apart'),
 )
@@ -74,6 +76,35 @@ def rest_frames(model) -> np.ndarray:
     return out
 
 
+#: the rows of `outer_products`: c̃ t̃ ñ b̃ are the homogeneous rest vectors of the joint frame
+#: ([1, c̄], [0, t̄], [0, n̄], [0, b̄]) on the parent (i) and the child (j)
+OUTER_ROWS = ('c̃_i c̃_iᵀ', 'c̃_i t̃_iᵀ', 't̃_i t̃_iᵀ', 'ñ_i ñ_iᵀ + b̃_i b̃_iᵀ',
+              'c̃_j c̃_jᵀ', 'c̃_j t̃_jᵀ', 't̃_j t̃_jᵀ', 'ñ_j ñ_jᵀ + b̃_j b̃_jᵀ',
+              'c̃_i c̃_jᵀ', 't̃_i c̃_jᵀ', 'c̃_i t̃_jᵀ', 'ñ_i ñ_jᵀ + b̃_i b̃_jᵀ')
+
+
+def outer_products(frames) -> np.ndarray:
+    """(S,12,4,4) the outer products OUTER_ROWS of each joint's rest vectors (frames: (S,2,4,3)
+    from `rest_frames`): the constant factors of UID 20's Hessian blocks (`accumulate`)."""
+    S = len(frames)
+    y = np.zeros((S, 2, 4, 4))
+    y[:, :, :, 1:] = frames
+    y[:, :, 0, 0] = 1.0
+    c, t, n, b = (y[:, :, a] for a in range(4))
+    o = np.einsum
+    out = np.empty((S, 12, 4, 4))
+    for side in range(2):
+        out[:, 4 * side] = o('sk,sl->skl', c[:, side], c[:, side])
+        out[:, 4 * side + 1] = o('sk,sl->skl', c[:, side], t[:, side])
+        out[:, 4 * side + 2] = o('sk,sl->skl', t[:, side], t[:, side])
+        out[:, 4 * side + 3] = o('sk,sl->skl', n[:, side], n[:, side]) + o('sk,sl->skl', b[:, side], b[:, side])
+    out[:, 8] = o('sk,sl->skl', c[:, 0], c[:, 1])
+    out[:, 9] = o('sk,sl->skl', t[:, 0], c[:, 1])
+    out[:, 10] = o('sk,sl->skl', c[:, 0], t[:, 1])
+    out[:, 11] = o('sk,sl->skl', n[:, 0], n[:, 1]) + o('sk,sl->skl', b[:, 0], b[:, 1])
+    return out
+
+
 def build(model, data) -> dict:
     """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     m = model
@@ -81,10 +112,12 @@ def build(model, data) -> dict:
     slot = np.full(m.joint_count, -1, np.int64)
     slot[S] = np.arange(len(S))
     size, parent, child = m.body_size, m.joint_parent[S], m.joint_child[S]
+    frames = rest_frames(m)
     return dict(
         prismatic_joints=flat.array(S, np.int64),
         prismatic_slot=flat.array(slot, np.int64),
-        prismatic_frame=flat.array(rest_frames(m), np.float64),
+        prismatic_frame=flat.array(frames, np.float64),
+        prismatic_outer=flat.array(outer_products(frames), np.float64),
         prismatic_K=flat.array(m.prismatic_K, np.float64),
         prismatic_warn_separation=flat.array(SEPARATION_WARN * np.minimum(size[parent], size[child]),
                                              np.float64),
@@ -327,10 +360,12 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         jj:  P ⊗ c̃_jc̃_jᵀ − V ⊗ c̃_jt̃_jᵀ − Vᵀ ⊗ t̃_jc̃_jᵀ + S ⊗ t̃_jt̃_jᵀ + I ⊗ (ñ_jñ_jᵀ + b̃_jb̃_jᵀ)
         ij: −P ⊗ c̃_ic̃_jᵀ − Uᵀ ⊗ t̃_ic̃_jᵀ + V ⊗ c̃_it̃_jᵀ − I ⊗ (ñ_iñ_jᵀ + b̃_ib̃_jᵀ)
 
-    ((N ⊗ ȳz̄ᵀ) has N[r, s] ȳ[κ] z̄[λ] at (col(r, κ), col(s, λ)).) The rest of the whole Hessian,
+    ((N ⊗ ȳz̄ᵀ) has N[r, s] ȳ[κ] z̄[λ] at (col(r, κ), col(s, λ)); the 4×4 ȳz̄ᵀ are constant:
+    m.prismatic_outer, OUTER_ROWS.) The rest of the whole Hessian,
     K C·∇²C, is bilinear in the same pairs (w·(dr × dt) = dtᵀ [w]× dr): it is U → U + [C0]×,
     V → V − [C1]× in the same formulas."""
     joints, parent, child, fr, K = m.prismatic_joints, m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_K
+    outer = m.prismatic_outer
     E = 0.0
     for k in range(joints.size):
         j = joints[k]
@@ -375,23 +410,17 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
                     Vt += Kk * e1
                 D = Kk * delta
                 for kap in range(4):
-                    ci, ti_, ni, bi = (rest(fr, k, 0, 0, kap), rest(fr, k, 0, 1, kap), rest(fr, k, 0, 2, kap),
-                                       rest(fr, k, 0, 3, kap))
-                    cj, tj_, nj, bj = (rest(fr, k, 1, 0, kap), rest(fr, k, 1, 1, kap), rest(fr, k, 1, 2, kap),
-                                       rest(fr, k, 1, 3, kap))
                     x = col(a, kap)
                     for lam in range(4):
-                        ci_l, ti_l, ni_l, bi_l = (rest(fr, k, 0, 0, lam), rest(fr, k, 0, 1, lam),
-                                                  rest(fr, k, 0, 2, lam), rest(fr, k, 0, 3, lam))
-                        cj_l, tj_l, nj_l, bj_l = (rest(fr, k, 1, 0, lam), rest(fr, k, 1, 1, lam),
-                                                  rest(fr, k, 1, 2, lam), rest(fr, k, 1, 3, lam))
                         y = col(b, lam)
-                        diag[i_body, x, y] += (P * ci * ci_l + U * ci * ti_l + Ut * ti_ * ci_l + S * ti_ * ti_l
-                                               + D * (ni * ni_l + bi * bi_l))
-                        diag[j_body, x, y] += (P * cj * cj_l - V * cj * tj_l - Vt * tj_ * cj_l + S * tj_ * tj_l
-                                               + D * (nj * nj_l + bj * bj_l))
-                        pair[j, x, y] += (-P * ci * cj_l - Ut * ti_ * cj_l + V * ci * tj_l
-                                          - D * (ni * nj_l + bi * bj_l))
+                        diag[i_body, x, y] += (P * outer[k, 0, kap, lam] + U * outer[k, 1, kap, lam]
+                                               + Ut * outer[k, 1, lam, kap] + S * outer[k, 2, kap, lam]
+                                               + D * outer[k, 3, kap, lam])
+                        diag[j_body, x, y] += (P * outer[k, 4, kap, lam] - V * outer[k, 5, kap, lam]
+                                               - Vt * outer[k, 5, lam, kap] + S * outer[k, 6, kap, lam]
+                                               + D * outer[k, 7, kap, lam])
+                        pair[j, x, y] += (-P * outer[k, 8, kap, lam] - Ut * outer[k, 9, kap, lam]
+                                          + V * outer[k, 10, kap, lam] - D * outer[k, 11, kap, lam])
     return 0.5 * E
 
 
