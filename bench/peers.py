@@ -15,7 +15,7 @@ COMMANDS = {
     'chains': ('chains', 'default scene, hinge, chains of 1-1000 links, a tree; then the KUKA iiwa '
                          'and more robots of pybullet_data (µs per step, ratios)'),
     'robots': ('robot_bench', 'the KUKA iiwa in all three engines and more robots of pybullet_data'),
-    'sliding': ('slide_bench', 'the Panda with a sliding finger, with its fingers locked, and the KUKA iiwa: '
+    'sliding': ('slide_bench', 'the Panda with a sliding finger, with it as a hinge, locked, and the KUKA iiwa: '
                                'cost per body, ours and MuJoCo side by side'),
     'sweep': ('urdf_sweep', 'every URDF under a directory, loaded, stepped and timed against MuJoCo'),
     'chain-urdfs': ('chain_urdfs', 'write 48 URDF chains nobody tuned the simulator for, for `sweep`'),

@@ -1,7 +1,8 @@
 """What a sliding joint costs per body: the Franka Panda of pybullet_data with its first finger
 sliding (a prismatic joint; the second finger mimics it and is locked), the same Panda with
-both fingers locked, and a revolute arm of as many bodies (the KUKA iiwa), ours and MuJoCo
-side by side in one process, the engines and robots taking turns round after round.
+that finger turned into a hinge (a revolute robot of the same bodies), with both fingers
+locked, and a revolute arm (the KUKA iiwa), ours and MuJoCo side by side in one process, the
+engines and robots taking turns round after round.
 
     python bench/peers.py sliding [--steps 2000] [--rounds 5] [--finger-force F]
 
@@ -10,6 +11,8 @@ on every actuated joint (on the finger that rule's value is a force in N: −0.6
 it in its lower limit), contacts off in MuJoCo, which gets the file without the meshes it
 cannot open and with the same joints locked. `steps` steps in one call on both sides
 (`World.step(n)`, `mj_step(m, d, n)`), CPU time of this process, the median over the rounds.
+The hinge variant is the file with the finger's `type="prismatic"` made `revolute` (its
+limit, 0–0.04, then in rad, and −0.6 N m from the torque rule).
 The per-body figure divides a step's time by the robot's bodies; the last lines give the
 sliding Panda's per-body cost over each revolute robot's, per step and per Newton iteration
 (a step of ours costs about its Newton iterations; MuJoCo's none), and MuJoCo's per-body
@@ -20,8 +23,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import shutil
 import statistics
 import sys
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -33,11 +38,24 @@ from robot_bench import DT, mujoco_model, torques  # noqa: E402
 
 PANDA, KUKA = 'franka_panda/panda.urdf', 'kuka_iiwa/model.urdf'
 FINGERS = ['panda_finger_joint1', 'panda_finger_joint2']
-#: (label, file in pybullet_data, joints held rigid on both sides); the first is the sliding
-#: robot, the others the revolute references
-CASES = (('Panda, finger sliding', PANDA, FINGERS[1:]),
-         ('Panda, fingers locked', PANDA, FINGERS),
-         ('KUKA iiwa', KUKA, []))
+#: (label, file in pybullet_data, joints held rigid on both sides, whether the sliding finger
+#: is made a hinge); the first is the sliding robot, the others the revolute references
+CASES = (('Panda, finger sliding', PANDA, FINGERS[1:], False),
+         ('Panda, finger a hinge', PANDA, FINGERS[1:], True),
+         ('Panda, fingers locked', PANDA, FINGERS, False),
+         ('KUKA iiwa', KUKA, [], False))
+
+
+def as_hinge(path, workdir):
+    """A copy of the Panda URDF at `path` in `workdir` with panda_finger_joint1 revolute."""
+    text = open(path).read()
+    old = f'<joint name="{FINGERS[0]}" type="prismatic">'
+    if old not in text:
+        raise ValueError(f'{path}: no {old}')
+    out = os.path.join(workdir, 'panda_finger_hinge.urdf')
+    with open(out, 'w') as fh:
+        fh.write(text.replace(old, f'<joint name="{FINGERS[0]}" type="revolute">'))
+    return out
 
 
 class _Ours:
@@ -49,8 +67,7 @@ class _Ours:
         names = self.world.actuated_joint_names
         efforts = torques(len(names))
         for k, name in enumerate(names):
-            if self.world.joint_types[self.world.joint_names.index(name)] == 'prismatic' \
-                    and finger_force is not None:
+            if name == FINGERS[0] and finger_force is not None:
                 efforts[k] = finger_force
         self.efforts = efforts
         self.world.set_efforts(efforts)
@@ -98,11 +115,15 @@ def measure(steps, rounds, finger_force=None, peers=True, out=print):
     except ImportError:
         peers = False
     engines = []
-    for label, name, lock in CASES:
+    workdir = tempfile.mkdtemp(prefix='slide_bench_')
+    for label, name, lock, hinge in CASES:
         path = os.path.join(pybullet_data.getDataPath(), name)
+        if hinge:
+            path = as_hinge(path, workdir)
         ours = _Ours(path, lock, finger_force)
         mj = _MuJoCo(path, lock, ours.efforts) if peers else None
         engines.append((label, ours, mj))
+    shutil.rmtree(workdir, ignore_errors=True)          # (both engines have read the file)
     times = {label: ([], []) for label, _, _ in engines}
     for _ in range(rounds):
         for label, ours, mj in engines:
@@ -151,8 +172,8 @@ def main(argv=None) -> int:
     ap.add_argument('--steps', type=int, default=2000, help='steps per timed call (default 2000)')
     ap.add_argument('--rounds', type=int, default=5, help='rounds of turns; the median is shown (default 5)')
     ap.add_argument('--finger-force', type=float, default=None,
-                    help='the finger\'s force in N instead of the torque rule\'s (0: the finger moves '
-                         'only with the arm)')
+                    help='the finger\'s force in N (on the hinge variant its torque in N m) instead '
+                         'of the torque rule\'s (0: the finger moves only with the arm)')
     ap.add_argument('--no-peers', action='store_true', help='ours only')
     args = ap.parse_args(argv)
     if args.steps < 1 or args.rounds < 1:
