@@ -3,7 +3,8 @@ process, the engines taking turns, dt 1 ms (requirements-bench.txt; a peer that 
 installed is said so and its columns show –).
 
     python bench/peers.py chains --twice        # the tables of docs/speed.md "Against MuJoCo and PyBullet"
-    python bench/peers.py sweep DIR             # every URDF under DIR against MuJoCo"""
+    python bench/peers.py sweep DIR             # every URDF under DIR against MuJoCo
+    python bench/peers.py sliding               # a sliding joint's cost per body against revolute arms"""
 import sys
 from pathlib import Path
 
@@ -14,6 +15,8 @@ COMMANDS = {
     'chains': ('chains', 'default scene, hinge, chains of 1-1000 links, a tree; then the KUKA iiwa '
                          'and more robots of pybullet_data (µs per step, ratios)'),
     'robots': ('robot_bench', 'the KUKA iiwa in all three engines and more robots of pybullet_data'),
+    'sliding': ('slide_bench', 'the Panda with a sliding finger, with it as a hinge, locked, and the KUKA iiwa: '
+                               'cost per body, ours and MuJoCo side by side'),
     'sweep': ('urdf_sweep', 'every URDF under a directory, loaded, stepped and timed against MuJoCo'),
     'chain-urdfs': ('chain_urdfs', 'write 48 URDF chains nobody tuned the simulator for, for `sweep`'),
     'regimes': ('regimes', 'Newton iterations per step where light links turn fast, against MuJoCo'),

@@ -12,7 +12,7 @@ import sys
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ENTRIES = {'peers.py': ['chains', 'robots', 'sweep', 'chain-urdfs', 'regimes', 'sweeps'],
+ENTRIES = {'peers.py': ['chains', 'robots', 'sliding', 'sweep', 'chain-urdfs', 'regimes', 'sweeps'],
            'profiler.py': ['step', 'calls', 'perf'],
            'node_load.py': ['rtf', 'flood', 'soak', 'markers', 'live']}
 
@@ -75,3 +75,19 @@ def test_step_profile_runs_in_a_tiny_mode():
     for row in rows:
         cells = [c.strip() for c in row.strip().strip('|').split('|')]
         assert all(float(c) == float(c) for c in cells), row       # every cell a number
+
+
+def test_sliding_runs_in_a_tiny_mode():
+    """`peers.py sliding` for 20 steps, one round: a row per robot with the sliding Panda's
+    one prismatic joint (none on its hinge variant), and its per-body ratio to each revolute
+    robot."""
+    pytest.importorskip('pybullet_data')
+    out = _run(REPO / 'bench' / 'peers.py', 'sliding', '--steps', '20', '--rounds', '1')
+    assert out.returncode == 0, out.stderr[-2000:]
+    rows = {ln.split('|')[1].strip(): [c.strip() for c in ln.strip().strip('|').split('|')]
+            for ln in out.stdout.splitlines() if ln.startswith('| Panda') or ln.startswith('| KUKA')}
+    assert sorted(rows) == ['KUKA iiwa', 'Panda, finger a hinge', 'Panda, finger sliding',
+                            'Panda, fingers locked'], out.stdout
+    assert rows['Panda, finger sliding'][1:3] == ['9', '1'] and rows['Panda, finger a hinge'][1:3] == ['9', '0']
+    assert rows['Panda, fingers locked'][1:3] == ['8', '0']
+    assert out.stdout.count('ours per body:') == 3, out.stdout

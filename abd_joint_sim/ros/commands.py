@@ -123,7 +123,7 @@ class CommandBuffer:
                  scene_limits: Optional[Mapping[str, float]] = None,
                  driven: Sequence[str] = ()):
         self.actuated = list(actuated)
-        self.driven = list(driven)          # joints with driving (UID 19): position commands
+        self.driven = list(driven)          # joints with driving (UID 19 / 21): position commands
         self._actuated_set = set(self.actuated)
         self.order = list(order) if order else list(self.actuated)
         bad = [j for j in self.order if j not in self._actuated_set]
@@ -287,7 +287,7 @@ class CommandBuffer:
             if position:
                 if joint not in self.driven:
                     rejections.append(Rejection(joint, position[k], 'position: joint has no '
-                                      f'driving (UID 19); joints with driving: '
+                                      f'driving (UID 19, or UID 21 on a sliding joint); joints with driving: '
                                       f'{self.driven or "none"}'))
                 elif abs(float(position[k])) > MAX_ABS_AIM:
                     rejections.append(Rejection(joint, position[k], f'position: |aim| beyond '

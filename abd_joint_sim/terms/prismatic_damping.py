@@ -58,12 +58,11 @@ def references(m, q_prev, angle_start, h, bdf2, out):
     joints, c = m.prismatic_damping_joints, m.prismatic_damping_coeff
     parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
     row = first_row(m)
-    W = np.empty((prismatic.WORK_ROWS, 3))
     for k in range(joints.size):
         j = joints[k]
         now = angle_start[j]
         if bdf2:
-            before = prismatic.distance_at(q_prev, parent[j], child[j], fr, slot[j], W)
+            before = prismatic.distance_at(q_prev, parent[j], child[j], fr, slot[j])
             target, rate = (4.0 * now - before) / 3.0, BDF2_RATE
         else:
             target, rate = now, 1.0
@@ -78,42 +77,32 @@ def energy(q, m, ctx):
                                        m.prismatic_frame, m.prismatic_slot)
     ref = ctx.angle_ref
     row = first_row(m)
-    W = np.empty((prismatic.WORK_ROWS, 3))
     E = 0.0
     for k in range(joints.size):
         j = joints[k]
-        e = prismatic.distance_at(q, parent[j], child[j], fr, slot[j], W) - ref[row + k, 1]
+        e = prismatic.distance_at(q, parent[j], child[j], fr, slot[j]) - ref[row + k, 1]
         E += 0.5 * ref[row + k, 0] * e * e
     return E
 
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and ∇²E (Gauss-Newton with `project`); returns E (the bits of `energy`)."""
+    """∇E and ∇²E (Gauss-Newton with `project`), straight into the joint's blocks, ∇d in rows
+    0–1 of ctx.angle_work; returns E (the bits of `energy`)."""
     joints, parent, child, fr, slot = (m.prismatic_damping_joints, m.joint_parent, m.joint_child,
                                        m.prismatic_frame, m.prismatic_slot)
     ref = ctx.angle_ref
     row = first_row(m)
-    W = np.empty((prismatic.WORK_ROWS, 3))
-    L = np.empty((8, 3, 24))
-    gd = np.empty(24)
-    work = np.empty(24)
-    g = np.empty(24)
-    H = np.empty((24, 24))
+    work = ctx.angle_work
     E = 0.0
     for k in range(joints.size):
         j = joints[k]
         i_body, j_body, s = parent[j], child[j], slot[j]
         K = ref[row + k, 0]
-        e = prismatic.distance_at(q, i_body, j_body, fr, s, W) - ref[row + k, 1]
+        e = prismatic.distance_at(q, i_body, j_body, fr, s) - ref[row + k, 1]
         E += 0.5 * K * e * e
-        prismatic.linear_maps(fr, s, L)
-        prismatic.distance_gradient(W, L, gd, work)
-        for a in range(24):
-            g[a] = K * e * gd[a]
-            for b in range(24):
-                H[a, b] = K * (gd[a] * gd[b])
-        if not project:
-            prismatic.add_distance_curvature(L, K * e, H)
-        prismatic.add_blocks(H, g, i_body, j_body, j, grad, diag, pair)
+        prismatic.slide_gradient(q, i_body, j_body, fr, s, 0.5, 0.5, work, 0)      # ∇d
+        prismatic.add_rank_one(work, 0, K * e, K, i_body, j_body, j, grad, diag, pair)
+        if not project:                                                             # + K e ∇²d
+            prismatic.add_slide_curvature(fr, s, i_body, j_body, j, 0.5 * K * e, 0.5 * K * e, diag, pair)
     return E

@@ -58,17 +58,15 @@ def energy(q, m, ctx):
     parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
     D = m.drive_joints.size
     on, target = ctx.drive_on, ctx.drive_target
-    W = np.empty((prismatic.WORK_ROWS, 3))
     E = 0.0
     for k in range(joints.size):
         if on[D + k]:
             j = joints[k]
-            prismatic.frames(q, parent[j], child[j], fr, slot[j], W)
+            r, ti, tj = prismatic.axis_and_offset(q, parent[j], child[j], fr, slot[j])
             ui = uj = 0.0
-            for r in range(3):
-                rr = W[1, r] - W[0, r]
-                ui += W[2, r] * rr
-                uj += W[3, r] * rr
+            for c in range(3):
+                ui += ti[c] * r[c]
+                uj += tj[c] * r[c]
             ei, ej = ui - target[D + k], uj - target[D + k]
             E += 0.5 * K[k] * (ei * ei + ej * ej)
     return E
@@ -76,41 +74,26 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and ∇²E (Gauss-Newton with `project`); returns E (the bits of `energy`)."""
+    """∇E and ∇²E (Gauss-Newton with `project`), straight into the joint's blocks, ∇u_i and
+    ∇u_j in rows 0–3 of ctx.angle_work; returns E (the bits of `energy`)."""
     joints, K = m.prismatic_drive_joints, m.prismatic_drive_K
     parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
     D = m.drive_joints.size
     on, target = ctx.drive_on, ctx.drive_target
-    W = np.empty((prismatic.WORK_ROWS, 3))
-    L = np.empty((8, 3, 24))
-    gi = np.empty(24)
-    gj = np.empty(24)
-    g = np.empty(24)
-    H = np.empty((24, 24))
+    work = ctx.angle_work
     E = 0.0
     for k in range(joints.size):
         if not on[D + k]:
             continue
         j = joints[k]
         i_body, j_body, s = parent[j], child[j], slot[j]
-        prismatic.frames(q, i_body, j_body, fr, s, W)
-        ui = uj = 0.0
-        for r in range(3):
-            rr = W[1, r] - W[0, r]
-            ui += W[2, r] * rr
-            uj += W[3, r] * rr
+        ui, uj = prismatic.slide_gradient(q, i_body, j_body, fr, s, 1.0, 0.0, work, 0)    # ∇u_i
+        prismatic.slide_gradient(q, i_body, j_body, fr, s, 0.0, 1.0, work, 2)             # ∇u_j
         ei, ej = ui - target[D + k], uj - target[D + k]
-        E += 0.5 * K[k] * (ei * ei + ej * ej)
-        prismatic.linear_maps(fr, s, L)
-        prismatic.slide_gradient(W, L, 0, gi)
-        prismatic.slide_gradient(W, L, 1, gj)
         Kk = K[k]
-        for a in range(24):
-            g[a] = Kk * (ei * gi[a] + ej * gj[a])
-            for b in range(24):
-                H[a, b] = Kk * (gi[a] * gi[b] + gj[a] * gj[b])
-        if not project:
-            prismatic.add_slide_curvature(L, 0, Kk * ei, H)
-            prismatic.add_slide_curvature(L, 1, Kk * ej, H)
-        prismatic.add_blocks(H, g, i_body, j_body, j, grad, diag, pair)
+        E += 0.5 * Kk * (ei * ei + ej * ej)
+        prismatic.add_rank_one(work, 0, Kk * ei, Kk, i_body, j_body, j, grad, diag, pair)
+        prismatic.add_rank_one(work, 2, Kk * ej, Kk, i_body, j_body, j, grad, diag, pair)
+        if not project:                                     # + K Σ_k (u_k − d̃) ∇²u_k
+            prismatic.add_slide_curvature(fr, s, i_body, j_body, j, Kk * ei, Kk * ej, diag, pair)
     return E

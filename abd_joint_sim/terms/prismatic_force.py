@@ -51,29 +51,35 @@ def any_active(m, effort_value, effort_enabled):
 
 
 @kernel
-def axis(q, m, j, e):
-    """e (3,) = t̂_j of joint j (a prismatic joint): the child's force direction (0 when
+def axis(q, m, j):
+    """t̂_j of joint j (a prismatic joint) as a 3-tuple: the child's force direction (0 when
     neither body's axis is usable: not finite or of norm ≤ AXIS_EPS)."""
     parent, child, fr, k = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot[j]
     usable = 0
-    for r in range(3):
-        e[r] = 0.0
-    raw = np.empty(3)
+    e0 = e1 = e2 = 0.0
     for side in range(2):
         b = parent[j] if side == 0 else child[j]
-        for r in range(3):
-            x = 0.0
-            for c in range(3):
-                x += q[b, 3 + 3 * r + c] * fr[k, side, 1, c]
-            raw[r] = x
-        n = math.sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2])
+        x0 = q[b, 3] * fr[k, side, 1, 0] + q[b, 4] * fr[k, side, 1, 1] + q[b, 5] * fr[k, side, 1, 2]
+        x1 = q[b, 6] * fr[k, side, 1, 0] + q[b, 7] * fr[k, side, 1, 1] + q[b, 8] * fr[k, side, 1, 2]
+        x2 = q[b, 9] * fr[k, side, 1, 0] + q[b, 10] * fr[k, side, 1, 1] + q[b, 11] * fr[k, side, 1, 2]
+        n = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         if math.isfinite(n) and n > AXIS_EPS:
             usable += 1
-            for r in range(3):
-                e[r] += raw[r] / n
+            e0 += x0 / n
+            e1 += x1 / n
+            e2 += x2 / n
     half = 0.5 if usable == 2 else 1.0
-    for r in range(3):
-        e[r] *= half
+    return half * e0, half * e1, half * e2
+
+
+@kernel(inline='always')
+def _body_force(f, e, fr, k, side, c):
+    """Entry c of F_k = J(c̄_k)ᵀ (f t̂_k) on `side` (t̂_i = −t̂_j: f negated on the parent)."""
+    sf = -f if side == 0 else f
+    if c < 3:
+        return sf * e[c]
+    r = (c - 3) // 3
+    return sf * e[r] * fr[k, side, 0, (c - 3) % 3]
 
 
 @kernel
@@ -82,42 +88,38 @@ def generalized_force(q, m, effort_value, effort_enabled, F):
     T = m.torque_joints.size
     joints, parent, child, fr, slot = (m.prismatic_force_joints, m.joint_parent, m.joint_child,
                                        m.prismatic_frame, m.prismatic_slot)
-    e = np.empty(3)
     for k in range(joints.size):
         f = effort_value[T + k] if effort_enabled[T + k] else 0.0
         if f == 0.0:
             continue
         j = joints[k]
-        axis(q, m, j, e)
+        e = axis(q, m, j)
         for side in range(2):
             b = parent[j] if side == 0 else child[j]
-            sf = -f if side == 0 else f               # t̂_i = −t̂_j
-            for r in range(3):
-                w = sf * e[r]
-                F[b, r] += w
-                for c in range(3):
-                    F[b, 3 + 3 * r + c] += w * fr[slot[j], side, 0, c]
+            for c in range(12):
+                F[b, c] += _body_force(f, e, fr, slot[j], side, c)
 
 
 @kernel
 def add_acceleration(q, m, effort_value, effort_enabled, acc):
     """acc += M⁻¹F of the UID 667 forces on the free bodies (a fixed body's acceleration is
-    never read)."""
-    B = q.shape[0]
-    F = np.zeros((B, 12))
-    generalized_force(q, m, effort_value, effort_enabled, F)
+    never read), joint by joint (M⁻¹ is linear: the sum over joints is M⁻¹ ΣF)."""
+    T = m.torque_joints.size
+    joints, parent, child, fr, slot = (m.prismatic_force_joints, m.joint_parent, m.joint_child,
+                                       m.prismatic_frame, m.prismatic_slot)
     Minv, fixed = m.body_Minv, m.body_fixed
-    for b in range(B):
-        if fixed[b]:
+    for k in range(joints.size):
+        f = effort_value[T + k] if effort_enabled[T + k] else 0.0
+        if f == 0.0:
             continue
-        nonzero = False
-        for c in range(12):
-            if F[b, c] != 0.0:
-                nonzero = True
-        if not nonzero:
-            continue
-        for r in range(12):
-            x = 0.0
-            for c in range(12):
-                x += Minv[b, r, c] * F[b, c]
-            acc[b, r] += x
+        j = joints[k]
+        e = axis(q, m, j)
+        for side in range(2):
+            b = parent[j] if side == 0 else child[j]
+            if fixed[b]:
+                continue
+            for r in range(12):
+                x = 0.0
+                for c in range(12):
+                    x += Minv[b, r, c] * _body_force(f, e, fr, slot[j], side, c)
+                acc[b, r] += x

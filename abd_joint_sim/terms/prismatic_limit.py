@@ -46,11 +46,10 @@ def energy(q, m, ctx):
     joints, lower, upper, strength = (m.prismatic_limit_joints, m.prismatic_limit_lower,
                                       m.prismatic_limit_upper, m.prismatic_limit_strength)
     parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
-    W = np.empty((prismatic.WORK_ROWS, 3))
     E = 0.0
     for k in range(joints.size):
         j = joints[k]
-        x = prismatic.distance_at(q, parent[j], child[j], fr, slot[j], W)
+        x = prismatic.distance_at(q, parent[j], child[j], fr, slot[j])
         if limit.active(x, lower[k], upper[k]):
             E += limit.phi(x, lower[k], upper[k], strength[k])[0]
     return E
@@ -58,33 +57,23 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and ∇²E of the limits outside their range (Gauss-Newton with `project`); returns E
-    (the bits of `energy`)."""
+    """∇E and ∇²E of the limits outside their range (Gauss-Newton with `project`), straight
+    into the joint's blocks, ∇d in rows 0–1 of ctx.angle_work; returns E (the bits of `energy`)."""
     joints, lower, upper, strength = (m.prismatic_limit_joints, m.prismatic_limit_lower,
                                       m.prismatic_limit_upper, m.prismatic_limit_strength)
     parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
-    W = np.empty((prismatic.WORK_ROWS, 3))
-    L = np.empty((8, 3, 24))
-    gd = np.empty(24)
-    work = np.empty(24)
-    g = np.empty(24)
-    H = np.empty((24, 24))
+    work = ctx.angle_work
     E = 0.0
     for k in range(joints.size):
         j = joints[k]
         i_body, j_body, s = parent[j], child[j], slot[j]
-        x = prismatic.distance_at(q, i_body, j_body, fr, s, W)
+        x = prismatic.distance_at(q, i_body, j_body, fr, s)
         if not limit.active(x, lower[k], upper[k]):
             continue
         e, d1, d2 = limit.phi(x, lower[k], upper[k], strength[k])
         E += e
-        prismatic.linear_maps(fr, s, L)
-        prismatic.distance_gradient(W, L, gd, work)
-        for a in range(24):
-            g[a] = d1 * gd[a]
-            for b in range(24):
-                H[a, b] = d2 * (gd[a] * gd[b])
-        if not project:
-            prismatic.add_distance_curvature(L, d1, H)
-        prismatic.add_blocks(H, g, i_body, j_body, j, grad, diag, pair)
+        prismatic.slide_gradient(q, i_body, j_body, fr, s, 0.5, 0.5, work, 0)      # ∇d
+        prismatic.add_rank_one(work, 0, d1, d2, i_body, j_body, j, grad, diag, pair)
+        if not project:                                                             # + E' ∇²d
+            prismatic.add_slide_curvature(fr, s, i_body, j_body, j, 0.5 * d1, 0.5 * d1, diag, pair)
     return E

@@ -100,7 +100,7 @@ class HeadlessSim:
         """A CommandBuffer configured as this run's, for checking a plan before it runs."""
         return CommandBuffer(self.actuated, self.commands.order,
                              self.config.effort_limits if self.clamp else [], 0.0,
-                             scene_limits=self.commands.scene_limits)
+                             scene_limits=self.commands.scene_limits, driven=self.commands.driven)
 
     def reset(self) -> None:
         """As sim_node's ``~/reset`` (publishes the initial state to the output)."""

@@ -8,10 +8,12 @@ name of every compiled function, sizes taken as the gap to the next one), sample
 `perf record -p <pid>` while it steps, and prints the functions by share of the samples,
 numba's mangled names shortened to module.function.
 
-    python bench/profiler.py perf [chain1|chain10|chain100|default|kuka|<file>.urdf] [--seconds 10] [--top 40]
+    python bench/profiler.py perf [chain1|chain10|chain100|default|kuka|panda-sliding|panda-locked|<file>.urdf] [--seconds 10] [--top 40]
 
 A URDF is a path, or one relative to pybullet_data (a1/a1.urdf), run under
-`bench/peers.py robots`' torques with the importer's options of that bench.
+`bench/peers.py robots`' torques with the importer's options of that bench. panda-sliding and
+panda-locked are the Panda of `bench/peers.py sliding`: its first finger sliding (the second,
+a mimic joint, locked), or both fingers locked, under the same torques (−0.6 N on the finger).
 
 The first minute is the compile. Needs `perf` on the PATH and perf_event_paranoid ≤ 2 (a
 process may sample itself); it says so otherwise.
@@ -33,6 +35,18 @@ ROOT = Path(__file__).resolve().parents[2]
 def _world(name):
     from abd_joint_sim import Scene, World
     from abd_joint_sim.builders import chain_scene
+    if name in ('panda-sliding', 'panda-locked'):
+        import pybullet_data
+        sys.path.insert(0, str(ROOT / 'bench' / 'lib'))
+        from robot_bench import torques
+        from slide_bench import FINGERS, PANDA
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')             # the importer's repairs (docs/urdf.md)
+            w = World(Scene.from_urdf(os.path.join(pybullet_data.getDataPath(), PANDA), dt=1e-3,
+                                      lock=FINGERS[1:] if name == 'panda-sliding' else FINGERS))
+        w.set_efforts(torques(len(w.actuated_joint_names)))
+        return w
     if name == 'kuka':
         import pybullet_data
         w = World(Scene.from_urdf(os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf'),
@@ -108,9 +122,10 @@ def main(argv=None) -> int:
     if perf is None:
         print('perf is not installed: nothing to sample with (apt install linux-perf, or linux-tools)')
         return 1
-    if not (args.scene in ('default', 'kuka') or args.scene.endswith('.urdf')
+    if not (args.scene in ('default', 'kuka', 'panda-sliding', 'panda-locked') or args.scene.endswith('.urdf')
             or (args.scene.startswith('chain') and args.scene[5:].isdigit())):
-        print(f'perf_profile: unknown scene {args.scene!r}: chain<N>, default, kuka or a .urdf file')
+        print(f'perf_profile: unknown scene {args.scene!r}: chain<N>, default, kuka, panda-sliding, '
+              'panda-locked or a .urdf file')
         return 2
     cache = tempfile.mkdtemp(prefix='abd_perf_cache_')
     os.environ['ABD_KERNEL_CACHE'] = cache      # before the package is imported
