@@ -7,17 +7,27 @@ turns into vector moves. Measured in a compiled loop (2-core VM, loaded): thirte
 chain in 1.8 µs against 4.5. Same values, bit for bit: a copy is a copy. `a.flat[i]` rather
 than a reshaped view: numba's reshape calls a C helper, ~20 ns a time, as much as copying a
 small robot's q. `array` makes the copies the kernels are compiled for.
+
+`ABD_FLAT=0` in the environment compiles `copy` and `fill` as numpy's `dst[:] = src` (the
+comparison; cache.py keeps that build apart).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from . import kernel
+from .cache import switch
+
+#: False with ABD_FLAT=0 in the environment: numba's n-d assignments (the comparison)
+ENABLED = switch('ABD_FLAT')
 
 
 @kernel
 def copy(dst, src):
     """dst[...] = src (the same size and C order)."""
+    if not ENABLED:
+        dst[:] = src
+        return
     d, s = dst.flat, src.flat
     for i in range(src.size):
         d[i] = s[i]
@@ -26,6 +36,9 @@ def copy(dst, src):
 @kernel
 def fill(dst, value):
     """dst[...] = value."""
+    if not ENABLED:
+        dst[:] = value
+        return
     d = dst.flat
     for i in range(dst.size):
         d[i] = value

@@ -22,12 +22,13 @@ apart).
 from __future__ import annotations
 
 import contextlib
-import os
 
 from numba.core import config
 
+from .cache import switch
+
 #: False with ABD_SLP=0 in the environment: every kernel compiled scalar (the comparison)
-ENABLED = os.environ.get('ABD_SLP', '1').strip() != '0'
+ENABLED = switch('ABD_SLP')
 
 
 @contextlib.contextmanager
