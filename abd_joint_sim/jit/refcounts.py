@@ -19,6 +19,11 @@ step's arrays all have an owner outside compiled code for as long as it runs, so
 numba's incref and decref of a null MemInfo return at once, and a value without a MemInfo is
 never counted.
 
+Pays (`python bench/profiler.py devices`, two runs, ratio of the µs per step without it to
+with it): one link 1.20 and 1.26 in `World.step(n)` (1.65 against 2.02 µs), 1.19 and 1.18 one
+`World.step()` per call; the KUKA iiwa 1.12 and 1.08 (n), 1.08 and 1.10 (per call); chains of
+100 and 1000 links 1.00-1.11.
+
 `ABD_REFCOUNTS=0` in the environment makes `array`, `struct` and `borrow` identities: numba
 counts every reference (the comparison; cache.py keeps that build apart).
 """

@@ -7,7 +7,8 @@ ABD_SLP=0, ABD_FLUSH_SUBNORMALS=0) runs in a worker process of its own, with its
 cache (`<cache>/variants/NAME=0`, compiled on its first run), beside a worker with every
 device in. The ring behind `World.step()` (solver/resident.py) is measured in the default
 worker: one `World.step()` per call against one `Solver.step` per call on States. The
-workers take turns, round after round, each timing the same steps from the same state (its
+workers take turns, round after round (after one untimed round; the order of the turns
+rotates), each timing the same steps from the same state (its
 own: the state after 10 steps of the scene), CPU time; a cell is the default build's µs per
 step -> the build without the device (median of the rounds), and the median of the per-round
 ratios without/with: above 1, the device pays. `World.step(n)` takes n steps in one call,
@@ -43,6 +44,8 @@ SETTLE = 10
 # -- the worker: one build, its scenes, timed on request ------------------------------------
 
 def _world(name: str):
+    import warnings
+    warnings.simplefilter('ignore')         # (the KUKA URDF's unenforced velocity limits)
     sys.path.insert(0, str(REPO))
     from abd_joint_sim import Scene, World
     from abd_joint_sim.builders import chain_scene
@@ -131,10 +134,11 @@ def measure(scenes, devices, rounds: int, cache: Path) -> dict:
             jobs = [(s, how) for s in workers for how in ('n', 'one')]
             if 'resident' in devices:
                 jobs.append(('', 'state'))
-            for _ in range(rounds):
-                for s, how in jobs:
+            for r in range(-1, rounds):           # round -1 warms up, untimed
+                for s, how in jobs[r % len(jobs):] + jobs[:r % len(jobs)]:   # turns rotate
                     us, bits, tiny[s, scene] = workers[s].ask(scene, how, STEPS[scene])
-                    t.setdefault((s, scene, how), []).append((us, bits))
+                    if r >= 0:
+                        t.setdefault((s, scene, how), []).append((us, bits))
     finally:
         for w in workers.values():
             w.close()
