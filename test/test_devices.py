@@ -46,12 +46,19 @@ def test_each_switch_turns_its_device_off_in_a_build_of_its_own():
 
 
 _OFF_PROBE = r'''
+from numba import njit, typeof
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
-from abd_joint_sim.jit import subnormals
-from abd_joint_sim.solver import newton
-World(Scene.from_dict(chain_scene(2))).step(2)
-borrowed = any('Borrowed' in str(sig) for sig in newton.minimize.signatures)
+from abd_joint_sim.jit import refcounts, subnormals
+w = World(Scene.from_dict(chain_scene(2)))
+w.step(2)
+
+@njit
+def read(m):
+    return refcounts.struct(m).joint_K.size
+read.compile((typeof(w.solver.data),))
+types = [t for cres in read.overloads.values() for t in cres.type_annotation.typemap.values()]
+borrowed = any('Borrowed' in str(t) for t in types)
 before = subnormals.flags()
 saved = subnormals.enter()
 flushing = bool(subnormals.flags() & subnormals.FTZ_DAZ) and not before & subnormals.FTZ_DAZ
