@@ -13,7 +13,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 ENTRIES = {'peers.py': ['chains', 'robots', 'sliding', 'sweep', 'chain-urdfs', 'regimes', 'sweeps'],
-           'profiler.py': ['step', 'calls', 'perf'],
+           'profiler.py': ['step', 'calls', 'perf', 'devices'],
            'node_load.py': ['rtf', 'flood', 'soak', 'markers', 'live']}
 
 
@@ -49,6 +49,8 @@ def test_each_command_loads_and_answers_help(entry):
     (['ab.py', '--other', '.', 'chain7x'], 'unknown scene(s) chain7x'),
     (['ab.py', '--other', '.', '--rounds', '0'], '--rounds must be at least 1'),
     (['node_load.py', 'rtf', '--other', '/nonexistent/checkout'], 'no abd_joint_sim package there'),
+    (['profiler.py', 'devices', 'chain7'], 'unknown scene(s) chain7'),
+    (['profiler.py', 'devices', '--devices', 'slp,turbo'], 'unknown device(s) turbo'),
 ])
 def test_bad_arguments_are_one_line_and_exit_2(args, words):
     out = _run(REPO / 'bench' / args[0], *args[1:])

@@ -36,6 +36,14 @@ PACKAGE = Path(__file__).resolve().parents[1]
 #: where the compiled kernels live; the files among them that define any (`@kernel`) make the
 #: cache stamp, so editing pure-Python modules there does not force a recompile
 KERNEL_SOURCES = ('smallmat.py', 'terms', 'solver', 'jit')
+#: the compiler devices' switches: NAME=0 in the environment compiles that device out (for
+#: measuring what it pays: `python bench/profiler.py devices`); such a build is another build
+SWITCHES = ('ABD_SLP', 'ABD_REFCOUNTS', 'ABD_FLAT', 'ABD_FLUSH_SUBNORMALS')
+
+
+def switch(name: str) -> bool:
+    """Whether the device of switch `name` (one of SWITCHES) is compiled in: unless NAME=0."""
+    return os.environ.get(name, '1').strip() != '0'
 
 
 @functools.lru_cache(maxsize=None)
@@ -49,8 +57,7 @@ def sources_hash() -> str:
             if b'@kernel' in text:
                 h.update(f.relative_to(PACKAGE).as_posix().encode())
                 h.update(text)
-    from . import slp        # a build without the SLP vectoriser is another build
-    h.update(b'slp' if slp.ENABLED else b'no-slp')
+    h.update(' '.join(f'{name}=0' for name in SWITCHES if not switch(name)).encode())
     return h.hexdigest()[:20]
 
 
