@@ -288,7 +288,12 @@ def step_resident(io):
     Newton iterations (≥ 1), or −1 if its line search halved the step (the outcome row has the
     count): the caller builds the step's report without converting the row's floats. A step
     that is not clean but `kept` (it only warns) advances the Resident as a clean one and
-    returns KEPT_WITH_WARNINGS: the caller words the warnings from the outcome row."""
+    returns KEPT_WITH_WARNINGS: the caller words the warnings from the outcome row.
+
+    What it saves against `Solver.step` on States (a State built per step, its ten arrays
+    unboxed, numba's dispatcher typing 28 arguments): per call, 2.5 µs against 6.8 on one
+    link, 11.3 against 16.6 on a 10-link chain, 10.9 against 16.0 on the KUKA iiwa (2-core
+    VM, loaded, side by side in one process)."""
     io = refcounts.struct(io)
     slots, clock, h = io.slots, io.clock, io.h
     cur, known = slots[0], slots[1]
