@@ -646,6 +646,37 @@ def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
         assert np.array_equal(x, y)
 
 
+def test_solver_step_calls_the_entry_point_only_with_arrays_it_made():
+    """Solver.step calls step.steps' entry point directly (no per-call typing) when the
+    State's arrays are those its last call made and the Control's are checked; a State or
+    Control of another layout goes through numba's dispatcher. The same bits either way."""
+    from abd_joint_sim.state import State
+
+    def strided(a):
+        out = np.zeros((2,) + a.shape, dtype=a.dtype, order='F')[1]
+        out[...] = a
+        return out
+    d = chain_dict(3, torque=0.7)
+    plain, odd = _world(d), _world(d)
+    c = odd.control
+    c.torque_value = strided(c.torque_value)
+    sp, so = plain.state, odd.state
+    for k in range(9):
+        if k % 3 == 1:              # a State of odd arrays, as a user might build one
+            so = State(so.time, np.asfortranarray(so.q), strided(so.v), strided(so.q_prev),
+                       np.asfortranarray(so.v_prev), strided(so.joint_angle), so.joint_velocity,
+                       so.step_count, so.history_dt, strided(so.warm_start),
+                       strided(so.warm_start_prev), strided(so.warm_start_prev2))
+        sp, rp = plain.solver.step(sp, plain.control)
+        so, ro = odd.solver.step(so, c)
+        assert rp == ro
+    assert plain.solver._entry is not None              # the plain calls skipped the dispatcher
+    assert odd.solver._control == (None,) * 5           # the strided Control never reached it
+    plain.state, odd.state = sp, so
+    for x, y in zip(_state_fields(plain), _state_fields(odd)):
+        assert np.array_equal(x, y)
+
+
 # -- faults ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize('distance', [1e16, 1e10])
 def test_a_joint_that_came_apart_is_a_fault_and_the_state_is_kept(distance):
