@@ -320,12 +320,13 @@ class World:
         if n != 1:
             n = _step_count(n)
         if n == 1:                  # (a controller's loop: this call every step)
-            self.last_step = report = self.solver.step_resident(self._resident, self.control)
+            self.last_step = report = self.solver._step_resident(self._resident, self.control)
             return report
         while n > 0:
             # the solver never writes a State: on SimulationError self.state is the last good one
-            self.state, self.last_step, done = self.solver.advance(self.state, self.control, n)
-            n -= done
+            done = self.solver.steps(self.state, self.control, n)
+            self.state, self.last_step = done.state, done.report
+            n -= done.count
         return self.last_step
 
     def step_clean(self, n: int):
@@ -339,7 +340,7 @@ class World:
         if n <= 0:
             self.last_clean_q = np.empty((0, self.model.body_count, 12))
             return 0, [], np.empty((0, J)), np.empty((0, J))
-        batch = self.solver.clean_steps(self.state, self.control, int(n))
+        batch = self.solver.steps(self.state, self.control, int(n), clean=True)
         if batch.count:
             self.state, self.last_step = batch.state, batch.report
         self.last_clean_q = batch.q

@@ -240,11 +240,12 @@ def test_predicted_rotation_is_refused_before_solving_and_sub_stepped():
     start = w.state
     q0 = start.q.copy()
     tally = _Tally()
-    new, failure = w.solver._single(start, w.control, w.model.dt, tally, True)
+    new, failure = w.solver._decode(start, w.model.dt, *w.solver._compute(start, w.control, w.model.dt, True), tally)
     assert new is None and failure == 'a joint is predicted to turn 5.86 rad in one step (limit 1.57)'
     assert np.array_equal(start.q, q0)
     assert (tally.newton_iterations, tally.line_search_iterations, tally.warnings) == (0, 0, [])
-    new, failure = w.solver._single(start, w.control, w.model.dt, _Tally(), False)
+    new, failure = w.solver._decode(start, w.model.dt, *w.solver._compute(start, w.control, w.model.dt, False),
+                                    _Tally())
     assert new is not None and 'predicted' not in str(failure)      # without the flag: solved
     r = w.step()
     assert r.substeps > 1
@@ -645,6 +646,39 @@ def test_the_bound_entry_point_never_reads_an_array_of_another_layout():
         assert np.array_equal(x, y)
 
 
+def test_solver_step_calls_the_entry_point_only_with_arrays_it_made():
+    """Solver.step calls step.steps' entry point directly (no per-call typing) when the
+    State's arrays are those its last call made and the Control's are checked; a State or
+    Control of another layout goes through numba's dispatcher. The same bits either way."""
+    from abd_joint_sim.state import State
+
+    def strided(a):
+        out = np.zeros((2,) + a.shape, dtype=a.dtype, order='F')[1]
+        out[...] = a
+        return out
+    d = chain_dict(3, torque=0.7)
+    plain, odd = _world(d), _world(d)
+    c = odd.control
+    c.torque_value = strided(c.torque_value)
+    sp, so = plain.state, odd.state
+    for k in range(9):
+        if k % 3 == 1:              # a State of odd arrays, as a user might build one
+            odd_copies = {}         # (an unknown past warm start is the newer one itself)
+            history = [odd_copies.setdefault(id(a), strided(a))
+                       for a in (so.warm_start, so.warm_start_prev, so.warm_start_prev2)]
+            so = State(so.time, np.asfortranarray(so.q), strided(so.v), strided(so.q_prev),
+                       np.asfortranarray(so.v_prev), strided(so.joint_angle), so.joint_velocity,
+                       so.step_count, so.history_dt, *history)
+        sp, rp = plain.solver.step(sp, plain.control)
+        so, ro = odd.solver.step(so, c)
+        assert rp == ro
+    assert plain.solver._entry is not None              # the plain calls skipped the dispatcher
+    assert odd.solver._control == (None,) * 5           # the strided Control never reached it
+    plain.state, odd.state = sp, so
+    for x, y in zip(_state_fields(plain), _state_fields(odd)):
+        assert np.array_equal(x, y)
+
+
 # -- faults ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize('distance', [1e16, 1e10])
 def test_a_joint_that_came_apart_is_a_fault_and_the_state_is_kept(distance):
@@ -841,10 +875,10 @@ def test_physics_layers_import_downward_only():
 
 def test_import_layer_check_can_fail(tmp_path):
     probe = tmp_path / 'probe.py'
-    probe.write_text('from ..world import World\nfrom ..solver.step import step\n')
+    probe.write_text('from ..world import World\nfrom ..solver.step import steps\n')
     bad = _layer_violations([(probe, 'abd_joint_sim.terms.probe')])
     assert bad and bad[0][1] == {'abd_joint_sim.world', 'abd_joint_sim.world.World', 'abd_joint_sim.solver.step',
-                                 'abd_joint_sim.solver.step.step'}
+                                 'abd_joint_sim.solver.step.steps'}
 
 
 def test_a_first_compile_is_announced_before_it_starts(monkeypatch, tmp_path, capsys):
@@ -1017,12 +1051,12 @@ def test_step_n_keeps_steps_that_only_warn_in_its_compiled_batch(case):
     assert all(r.substeps == 1 for r in reports)          # (1: the step itself, not split)
     recovered = []
     for w in (many, one):
-        real = w.solver._advance
+        real = w.solver._recover
 
         def counted(*args, real=real):
             recovered.append(args)
             return real(*args)
-        w.solver._advance = counted
+        w.solver._recover = counted
     assert many.step(n) == reports[-1]
     assert [one.step() for _ in range(n)] == reports
     assert not recovered
@@ -1042,12 +1076,12 @@ def test_a_long_step_n_runs_in_bounded_batches_with_the_same_states():
     assert 2 <= split.solver.batch_limit
     assert whole.solver.batch_limit >= 25
     split.solver.batch_limit = 4
-    sizes, batch = [], split.solver._batch
+    sizes, run = [], split.solver._run
 
-    def counted(s, c, n, keep_rotation):
+    def counted(s, c, h, n, *args):
         sizes.append(n)
-        return batch(s, c, n, keep_rotation)
-    split.solver._batch = counted
+        return run(s, c, h, n, *args)
+    split.solver._run = counted
     for _ in range(25):
         one.step()
     split.step(25)

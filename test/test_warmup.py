@@ -137,7 +137,7 @@ def test_the_helpers_kernels_are_the_ones_the_step_loads(tmp_path):
         print(sorted(set(compiled)))
     ''')
     compiled = _run(main, env, tmp_path)
-    assert 'abd_joint_sim.solver.step.step' in compiled, compiled
+    assert 'abd_joint_sim.solver.step.steps' in compiled, compiled
     assert not [name for name in late if f"'{name}'" in compiled], compiled
     # the whole compile with both processes, then a fresh process
     env.update(ABD_KERNEL_CACHE=str(tmp_path / 'kc2'), ABD_COMPILE_JOBS='2')

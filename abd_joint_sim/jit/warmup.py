@@ -9,7 +9,7 @@ silence. A marker file keyed on the kernel sources records a completed compile (
 where, and why it is shared between the source tree and an install).
 
 With two or more cores, a second process compiles the kernels the main sequence reaches last
-(three energy terms, the linear solve, the retraction, then the batched step) while this one
+(three energy terms, the linear solve, the retraction, then `step.step_resident`) while this one
 works from the top (`_helper_kernels`): each process loads from the disk cache what the other
 has stored, and cache.py serialises numba's index writes, so the cache stays consistent
 whichever process stores a kernel. ABD_COMPILE_JOBS=1 compiles in this process alone.
@@ -32,7 +32,7 @@ _done = False
 PROGRESS_SECONDS = 5.0
 #: kernel signatures a complete compile stores (cache.kernel_count()): the progress line's
 #: total when no earlier compile on this machine recorded its own count
-EXPECTED_KERNELS = 112
+EXPECTED_KERNELS = 146
 #: the second compiling process, while it runs (`_helper_kernels`)
 _helper = None
 
@@ -94,14 +94,9 @@ def _run_kernels():
         solver = Solver(model)
         state, control = State.initial(model), Control.initial(model)
         solver.joint_rates(state)                             # World.reset of moving bodies
-        state, _ = solver.step(state, control)                # BDF1 start
-        _helper_go()                                          # its batched step may start
-        resident = Resident(model.body_count, model.joint_count)
-        resident.set(state)
-        solver.step_resident(resident, control)              # World.step()
-        _helper_wait()
-        state, _, _ = solver.advance(state, control, 3)       # batched, BDF2
-        solver.clean_steps(state, control, 2)
+        state, _ = solver.step(state, control)                # step.steps, one BDF1 step
+        _helper_go()                                          # its step_resident may start
+        state = solver.steps(state, control, 3).state         # step.steps, BDF2
         limits = np.concatenate([model.torque_effort_limit, model.prismatic_force_effort_limit])
         torque.clamp_commands(control.torque_value.copy(), limits, control.torque_value)
         torque.clamp_command(1.0, 2.0)
@@ -110,6 +105,10 @@ def _run_kernels():
         ctx = solver.context(state, control, model.dt)
         for term in (ortho, revolute, driving, limit, prismatic, prismatic_driving, prismatic_limit):
             term.energy(state.q, solver.data, ctx)
+        _helper_wait()
+        resident = Resident(model.body_count, model.joint_count)
+        resident.set(state)
+        solver._step_resident(resident, control)              # step.step_resident: World.step()
     # the body markers' poses (ros/markers.py)
     from ..smallmat import frame_poses
     one = np.zeros(1, dtype=np.intp)
@@ -140,11 +139,12 @@ def _late_subtrees():
 
 def _helper_kernels(go) -> None:
     """The second process's share, in the order that meets the main sequence (`_run_kernels`,
-    depth first from `step`) at the latest: the subtrees it reaches last first, then, once
-    `go` returns (the main process has stored `step`, whose Newton loop the batched step
-    calls), the batched step. What counts is what numba stores."""
+    depth first from `step.steps`) at the latest: the subtrees it reaches last first, then,
+    once `go` returns (the main process has stored `step.one_step`, which both entries call),
+    `step.step_resident`. What counts is what numba stores."""
     from numba import typeof
     from ..model import compile_scene
+    from ..solver.resident import Resident
     from ..solver.solver import Solver
     from ..state import Control, State
     model = compile_scene(_tiny_scene())
@@ -152,8 +152,9 @@ def _helper_kernels(go) -> None:
     state, control = State.initial(model), Control.initial(model)
     _late_subtrees().compile((typeof(state.q), typeof(solver.data), typeof(solver.work)))
     go()
-    solver.advance(state, control, 3)
-    solver.clean_steps(state, control, 2)
+    resident = Resident(model.body_count, model.joint_count)
+    resident.set(state)
+    solver._step_resident(resident, control)
 
 
 def _jobs() -> int:
@@ -181,7 +182,7 @@ def _start_helper():
 
 
 def _helper_go() -> None:
-    """Let the helper start its batched step (the main process has stored `step`)."""
+    """Let the helper start step_resident (the main process has stored `step.one_step`)."""
     if _helper is not None and _helper.stdin is not None and not _helper.stdin.closed:
         try:
             _helper.stdin.write(b'go\n')

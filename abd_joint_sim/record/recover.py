@@ -21,7 +21,7 @@ from pathlib import Path
 import struct
 from typing import Any, Optional
 
-from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk, StreamReader
 from mcap.writer import CompressionType, Writer
 import yaml

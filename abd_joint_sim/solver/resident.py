@@ -10,7 +10,7 @@ against 6.7-6.9 for `Solver.step` on States on one link (ratio 2.47 and 2.50 in 
 (`cur − 1`: q_prev, v_prev, warm_start_prev) and the one before that (`cur − 2`:
 warm_start_prev2), modulo 4; a step writes slot `cur + 1`, which then becomes the current one
 (the compiled `step.step_resident` turns the slots and the clock of a clean step;
-`Solver.step_resident`). The `State` is built only when it is read (`state()`), as copies, so a
+`Solver._step_resident`). The `State` is built only when it is read (`state()`), as copies, so a
 State a caller holds never changes. Whenever a State has been set or read since the last step
 it is the current state, and the next step copies it into the ring first (so a caller that
 changed its arrays in place, as tests and studies do to perturb a state, is obeyed).
@@ -45,7 +45,7 @@ class ResidentIOType(types.StructRef):
 
 class ResidentIO(structref.StructRefProxy):
     """A Resident's ring and clock, a Control's arrays and a Solver's skipped/outcome rows,
-    as the compiled one-step call takes them (Solver.step_resident binds it)."""
+    as the compiled one-step call takes them (Solver._step_resident binds it)."""
 
 
 structref.define_proxy(ResidentIO, ResidentIOType, list(IO_FIELDS))

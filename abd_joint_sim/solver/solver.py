@@ -7,10 +7,11 @@ more than `max_step_rotation` (or is predicted to, before solving) or comes apar
 as two half steps, recursively up to 2**max_substep_depth sub-steps. If even that leaves a
 non-finite state or a joint apart, `SimulationError` is raised (the caller keeps its State:
 time stays a multiple of dt); a merely unconverged result is kept and reported.
-`Solver.advance(state, control, n)` takes up to n such steps, all but those that need sub-steps
-in one compiled call (`step.steps`), with the same results bit for bit; `Solver.clean_steps`
-stops before any warning too, for callers that publish every step and log every warning
-(sim_node).
+`Solver.steps(state, control, n)` takes up to n such steps, all but those that need sub-steps
+in one compiled call, with the same results bit for bit; with clean=True it stops before any
+warning too, for callers that publish every step and log every warning (sim_node). Both run
+the compiled `step.steps` (a step and a sub-step are n = 1); `World.step()` runs
+`step.step_resident` through `_step_resident`.
 """
 from __future__ import annotations
 
@@ -41,31 +42,40 @@ ACCURACY_NOTE = {
             'rad/step, ~1 % at 0.6): reduce dt for accuracy'}
 
 
-#: [bytes] the states of one compiled batch (Solver.advance): within a core's L2 cache
+#: [bytes] the states of one compiled batch (Solver.steps): within a core's L2 cache
 BATCH_BYTES = 1 << 20
 _CONVERGED, _new_tuple = Status.CONVERGED, tuple.__new__
 _OUT_ROTATION, _OUT_SEPARATION = compiled.OUT_ROTATION, compiled.OUT_SEPARATION
 _KEPT_WITH_WARNINGS = compiled.KEPT_WITH_WARNINGS
 
-#: dtypes of Control's arrays as the compiled step takes them
+#: dtypes of Control's arrays as the compiled entries are called with them
 CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
                   np.dtype(np.bool_))
 
 
 def _compiled_layout(arrays) -> bool:
-    """Whether Control's five arrays have the layout and dtypes the compiled entry points
-    were built for (C-contiguous, aligned, writable, 1-d, CONTROL_DTYPES)."""
+    """Whether Control's five arrays have the layout and dtypes the compiled entries were
+    built for (C-contiguous, aligned, writable, 1-d, CONTROL_DTYPES)."""
     return all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
                and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES))
 
 
+def _entry_point(dispatcher, args):
+    """The compiled entry point of `dispatcher` for the types of `args`, or None (not
+    compiled for them yet, or a numba without these attributes)."""
+    try:
+        return dispatcher.overloads[tuple(dispatcher.typeof_pyval(a) for a in args)].entry_point
+    except (AttributeError, KeyError, TypeError):
+        return None
+
+
 @dataclass(frozen=True)
-class CleanSteps:
-    """Result of `Solver.clean_steps`."""
+class Steps:
+    """Result of `Solver.steps`."""
 
     count: int
-    state: State                #: after the last clean step (the input state if count is 0)
-    report: StepReport | None   #: of the last clean step
+    state: State                #: after the last step (the input state if count is 0)
+    report: StepReport | None   #: of the last step (None if count is 0)
     times: list                 #: [s] (count,) time after each step
     joint_angles: np.ndarray    #: [rad] (count, J)
     joint_velocities: np.ndarray  #: [rad/s] (count, J)
@@ -100,7 +110,7 @@ def _history(s: State, h: float, new_warm_start):
     own correction is new_warm_start: s's warm start, and s's previous one if known, when s
     came from a step of size h too; an unknown one is the same array as the newer one
     (nothing to extrapolate from: the first step, a sub-step, a dt change). The compiled
-    batch, `step.steps`, applies the same rule to its first states."""
+    `step.steps` applies the same rule to the states it makes itself."""
     if s.history_dt != h:
         return new_warm_start, new_warm_start
     if s.warm_start_prev is s.warm_start:
@@ -126,18 +136,18 @@ class Solver:
         self.work = workspace.build(model, self.data)
         B, J = model.body_count, model.joint_count
         self._skipped = np.zeros(max(2 * len(model.torque_joints), 1), dtype=np.int64)
-        self._outcome = np.zeros(compiled.OUT_COLUMNS)
+        self._outcomes = np.zeros((1, compiled.OUT_COLUMNS))  # a step's outcome row (_compute)
+        self._outcome = self._outcomes[0]                   # (and step_resident's)
         self._outcome_view = memoryview(self._outcome)      # (step_resident's report)
         self._clean_rotation = min(model.newton.max_step_rotation, ACCURACY_ROTATION[model.integrator])
         self._keep_rotation = float(model.newton.max_step_rotation)     # (step.kept)
         self._shape = (B, J)
-        #: steps per compiled batch in `advance`: their states fill about BATCH_BYTES
+        #: steps per compiled batch in `steps`: their states fill about BATCH_BYTES
         self.batch_limit = max(2, BATCH_BYTES // (8 * (3 * B * 12 + 2 * J + compiled.OUT_COLUMNS)))
-        self._entry = None              # the compiled step's entry point (_control_checked)
-        self._resident_entry = None     # and step_resident's (_bind)
-        self._made = (None,) * 7        # state arrays the last step made (_compute)
-        self._control = (None,) * 5     # Control arrays checked for the entry point
-        self._qvw_shape, self._aw_shape = (3, B, 12), (2, J)
+        self._resident_entry = None     # step_resident's compiled entry point (_bind)
+        self._entry = None              # and steps' (_run), the arrays the last call made
+        self._made = (None,) * 8
+        self._control = (None,) * 5     # and Control arrays checked for it
         self._bdf2 = model.integrator == 'bdf2'
         self._dt = model.dt
         self._may_split = model.newton.max_substep_depth > 0
@@ -180,10 +190,10 @@ class Solver:
         if clean is not None:
             return self._state(state, h, computed[0], computed[1]), clean
         tally = _Tally()
-        state = self._advance(state, control, h, 0, tally, computed)
+        state = self._recover(state, control, h, 0, tally, computed)
         return state, self._finish(state, tally)
 
-    def step_resident(self, r: Resident, control: Control) -> StepReport:
+    def _step_resident(self, r: Resident, control: Control) -> StepReport:
         """`step` on the state a Resident holds (World.step()): the compiled
         `step.step_resident` reads and writes r's ring, and a clean step only turns r's slots,
         building no State. A step that is not clean (a warning, sub-steps, a failure) goes
@@ -213,7 +223,7 @@ class Solver:
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
                     (r.angles[k, 0].copy(), r.angles[k, 1].copy()), self._outcome)
         tally = _Tally()
-        new = self._advance(state, control, self._dt, 0, tally, computed)
+        new = self._recover(state, control, self._dt, 0, tally, computed)
         r.set(new)
         return self._finish(new, tally)
 
@@ -230,18 +240,14 @@ class Solver:
                     may_split=bool(self._may_split), clean_rotation=float(self._clean_rotation),
                     keep_rotation=self._keep_rotation)
         if standard and self._resident_entry is None:
-            try:
-                sig = (compiled.step_resident.typeof_pyval(io),)
-                self._resident_entry = compiled.step_resident.overloads[sig].entry_point
-            except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
-                self._resident_entry = None
+            self._resident_entry = _entry_point(compiled.step_resident, (io,))
         call = self._resident_entry if standard and self._resident_entry is not None else compiled.step_resident
         r.io_call = (call, (io,))
 
     def _clean_report(self, out, time):
         """The StepReport of a step whose outcome row `out` is clean (`step.clean`, the rule
         the compiled batches and step_resident apply), else None: such a step needs none of
-        the recovery and warnings of `_advance` and `_finish`."""
+        the recovery and warnings of `_recover` and `_finish`."""
         if not compiled.clean(out, self._clean_rotation):
             return None
         return self._report(out, time)
@@ -252,7 +258,7 @@ class Solver:
         _, newton_its, halvings, rotation, _, _, separation, _, _ = out.tolist()
         return _clean_report_of(time, int(newton_its), int(halvings), separation, rotation)
 
-    def _advance(self, state, control, h, depth, tally, computed=None):
+    def _recover(self, state, control, h, depth, tally, computed=None):
         max_depth = self.model.newton.max_substep_depth
         if computed is None:
             computed = self._compute(state, control, h, depth < max_depth)
@@ -263,8 +269,8 @@ class Solver:
             tally.status, tally.converged = Status.CONVERGED, True
             tally.warnings.append(f't={state.time:.6g}s: {failure}; retrying as 2 sub-steps of {h / 2:.3g}s')
             tally.substeps += 1
-            half = self._advance(state, control, h / 2, depth + 1, tally)
-            return self._advance(half, control, h / 2, depth + 1, tally)
+            half = self._recover(state, control, h / 2, depth + 1, tally)
+            return self._recover(half, control, h / 2, depth + 1, tally)
         if new_state is None:       # not finite, or a joint came apart: nothing to keep
             raise SimulationError(f't={state.time:.6g}s: {failure} even with {2 ** depth} sub-steps of '
                                   f'{h:.3g}s; state kept at the last good step{self._drive_hint(state, control)}'
@@ -327,70 +333,57 @@ class Solver:
                 f'{self.axis_inertia(j):.3g} kg m^2 about the axis) alone turns it {worst:.3g} rad '
                 f'in one step of {m.dt:.3g} s from rest: lower the torque or dt')
 
-    def _single(self, s, c, h, tally, may_split):
-        """One (sub-)step: (new State or None, None or a failure description). The new State
-        is returned with an unconverged or over-rotated result, which the caller keeps at the
-        deepest level."""
-        return self._decode(s, h, *self._compute(s, c, h, may_split), tally)
-
     def _compute(self, s, c, h, may_split):
-        """The compiled step: ((q, v, warm_start) (B,12) each, (angle, velocity) (J,) each,
-        outcome row)."""
-        qvw = np.empty(self._qvw_shape)
-        aw = np.empty(self._aw_shape)
-        out = self._outcome
+        """One compiled (sub-)step of size h from s: ((q, v, warm_start) (B,12) each, (angle,
+        velocity) (J,) each, outcome row)."""
+        _, _, aw = self._run(s, c, h, 1, may_split, self._keep_rotation, self._outcomes)
+        made = self._made                   # (the same view objects: _run's check is by identity)
+        return (made[0], made[1], made[4]), (made[5], aw[0, 1]), self._outcome
+
+    def _run(self, s, c, h, n, may_split, keep_rotation, out):
+        """`step.steps` from State s under Control c: (count, qvw (n,3,B,12), aw (n,2,J)),
+        the outcome rows written into out (n, OUT_COLUMNS). Where s's arrays are those the
+        last call made (`_made`) and c's are checked (`_control_checked`), the compiled entry
+        point is called directly: numba's dispatcher types each of the 28 arguments on every
+        call (`Solver.step` on States, one link: 6.8 µs per call, 9.4 through the dispatcher;
+        KUKA iiwa 15.2 and 17.7; 2-core VM, loaded, side by side). It unboxes by the compiled
+        signature, so it would misread an array of another layout or dtype: anything else
+        goes through the dispatcher, which types (and if needed compiles) it."""
+        B, J = self._shape
+        qvw, aw = np.empty((n, 3, B, 12)), np.empty((n, 2, J))
         uniform = s.history_dt == h
-        args = (self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.warm_start_prev,
-                s.warm_start_prev2, s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
-                c.drive_enabled, c.drive_passive, h, self._bdf2 and uniform,
-                s.extrapolation_order(h), may_split, self.work, qvw, aw, self._skipped, out)
+        args = (self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start, s.warm_start_prev, s.warm_start_prev2,
+                s.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled,
+                c.drive_passive, h, self._bdf2 and uniform, self._bdf2, uniform, s.extrapolation_order(h),
+                may_split, n, self._clean_rotation, keep_rotation, self.work, qvw, aw, self._skipped, out)
         k = self._made
         w, p1, p2 = s.warm_start, s.warm_start_prev, s.warm_start_prev2
         if (s.q is k[0] and s.v is k[1] and s.q_prev is k[2] and s.v_prev is k[3]
                 and w is k[4] and (p1 is k[4] or p1 is k[6])
                 and (p2 is k[4] or p2 is k[6] or p2 is k[7])
-                and s.joint_angle is k[5] and self._control_checked(c) and self._entry is not None):
-            self._entry(*args)
+                and s.joint_angle is k[5] and self._control_checked(c)):
+            if self._entry is None:
+                self._entry = _entry_point(compiled.steps, args)
+            count = (self._entry or compiled.steps)(*args)
         else:
-            compiled.step(*args)
-        # arrays of the new state this step made (or, as history, made the steps before);
-        # indexed once: each qvw[0] is a new view object, and the check is by identity
-        qvw, aw = (qvw[0], qvw[1], qvw[2]), (aw[0], aw[1])
-        self._made = (qvw[0], qvw[1], s.q if s.q is k[0] else None, s.v if s.v is k[1] else None,
-                      qvw[2], aw[0], w if w is k[4] else None,
+            count = compiled.steps(*args)
+        # the arrays of the state after the first step (or, as history, of the steps before);
+        # indexed once: each qvw[0, 0] is a new view object, and the check is by identity
+        self._made = (qvw[0, 0], qvw[0, 1], s.q if s.q is k[0] else None, s.v if s.v is k[1] else None,
+                      qvw[0, 2], aw[0, 0], w if w is k[4] else None,
                       p1 if (p1 is k[4] or p1 is k[6]) else None)
-        return qvw, aw, out
+        return count, qvw, aw
 
     def _control_checked(self, c) -> bool:
-        """Whether the compiled step's entry point (`_entry`; None until bound, once) may be
-        called with Control c's arrays (`_bind` does the same for step_resident's). Why bypass numba's dispatcher:
-        it types every argument on every call, ~0.65 µs for each of the two structrefs (a
-        Python-level typeof), a fifth of a one-body step's Python. The entry point skips
-        that and unboxes by the compiled signature, so it would misread an array of another
-        layout or dtype: it is only given arrays the step made itself (_made) and Control
-        arrays checked here (checked again whenever one is replaced);
-        anything else goes through the dispatcher, which types (and if needed compiles) it."""
+        """Whether `_run` may call the entry point with Control c's arrays: they have the
+        layout and dtypes it was compiled for (checked again whenever one is replaced)."""
         arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
         known = self._control
         if (arrays[0] is known[0] and arrays[1] is known[1] and arrays[2] is known[2]
                 and arrays[3] is known[3] and arrays[4] is known[4]):
             return True
-        if not _compiled_layout(arrays):
-            self._control = (None,) * 5
-            return False
-        self._control = arrays
-        if self._entry is None:
-            try:
-                m, s = self.data, self.work
-                z = np.zeros(self._qvw_shape[1:])
-                j = np.zeros(self._aw_shape[1:])
-                sig = tuple(compiled.step.typeof_pyval(a) for a in (
-                    m, z, z, z, z, z, z, z, j, *arrays, 1.0, True, 2, True, s,
-                    np.empty(self._qvw_shape), np.empty(self._aw_shape), self._skipped, self._outcome))
-                self._entry = compiled.step.overloads[sig].entry_point
-            except (AttributeError, KeyError, TypeError):       # not compiled yet, or another numba
-                self._entry = None
-        return True
+        self._control = arrays if _compiled_layout(arrays) else (None,) * 5
+        return self._control is arrays
 
     def _state(self, s, h, qvw, aw):
         """The State after a step from s."""
@@ -488,54 +481,36 @@ class Solver:
         return tally.freeze(state.time)
 
     # -- several steps -------------------------------------------------------------------
-    def clean_steps(self, state: State, control: Control, n: int) -> CleanSteps:
-        """Up to n steps in one compiled call, stopping before the first step on which `step`
-        would sub-step, warn or fail; bit-identical to `count` calls of `step`."""
-        count, qvw, aw, out = self._batch(state, control, n, -1.0)
-        return self._clean_result(state, count, qvw, aw, out)
-
-    def advance(self, state: State, control: Control, n: int) -> tuple[State, StepReport, int]:
-        """At least one and at most n steps: (State, report of the last step, count). The steps
-        that need no sub-steps run in one compiled call, warnings and all (`step.kept`: only
-        the last step's report is returned, so only its warnings are worded); the step that
-        stopped them is left to the next call, which takes it through `step` (and may raise
-        SimulationError, having taken nothing). Bit-identical to `count` calls of `step`. At
-        most `batch_limit` steps per call: the compiled call writes every step's state, and a
-        batch larger than the cache (or than memory: World.step(100_000) on 100 bodies would
-        be 3 GB) only costs."""
-        n = min(n, self.batch_limit)
-        if n <= 1:
-            state, report = self.step(state, control)
-            return state, report, 1
-        count, qvw, aw, out = self._batch(state, control, n, self._keep_rotation)
-        if count == 0:
-            state, report = self.step(state, control)
-            return state, report, 1
-        batch = self._clean_result(state, count, qvw, aw, out)
-        o = out[count - 1]
-        if not compiled.clean(o, self._clean_rotation):
-            return batch.state, self._kept_report(o, batch.state.time, batch.state.q), count
-        return batch.state, batch.report, count
-
-    def _batch(self, s, c, n, keep_rotation):
-        m = self.model
-        B, J = self._shape
-        qvw = np.empty((n, 3, B, 12))
-        aw = np.empty((n, 2, J))
+    def steps(self, state: State, control: Control, n: int, clean: bool = False) -> Steps:
+        """Up to n steps, those that need no sub-steps in one compiled call, bit-identical to
+        `count` calls of `step`. By default at least one: steps that only warn stay in the
+        batch (`step.kept`: only the last step's report is returned, so only its warnings are
+        worded); a step that needs sub-steps ends it, and if it is the first it is taken
+        through `step` (which may raise SimulationError, having taken nothing). At most
+        `batch_limit` steps then: the compiled call writes every step's state, and a batch
+        larger than the cache (or than memory: World.step(100_000) on 100 bodies would be
+        3 GB) only costs. clean=True (sim_node's batches, bounded by their caller): stops
+        before the first step on which `step` would sub-step, warn or fail, which may be the
+        first (count 0)."""
+        if not clean:
+            n = min(n, self.batch_limit)
+            if n <= 1:
+                return self._one(state, control)
         out = np.empty((n, compiled.OUT_COLUMNS))
-        bdf2 = m.integrator == 'bdf2'
-        uniform = s.history_dt == m.dt
-        count = compiled.steps(self.data, s.q, s.v, s.q_prev, s.v_prev, s.warm_start,
-                             s.warm_start_prev, s.warm_start_prev2, s.joint_angle, c.torque_value,
-                             c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive, m.dt,
-                             bdf2 and uniform, bdf2, uniform, s.extrapolation_order(m.dt),
-                             self._may_split, int(n), self._clean_rotation, keep_rotation,
-                             self.work, qvw, aw, self._skipped, out)
-        return int(count), qvw, aw, out
+        count, qvw, aw = self._run(state, control, self._dt, int(n), self._may_split,
+                                   -1.0 if clean else self._keep_rotation, out)
+        if count == 0 and not clean:
+            return self._one(state, control)
+        return self._result(state, count, qvw, aw, out)
 
-    def _clean_result(self, s, count, qvw, aw, out) -> CleanSteps:
+    def _one(self, state, control) -> Steps:
+        new, report = self.step(state, control)
+        return Steps(1, new, report, [new.time], new.joint_angle[None], new.joint_velocity[None], new.q[None])
+
+    def _result(self, s, count, qvw, aw, out) -> Steps:
+        """The Steps of a compiled batch of `count` steps from s."""
         if count == 0:
-            return CleanSteps(0, s, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
+            return Steps(0, s, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
         h = self.model.dt
         # t + h, + h, ... as `step` accumulates it: numpy's accumulate adds in order (no
         # pairwise sum), the same bits as a Python loop at a sixth of its cost per step
@@ -560,8 +535,7 @@ class Solver:
                       step_count=s.step_count + count, history_dt=h, warm_start=w,
                       warm_start_prev=prev, warm_start_prev2=prev2)
         o = out[k]
-        report = StepReport(time=t, newton_iterations=int(o[compiled.OUT_NEWTON]),
-                            line_search_iterations=int(o[compiled.OUT_LINE_SEARCH]),
-                            max_joint_separation=float(o[compiled.OUT_SEPARATION]),
-                            max_step_rotation=max(0.0, float(o[compiled.OUT_ROTATION])))
-        return CleanSteps(count, state, report, times, aw[:count, 0], aw[:count, 1], qvw[:count, 0])
+        report = self._clean_report(o, t)
+        if report is None:          # (kept: it only warns)
+            report = self._kept_report(o, t, state.q)
+        return Steps(count, state, report, times, aw[:count, 0], aw[:count, 1], qvw[:count, 0])

@@ -897,22 +897,6 @@ def write_csv(path: Path, rows: list, columns: list) -> None:
     os.replace(tmp, path)
 
 
-def read_csv(path: str | Path) -> list[dict]:
-    """results.csv back as dicts (numbers as floats where they parse)."""
-    import csv
-    rows = []
-    with open(path, newline='') as f:
-        for row in csv.DictReader(f):
-            out = {}
-            for k, v in row.items():
-                try:
-                    out[k] = float(v) if v not in ('', 'ok') else v
-                except ValueError:
-                    out[k] = v
-            rows.append(out)
-    return rows
-
-
 def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f'{v:.4g}'

@@ -7,7 +7,7 @@ docs/speed.md.
 
 Columns are µs of CPU time per call, the fastest of 5 rounds. First table, Newton's parts:
 `solve` is assemble + solve minus assemble (the solve factors the assembled blocks in place);
-`step` is one whole compiled step (kernel `step.step`) called from Python. Second table, the step outside Newton (sections 1, 2
+`step` is one whole compiled step (kernel `step.steps`, n = 1) called from Python. Second table, the step outside Newton (sections 1, 2
 and 4 of solver/step.py): `forces` (gravity, torque axes, A⁻¹, M⁻¹F), `predict` (q̃),
 `pred_rot` (the predicted rotation), `velocity`, `angles` (θ, θ̇, unwrap), `separations`,
 `store` (q and warm start into the output), `finite` (one all_finite pass); `newton` the
@@ -120,12 +120,9 @@ def outside(w, n):
     """µs per call of each OUTSIDE part of World w's next step (BDF1, may split)."""
     sv, st, c = w.solver, w.state, w.control
     m, ws = sv.data, sv.work
-    qvw, aw = np.empty((3,) + st.q.shape), np.empty((2, w.model.joint_count))
-    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev,
-            st.warm_start_prev2, st.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
-            c.drive_enabled, c.drive_passive, w.dt, False, st.extrapolation_order(w.dt), True, ws,
-            qvw, aw, sv._skipped, sv._outcome)
-    kernel.step(*args)                               # leaves q̃ and the solved q in ws
+    qvw, aw = np.empty((1, 3) + st.q.shape), np.empty((1, 2, w.model.joint_count))
+    args = _one_step_args(w, qvw, aw)
+    kernel.steps(*args)                               # leaves q̃ and the solved q in ws
     q_tilde = ws.q_tilde.copy()
     # Newton's start in the step (BDF1: c = 1; the warm start extrapolated over three steps)
     assert st.extrapolation_order(w.dt) == 2
@@ -134,23 +131,33 @@ def outside(w, n):
     out = {}
     for i, name in enumerate(OUTSIDE[:9]):
         call = (i, m, ctx, st.q, st.v, st.q_prev, st.v_prev, start, c.torque_value, c.torque_enabled,
-                ws, qvw, aw, sv._skipped, w.dt)
+                ws, qvw[0], aw[0], sv._skipped, w.dt)
         out[name] = timed(lambda k, call=call: _outside(*call, k), n)
     out['step_c'] = timed(lambda k: _step_loop(k, *args), n)
-    out['dispatch'] = timed(lambda k: [kernel.step(*args) for _ in range(k)], n) - out['step_c']
+    out['dispatch'] = timed(lambda k: [kernel.steps(*args) for _ in range(k)], n) - out['step_c']
     out['outside'] = out['step_c'] - out['newton']
     return out
 
 
+def _one_step_args(w, qvw, aw):
+    """The arguments of `step.steps` for World w's next step alone (BDF1, may split, n = 1)."""
+    sv, st, c = w.solver, w.state, w.control
+    return (sv.data, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev,
+            st.warm_start_prev2, st.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
+            c.drive_enabled, c.drive_passive, w.dt, False, False, True, st.extrapolation_order(w.dt),
+            True, 1, 0.1, 1.0, sv.work, qvw, aw, sv._skipped, sv._outcomes)
+
+
 @njit
 def _step_loop(n, m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
-               torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
-               may_split, ws, new_qvw, new_angles, skipped, outcome):
+               torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
+               bdf2_next, uniform_first, order_first, may_split, steps, clean_rotation, keep_rotation,
+               ws, new_qvw, new_angles, skipped, outcome):
     for _ in range(n):
-        kernel.step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
-                    joint_angle, torque_value, torque_enabled, drive_aim, drive_enabled,
-                    drive_passive, h, bdf2, order, may_split, ws, new_qvw, new_angles, skipped,
-                    outcome)
+        kernel.steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2,
+                     joint_angle, torque_value, torque_enabled, drive_aim, drive_enabled,
+                     drive_passive, h, bdf2_first, bdf2_next, uniform_first, order_first, may_split,
+                     steps, clean_rotation, keep_rotation, ws, new_qvw, new_angles, skipped, outcome)
 
 
 def world(links):
@@ -178,12 +185,9 @@ def profile(links):
     for i, name in enumerate(PARTS[:-1]):
         out[name] = timed(lambda k, i=i: _run(i, m, ctx, q, ws, c.torque_value, c.torque_enabled,
                                               sv._skipped, k), n)
-    qvw, aw = np.empty((3,) + q.shape), np.empty((2, w.model.joint_count))
-    args = (m, st.q, st.v, st.q_prev, st.v_prev, st.warm_start, st.warm_start_prev,
-            st.warm_start_prev2, st.joint_angle, c.torque_value, c.torque_enabled, c.drive_aim,
-            c.drive_enabled, c.drive_passive, w.dt, False, st.extrapolation_order(w.dt), True, ws,
-            qvw, aw, sv._skipped, sv._outcome)
-    out['step'] = timed(lambda k: [kernel.step(*args) for _ in range(k)], n)
+    qvw, aw = np.empty((1, 3) + q.shape), np.empty((1, 2, w.model.joint_count))
+    args = _one_step_args(w, qvw, aw)
+    out['step'] = timed(lambda k: [kernel.steps(*args) for _ in range(k)], n)
     return out
 
 
