@@ -36,6 +36,21 @@ ERROR_TOLS = (0.005,)
 TIMES = {'wall_s', 'wall_per_sim_s', 'ms_per_step'}       # measured, not computed
 
 
+def _read_csv(path) -> list[dict]:
+    """results.csv back as dicts (numbers as floats where they parse)."""
+    rows = []
+    with open(path, newline='') as f:
+        for row in csv.DictReader(f):
+            out = {}
+            for k, v in row.items():
+                try:
+                    out[k] = float(v) if v not in ('', 'ok') else v
+                except ValueError:
+                    out[k] = v
+            rows.append(out)
+    return rows
+
+
 def _same(a, b):
     """Equal, NaN equal to NaN."""
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
@@ -163,7 +178,7 @@ def test_a_runner_spec_runs_listed_cases_and_a_failing_case_is_a_row(runner_modu
           - {{x: 0.5}}
         """)
     assert sweep.main([str(spec), '--out', str(tmp_path / 'o'), '--in-process', '-q']) == 1
-    rows = sweep.read_csv(tmp_path / 'o' / 'results.csv')
+    rows = _read_csv(tmp_path / 'o' / 'results.csv')
     with open(tmp_path / 'o' / 'results.csv') as f:
         header = f.readline().strip().split(',')
     assert header == ['case', 'x', 'status', 'message', 'square', 'label', 'wall_s']
@@ -175,7 +190,7 @@ def test_a_runner_spec_runs_listed_cases_and_a_failing_case_is_a_row(runner_modu
 def test_the_python_api_runs_a_spec_given_as_data(runner_module, tmp_path):
     data = {'runner': f'{runner_module}:run', 'grid': {'x': [1.0, 2.0]}}
     assert sweep.run_spec(data, tmp_path / 'o', in_process=True, quiet=True, name='api') == 0
-    assert [r['square'] for r in sweep.read_csv(tmp_path / 'o' / 'results.csv')] == [1.0, 4.0]
+    assert [r['square'] for r in _read_csv(tmp_path / 'o' / 'results.csv')] == [1.0, 4.0]
 
 
 @pytest.mark.parametrize('text,message', [
@@ -199,7 +214,7 @@ def test_a_bad_runner_spec_is_one_line(runner_module, tmp_path, capsys, text, me
 def test_a_runner_may_not_return_a_reserved_column(runner_module, tmp_path):
     spec = _write(tmp_path, f'runner: {runner_module}:wall\ncases: [{{x: 1}}]\n')
     assert sweep.main([str(spec), '--out', str(tmp_path / 'o'), '--in-process', '-q']) == 1
-    (row,) = sweep.read_csv(tmp_path / 'o' / 'results.csv')
+    (row,) = _read_csv(tmp_path / 'o' / 'results.csv')
     assert row['status'] == 'error' and "column 'wall_s'" in row['message']
 
 
