@@ -27,6 +27,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / 'bench'))
+sys.path.insert(0, str(REPO / 'bench' / 'lib'))
 
 from abd_joint_sim.tools import sweep  # noqa: E402
 
@@ -120,7 +121,7 @@ def mujoco_arm_rate(cases: int, duration: float, threads: int) -> dict | None:
         from mujoco import rollout
     except ImportError:
         return None
-    from peers import make_mujoco
+    from engines import make_mujoco
     model = make_mujoco(2, dt=1e-3)[0].data.model     # bench/peers.py's two-link chain
     nstep = int(round(duration / model.opt.timestep))
     control = np.zeros((cases, nstep, model.nu))
