@@ -312,7 +312,8 @@ def plots(rows, img_dir, prefix='', mj_rows=()):
                     ax.plot(r['wall_per_sim_s'], r['err_max'], 'o', mfc='none', mec='k', ms=11,
                             label='our Pareto front')
                 ax.set_xlabel('wall time per simulated second [s]')
-            ax.set_ylabel('max |theta - theta_ref| [rad]')
+            sliding = scene.startswith('slider')      # a prismatic joint: its distance d
+            ax.set_ylabel('max |d - d_ref| [m]' if sliding else 'max |theta - theta_ref| [rad]')
             ax.set_title(scene)
             ax.grid(True, which='both', alpha=0.3)
         # one legend for all panels, beside them: every entry once, none over the data
