@@ -72,6 +72,8 @@ def _env(**extra) -> dict:
     env['PYTHONPATH'] = os.pathsep.join(p for p in (str(REPO), env.get('PYTHONPATH')) if p)
     env['RAY_USAGE_STATS_ENABLED'] = '0'
     env['RAY_AUTH_MODE'] = 'disabled'       # a loopback-only test cluster: no token file
+    # a worker node joins only where Ray's cluster switch is on (its default on Linux)
+    env.pop('RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER', None)
     env['PYTHONUNBUFFERED'] = '1'
     env.update(extra)
     return env

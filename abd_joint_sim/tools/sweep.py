@@ -1005,11 +1005,15 @@ def run_spec(data: dict, out: str | Path, *, workers: Optional[int] = None,
                               max_cases=None, bags=False)
     argv = [name, '--out', str(out)] + (['--workers', str(workers)] if workers else []) + \
         (['--address', address] if address else []) + (['--in-process'] if in_process else [])
+    saved = dict(os.environ)                # Ray's switches set for the run, not the caller
     try:
         return _run(args, argv, lambda: spec_from_data(data, name, Path(here)))
     except SpecError as exc:
         print(f'{PROG}: error: {exc}', file=sys.stderr)
         return 2
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
 
 
 def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
