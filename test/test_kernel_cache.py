@@ -124,3 +124,20 @@ def test_a_truncated_cache_entry_is_discarded_and_compiled_again(tmp_path):
     assert str(files[0]) in out.stderr
     again = run({'ABD_KERNEL_CACHE': str(good)})
     assert again.returncode == 0 and again.stderr == '', 'compiled again and stored'
+
+
+def test_a_second_copy_of_the_package_does_not_lock_the_cache_twice(tmp_path):
+    """bench/ab.py imports another checkout's package beside this one: both install the
+    cache's save lock, and a second lock on the same file would wait for the first forever.
+    Installing again (as the second copy does) keeps one lock, and a save returns."""
+    code = ('from numba.core import caching; from abd_joint_sim.jit import cache; '
+            'cache.install(); cache._installed = False; cache.install(); '
+            f'f = caching.IndexDataCacheFile({str(tmp_path)!r}, "probe", ("stamp", 1)); '
+            'f.save(("key",), b"data"); print(f.load(("key",)))')
+    env = dict(os.environ, PYTHONPATH=str(REPO), ABD_KERNEL_CACHE=str(tmp_path / 'kc'))
+    try:
+        out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                             timeout=60, env=env, cwd=str(REPO))
+    except subprocess.TimeoutExpired:
+        raise AssertionError('a save waited on its own cache lock') from None
+    assert out.returncode == 0 and out.stdout.strip() == "b'data'", out.stderr[-2000:]

@@ -289,8 +289,13 @@ def install() -> None:
     # Two processes compiling at once (warmup's helper; two first runs) each read an index,
     # number a new data file and write the index back: unserialised, both could take the same
     # number and one's index name the other's machine code. An exclusive lock per cache
-    # directory around numba's read-number-write makes each save see the last.
+    # directory around numba's read-number-write makes each save see the last. Installed
+    # once per process: a second copy of this package in it (bench/ab.py's) finds the lock
+    # there already, and a second lock on the same file would wait for the first forever.
     index_save = caching.IndexDataCacheFile.save
+    if getattr(index_save, 'locks_cache_directory', False):
+        _installed = True
+        return
 
     def save_locked(self, key, data):
         import fcntl
@@ -302,6 +307,7 @@ def install() -> None:
             fcntl.flock(lock, fcntl.LOCK_EX)
             return index_save(self, key, data)
 
+    save_locked.locks_cache_directory = True
     caching.IndexDataCacheFile.save = save_locked
     _installed = True
 
