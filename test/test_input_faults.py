@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import re
 import time
 import warnings
 
@@ -98,10 +99,17 @@ def test_a_zero_width_limit_holds_the_joint_in_urdf_as_in_yaml(kind, at):
     position (a URDF says so in a warning); without the limit the same push moves it."""
     text = robot(link('root'), link('a'), kind('j0', 'root', 'a', LIMIT.replace(
         'lower="-1" upper="1"', f'lower="{at}" upper="{at}"').replace(' velocity="1"', '')))
-    with pytest.warns(UrdfWarning, match=r"lower == upper holds the joint at that position "
-                      rf".* on 1 joint\(s\): 'j0' \[{at:g}, {at:g}\]; `joints: "
-                      r"\{name: \{limit: false\}\}` frees it"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
         scene = Scene.from_urdf(text, gravity=[0, 0, 0])
+    said = [str(w.message) for w in caught]
+    held_line = (r"lower == upper holds the joint at that position .* on 1 joint\(s\): 'j0' "
+                 rf"\[{at:g}, {at:g}\]; `joints: \{{name: \{{limit: false\}}\}}` frees it")
+    # away from 0 the joint also starts where it is held, and says so
+    start_line = rf"'j0': position 0 is outside its limit \[{at:g}, {at:g}\]: it starts at {at:g}"
+    expected = [held_line] + ([start_line] if at else [])
+    assert len(said) == len(expected) and all(
+        any(re.search(e, m) for m in said) for e in expected), said
     lim = scene.joints[0].limit
     assert (lim.lower, lim.upper) == (at, at)
     held = abs(held_at(scene) - at)
