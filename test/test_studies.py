@@ -150,9 +150,9 @@ def _case(name):
 
 
 def test_large_rotation_sub_steps_and_says_so(stability_rows):
-    # formerly xfail (rotation lag): a torque whose step would turn the joint ~6 rad is now
-    # refused on the predicted rotation and sub-stepped, and the inaccuracy left at that dt
-    # is reported (fail-loud), never silent
+    # a torque whose step would turn the joint ~6 rad is refused on the predicted rotation
+    # and sub-stepped, and the inaccuracy left at that dt is reported (fail-loud), never
+    # silent
     by = {r['case']: r for r in stability_rows}
     for name in ('tau=1e5, dt=1e-2 (bdf1): rotation/step -> pi', 'tau=1e5, dt=1e-2 (bdf2): rotation/step -> pi',
                  'tau=1e7, dt=1e-2: beyond 2^4 sub-steps', 'tau=1e+06 N m'):
@@ -168,9 +168,9 @@ def test_large_rotation_sub_steps_and_says_so(stability_rows):
 
 
 def test_large_dt_converges_to_the_minimiser_and_warns():
-    # formerly xfail (Newton step-size stop): at dt = 0.1 the default tolerance gave 0.624 rad
-    # after 2 steps against the BDF1 answer 0.1210; now it is within velocity_tol*h (at the
-    # 0.6 m lever arm) of a tight solve, and the BDF1 damping of the fast rotation is reported
+    # at dt = 0.1 a loose tolerance stays within velocity_tol*h (at the 0.6 m lever arm) of a
+    # tight solve (BDF1 answer 0.1210 rad after 2 steps), and the BDF1 damping of the fast
+    # rotation is reported
     def run(tol, steps):
         w = ST.common.make_world(S.hinge_scene(0.1, tau=100.0, velocity_tol=tol))
         w.set_torque_enabled('hinge', True)
@@ -194,18 +194,17 @@ def test_large_dt_converges_to_the_minimiser_and_warns():
 
 
 def test_momentum_criterion_has_a_rounding_floor():
-    # an 8e8 kg parent: m v carries ~1e-5 kg m/s of rounding; formerly a silent "failure"
+    # an 8e8 kg parent: m v carries ~1e-5 kg m/s of rounding, which is not a failure
     r = ST.run_case(_case('m_parent/m_child=1e+08'))
     assert r['verdict'] == 'pass', r
-    r = ST.run_case(_case('m_parent/m_child=0.0001'))     # the light parent is now reported
+    r = ST.run_case(_case('m_parent/m_child=0.0001'))     # the light parent is reported
     assert r['verdict'] == 'fail-loud' and r['as_expected'], r
 
 
 def test_stiff_kappa_does_not_drift(stability_rows):
-    # formerly a strict xfail (NEWTON_DRIFT): at kappa >= 1e11 and the default velocity_tol the
-    # linear Newton step stretched the turning body, the line search crawled, and each step
-    # stopped biased; 50 steps gave 0.617 (1e11) / 1.383 rad (1e13) against the BDF1 answer
-    # 0.514. With the screw steps (solver/retraction.py) both follow the reference.
+    # at kappa >= 1e11 and the default velocity_tol a linear Newton step would stretch the
+    # turning body and stop biased; the screw steps (solver/retraction.py) keep both on the
+    # BDF1 answer 0.514 rad after 50 steps
     by = {r['case']: r for r in stability_rows}
     for name in ('kappa=1e+11 Pa', 'kappa=1e+13 Pa'):
         assert by[name]['verdict'] == 'pass' and by[name]['known'] == '-', by[name]
@@ -220,8 +219,8 @@ def test_stiff_kappa_does_not_drift(stability_rows):
 
 
 def test_bdf2_fast_rotation_is_reported(stability_rows):
-    # formerly xfail (BDF2_ROTATION): bdf2 damps rotation at 0.3-0.6 rad per step; World.step
-    # now reports it for bdf2 too (threshold 0.3 rad/step), so the cases fail loudly
+    # bdf2 damps rotation at 0.3-0.6 rad per step; World.step reports it (threshold
+    # 0.3 rad/step), so the cases fail loudly
     by = {r['case']: r for r in stability_rows}
     for name in ('tau=1e+06 N m (bdf2)', 'spin 60 rad/s, dt=1e-2 (bdf2): 0.6 rad/step'):
         assert by[name]['verdict'] == 'fail-loud' and by[name]['as_expected'], by[name]
