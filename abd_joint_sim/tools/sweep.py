@@ -3,21 +3,12 @@
     sweep SPEC.yaml --out DIR [--workers N] [--address auto|ray://host:10001] [--bags]
     sweep SPEC.yaml --out DIR --in-process        # serially in this process, no Ray
 
-A spec (docs/sweeps.md) names a base scene (packaged name, scene YAML or URDF), a duration,
-an optional command schedule (the ``run_headless`` format) and the axes, each a scene field
-named by a dotted path (``joints.elbow.external_torque.torque``, ``dt``): lists crossed as
-a grid, seeded random samples (uniform / normal / choice) and listed cases; or a
-``runner: module:function`` that runs a case in place of sim_node's loop. Every case is
-checked before anything runs: the first problem is one line naming the path and the case,
-exit status 2.
-
-Each case runs through sim_node's loop as ``run_headless`` runs it, records its bag with
-``--bags`` and gives one row (its axis values, final joint angles and velocities, energy
-drift, joint separation, Newton iterations, sub-steps, status and wall time). DIR gets
-``results.csv``, ``summary.md`` and ``figure.png``; ``rows.jsonl`` and ``sweep.json`` let a
-re-run of the same command resume.
-
-Exit status: 0 every case ran (faulted cases are results, not errors); 1 a case raised an
+The spec (docs/sweeps.md) names a base scene, a duration, an optional schedule and the axes
+(scene fields by dotted path): a grid, seeded random samples, listed cases; or a `runner:`
+in place of sim_node's loop. Every case is checked before anything runs. Each case runs
+through the loop as ``run_headless`` runs it and gives one row of ``DIR/results.csv``
+(also ``summary.md``, ``figure.png``; ``rows.jsonl`` and ``sweep.json`` let a re-run
+resume). Exit status: 0 every case ran (faulted cases are results); 1 a case raised an
 exception or lost its worker twice; 2 bad input; 130 interrupted (re-run to resume).
 """
 from __future__ import annotations
@@ -70,9 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='parallel workers (default: every core of this machine, or every '
                         'CPU of the cluster with --address)')
     p.add_argument('--address', metavar='ADDR',
-                   help="a running Ray cluster: 'auto' (started here with `ray start`), "
-                        "host:port or ray://host:10001; default: a Ray of its own on this "
-                        'machine')
+                   help="a running Ray cluster: 'auto' (started here with `ray start`), host:"
+                        'port or ray://host:10001; default: a Ray of its own on this machine')
     p.add_argument('--bags', action='store_true',
                    help='record each case\'s bag (as run_headless) in DIR/bags/CASE')
     p.add_argument('--in-process', action='store_true',
@@ -87,7 +77,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-# ------------------------------------------------------------------------- the spec ----
 @dataclass
 class Setup:
     """What every case shares: the base scene data, the schedule, the duration."""
@@ -168,11 +157,9 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
         if extra:
             raise _fail(f'{src}: {extra[0]}', 'a spec with a runner: builds its cases itself '
                                               f'(leave out {", ".join(RUNNER_EXCLUDES)})')
-        base, source, scene_path, plan, parameters, duration_ns = {}, src, '', None, {}, 0
+        setup = Setup({}, src, '', None, {}, 0, [], runner)
     else:
-        base, source, plan, parameters, duration_ns = _loop_setup(src, here, data)
-        scene_path = source
-    runner = runner or ''
+        setup = _loop_setup(src, here, data)
     grid = _grid(src, data.get('grid'))
     rnd = _random(src, data.get('random'))
     axes = list(grid) + list(rnd['axes'])
@@ -182,8 +169,9 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
         raise _fail(src, f'axis {dup[0]} is given twice')
     for values in listed:
         axes += [a for a in values if a not in axes]
+    setup.axes = axes
     bad = [a for a in axes if a in RESERVED_COLUMNS]
-    if runner and bad:
+    if setup.runner and bad:
         raise _fail(src, f'axis {bad[0]!r} is a result column of every sweep (reserved: '
                          f'{", ".join(RESERVED_COLUMNS)})')
     cap = max_cases if max_cases is not None else data.get('max_cases', DEFAULT_MAX_CASES)
@@ -198,7 +186,6 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
              for combo in itertools.product(*grid.values()) for sample in samples] \
         if crossed else []
     cases += listed
-    setup = Setup(base, source, scene_path, plan, parameters, duration_ns, axes, runner)
     for k, values in enumerate(cases):
         check_case(setup, k, values)
     plot = data.get('plot') or {}
@@ -208,20 +195,20 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
         if key in plot and plot[key] not in axes:
             raise _fail(f'{src}: plot.{key}', f'{plot[key]!r} is not an axis of the spec '
                                               f'(axes: {", ".join(axes) or "none"})')
-    if 'y' in plot and not runner and not (plot['y'] in FIXED_COLUMNS or str(plot['y']).startswith(
-            ('angle.', 'velocity.'))):
+    if 'y' in plot and not setup.runner and plot['y'] not in FIXED_COLUMNS \
+            and not str(plot['y']).startswith(('angle.', 'velocity.')):
         raise _fail(f'{src}: plot.y', f'{plot["y"]!r} is not a result column (angle.<joint>, '
                                       f'velocity.<joint>, {", ".join(FIXED_COLUMNS[2:])})')
     digest = hashlib.sha256(json.dumps(
-        {'base': base, 'source': source, 'duration_ns': duration_ns, 'parameters': parameters,
-         'plan': repr(plan.segments) if plan is not None else '', 'runner': runner,
-         'cases': cases}, sort_keys=True, default=repr).encode()
-    ).hexdigest()[:16]
+        {'base': setup.base, 'source': setup.source, 'duration_ns': setup.duration_ns,
+         'parameters': setup.parameters, 'runner': setup.runner, 'cases': cases,
+         'plan': repr(setup.plan.segments) if setup.plan is not None else ''},
+        sort_keys=True, default=repr).encode()).hexdigest()[:16]
     return Spec(setup, cases, digest, plot)
 
 
-def _loop_setup(src: str, here: Path, data: dict) -> tuple:
-    """(base scene data, its path, plan, parameters, duration_ns) of a spec without runner."""
+def _loop_setup(src: str, here: Path, data: dict) -> Setup:
+    """The Setup of a spec without a runner (but its axes)."""
     from abd_joint_sim.errors import SceneError
     from abd_joint_sim.ros.convert import seconds_to_ns
     from .schedule import MAX_TIME, parse_schedule
@@ -243,7 +230,7 @@ def _loop_setup(src: str, here: Path, data: dict) -> tuple:
     if plan is None:
         plan = parse_schedule({'events': []}, f'{src}: (no schedule)')
     plan.segments[-1].end_ns = duration_ns
-    return base, source, plan, parameters, duration_ns
+    return Setup(base, source, source, plan, parameters, duration_ns, [])
 
 
 def _listed(src: str, listed: Any, crossed_axes: list) -> list:
@@ -293,11 +280,10 @@ def _base_scene(here: Path, scene: Any, urdf_options: Any) -> tuple[dict, str]:
     scene_path = resolve_scene(scene)
     if not os.path.isfile(scene_path):
         raise SceneError(f'{scene_path}: no such file')
-    is_urdf = scene_path.lower().endswith('.urdf')
-    if urdf_options is not None and not is_urdf:
-        raise SceneError('urdf_options apply to a .urdf scene only (a scene YAML has a '
-                         'robot: block for that)')
-    if not is_urdf:
+    if not scene_path.lower().endswith('.urdf'):
+        if urdf_options is not None:
+            raise SceneError('urdf_options apply to a .urdf scene only (a scene YAML has a '
+                             'robot: block for that)')
         _, data = read_yaml_file(scene_path, SceneError, 'scene file')
         if not isinstance(data, dict):
             raise SceneError(f'{scene_path}: expected a scene mapping')
@@ -400,7 +386,6 @@ def _describe(index: int, values: dict) -> str:
     return f'case {index}' + (f' ({shown})' if shown else '')
 
 
-# ------------------------------------------------------------- scene of one case ----
 def _set_path(data: dict, path: str, value: Any) -> None:
     """data[path] = value: mapping keys by name, list items (bodies, joints) by their name.
     Missing mapping keys are created (the scene format decides whether they are allowed)."""
@@ -481,7 +466,6 @@ def check_case(setup: Setup, index: int, values: dict) -> None:
         raise SpecError(f'{_describe(index, values)}: {exc}') from None  # SceneError: ValueError
 
 
-# ------------------------------------------------------------------ one case -----
 @functools.lru_cache(maxsize=None)
 def _outputs():
     """The loop outputs of a case (defined on first use: they import the ROS messages)."""
@@ -621,16 +605,9 @@ def _loop_case(setup: Setup, job: Job, row: dict) -> str:
 def warm_kernels() -> None:
     """Load (or compile) the compiled step, and import what a case uses, once in this
     process: a short case of the packaged hinge scene runs through the loop."""
-    from abd_joint_sim.errors import SceneError
-    from abd_joint_sim.ros.params import resolve_scene
-    from abd_joint_sim.scene import read_yaml_file
-    from .schedule import parse_schedule
-    path = resolve_scene('hinge')
-    _, data = read_yaml_file(path, SceneError, 'scene file')
-    plan = parse_schedule({'duration': 0.05, 'events': [{'t': 0.0, 'torque': {'hinge': 1.0}}]},
-                          '<warm-up>')
-    row = run_case(Setup(data, path, path, plan, {}, plan.segments[-1].end_ns, []),
-                   Job(0, 'warm-up', {}))
+    spec = spec_from_data({'scene': 'hinge', 'duration': 0.05, 'schedule': {
+        'events': [{'t': 0.0, 'torque': {'hinge': 1.0}}]}}, '<warm-up>', Path('.'))
+    row = run_case(spec.setup, Job(0, 'warm-up', {}))
     if row['status'] != 'ok':
         raise RuntimeError(f'the warm-up case failed: {row["message"]}')
 
@@ -649,7 +626,6 @@ class CaseWorker:
         return run_case(self.setup, job)
 
 
-# ---------------------------------------------------------------------- engines -----
 def run_in_process(setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
     worker = CaseWorker(setup)
     for job in jobs:
@@ -677,8 +653,7 @@ class RayEngine:
                      include_dashboard=False, **kwargs)
         self.nodes = sum(1 for n in ray.nodes() if n.get('Alive'))
         self.setup: Optional[Setup] = None
-        self.setup_ref = None
-        self.actors: list = []
+        self.setup_ref, self.actors = None, []
         self.remote = ray.remote(num_cpus=1, max_restarts=0)(CaseWorker)
 
     def run(self, setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
@@ -733,7 +708,6 @@ class RayEngine:
             shutil.rmtree(self.own_temp, ignore_errors=True)
 
 
-# --------------------------------------------------------------------- progress -----
 class Progress:
     """Cases done / failed / ETA: a bar on a terminal, else a line per 10 %."""
 
@@ -772,7 +746,6 @@ class Progress:
             self.stream.flush()
 
 
-# ---------------------------------------------------------------------- results -----
 FIXED_COLUMNS = ('status', 'message', 'sim_time', 'steps', 'energy_drift',
                  'max_joint_separation', 'newton_mean', 'newton_max', 'substep_steps',
                  'substeps_max', 'not_converged', 'wall_s')
@@ -873,8 +846,7 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
     for r in ok:
         groups.setdefault(r.get(series) if series else None, []).append(r)
     for key, members in sorted(groups.items(), key=lambda kv: str(kv[0])):
-        members = sorted(members, key=lambda r: float(r.get(x, 0.0))
-                         if isinstance(r.get(x), (int, float)) else 0.0)
+        members = sorted(members, key=lambda r: float(r[x]))     # (x is numeric in each)
         label = f'{series} = {key:.4g}' if isinstance(key, float) else (
             f'{series} = {key}' if series else None)
         xs = [r.get(x) for r in members]
@@ -890,7 +862,6 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
     return path.name
 
 
-# -------------------------------------------------------------------------- main -----
 def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = cli.own_args(argv)
     return cli.run(PROG, build_parser(), lambda args: _run(args, argv), argv)
@@ -983,10 +954,8 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
     wall0 = time.monotonic()
     interrupted = False
     try:
-        if jobs and engine is None:
-            run_in_process(spec.setup, jobs, on_row)
-        elif jobs:
-            engine.run(spec.setup, jobs, on_row)
+        if jobs:
+            (engine.run if engine else run_in_process)(spec.setup, jobs, on_row)
     except KeyboardInterrupt:
         interrupted = True
     finally:
