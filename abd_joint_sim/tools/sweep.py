@@ -211,26 +211,33 @@ def _loop_setup(src: str, here: Path, data: dict) -> Setup:
     """The Setup of a spec without a runner (but its axes)."""
     from abd_joint_sim.errors import SceneError
     from abd_joint_sim.ros.convert import seconds_to_ns
-    from .schedule import MAX_TIME, parse_schedule
+    from abd_joint_sim.scene import read_yaml_file
+    from .schedule import MAX_SCHEDULE_BYTES, MAX_TIME, parse_schedule, ScheduleError
     try:
         base, source = _base_scene(here, data.get('scene', 'default'), data.get('urdf_options'))
     except SceneError as exc:
         raise _fail(f'{src}: scene', str(exc)) from None
-    plan, parameters = _schedule(src, here, data.get('schedule'))
+    schedule, where = data.get('schedule'), f'{src}: schedule'
+    try:
+        if schedule is None:
+            schedule, where = {'events': []}, f'{src}: (no schedule)'
+        elif isinstance(schedule, str):         # a file, read as schedule.load_schedule reads it
+            where = str(here / os.path.expanduser(schedule))
+            _, schedule = read_yaml_file(where, ScheduleError, 'schedule',
+                                         max_bytes=MAX_SCHEDULE_BYTES)
+        plan = parse_schedule(schedule, where)
+    except ScheduleError as exc:
+        raise SpecError(str(exc)) from None
     duration = data.get('duration')
-    if duration is None:
-        if plan is None or not plan.duration_given:
-            raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
-        duration_ns = plan.segments[-1].end_ns
-    else:
+    given = isinstance(schedule, dict) and schedule.get('duration') is not None
+    if duration is None and not given:             # (the schedule's duration is the default)
+        raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
+    if duration is not None:
         duration = _finite(f'{src}: duration', duration)
         if not 0.0 < duration <= MAX_TIME:
             raise _fail(f'{src}: duration', f'{duration:g} must be > 0 and at most {MAX_TIME:g} s')
-        duration_ns = seconds_to_ns(duration)
-    if plan is None:
-        plan = parse_schedule({'events': []}, f'{src}: (no schedule)')
-    plan.segments[-1].end_ns = duration_ns
-    return Setup(base, source, source, plan, parameters, duration_ns, [])
+        plan.segments[-1].end_ns = seconds_to_ns(duration)
+    return Setup(base, source, source, plan, dict(plan.parameters), plan.segments[-1].end_ns, [])
 
 
 def _listed(src: str, listed: Any, crossed_axes: list) -> list:
@@ -301,18 +308,6 @@ def _base_scene(here: Path, scene: Any, urdf_options: Any) -> tuple[dict, str]:
     data['robot'] = {'urdf': scene_path,
                      **{k: v for k, v in options.items() if k in urdf.ROBOT_OPTIONS}}
     return data, scene_path
-
-
-def _schedule(src: str, here: Path, value: Any):
-    from .schedule import load_schedule, parse_schedule, ScheduleError
-    if value is None:
-        return None, {}
-    try:
-        plan = load_schedule(here / os.path.expanduser(value)) if isinstance(value, str) \
-            else parse_schedule(value, f'{src}: schedule')
-    except ScheduleError as exc:
-        raise SpecError(str(exc)) from None
-    return plan, dict(plan.parameters)
 
 
 def _grid(src: str, grid: Any) -> dict:
