@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import copy
 from dataclasses import dataclass, field
-import functools
 import hashlib
 import itertools
 import json
@@ -461,9 +460,9 @@ def check_case(setup: Setup, index: int, values: dict) -> None:
         raise SpecError(f'{_describe(index, values)}: {exc}') from None  # SceneError: ValueError
 
 
-@functools.lru_cache(maxsize=None)
 def _outputs():
-    """The loop outputs of a case (defined on first use: they import the ROS messages)."""
+    """The loop outputs of a case (defined when used: they import the ROS messages; a
+    module-level cache would not travel to a Ray worker when this module is __main__)."""
     from abd_joint_sim.ros.loop import LoopOutput
     from .sim import BagRecorder
 
