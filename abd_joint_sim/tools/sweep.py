@@ -457,12 +457,12 @@ def check_case(setup: Setup, index: int, values: dict) -> None:
                                driven=[j.name for j in scene.joints if j.driving is not None])
         check_plan(setup.plan, actuated, buffer.order, buffer)
     except ((ValueError, KeyError, TypeError) if setup.runner else ValueError) as exc:
-        raise SpecError(f'{_describe(index, values)}: {exc}') from None  # SceneError: ValueError
+        raise SpecError(f'{_describe(index, values)}: {exc}') from None   # (SceneError too)
 
 
 def _outputs():
-    """The loop outputs of a case (defined when used: they import the ROS messages; a
-    module-level cache would not travel to a Ray worker when this module is __main__)."""
+    """The loop outputs of a case, defined when used (they import the ROS messages; not
+    lru_cache'd: that would not reach a Ray worker when this module runs as __main__)."""
     from abd_joint_sim.ros.loop import LoopOutput
     from .sim import BagRecorder
 
