@@ -404,6 +404,23 @@ def test_the_cap_is_configurable(tmp_path, capsys):
     assert len(_rows(tmp_path / 'b')) == 3
 
 
+def test_the_duration_defaults_to_the_schedules(tmp_path, capsys):
+    """No `duration:` in the spec: the schedule's `duration` (inline or a file) is the
+    case's; a schedule without one is one line naming the missing duration."""
+    schedule = "{duration: 0.03, events: [{t: 0.0, torque: {hinge: 1.0}}]}"
+    _write(tmp_path, 'cmds.yaml', schedule + '\n')
+    for name, value in (('inline', schedule), ('file', 'cmds.yaml')):
+        spec = _write(tmp_path, f'{name}.yaml', f'scene: hinge\nschedule: {value}\n'
+                                                'grid: {dt: [0.01]}\n')
+        assert sweep.main([str(spec), '--out', str(tmp_path / name), '--in-process', '-q']) == 0
+        (row,) = _rows(tmp_path / name)
+        assert row['status'] == 'ok' and float(row['sim_time']) == pytest.approx(0.03)
+    spec = _write(tmp_path, 'none.yaml', 'scene: hinge\nschedule: {events: []}\n')
+    assert sweep.main([str(spec), '--out', str(tmp_path / 'none'), '--in-process']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'duration: missing' in err[0], err
+
+
 def test_urdf_scene_paths_robot_options_and_joints(tmp_path):
     """A URDF base scene: `robot.initial_positions.<joint>` (a URDF option) and
     `joints.<joint>.external_torque.torque` (the lowered scene) both reach the run."""

@@ -3,38 +3,12 @@
     sweep SPEC.yaml --out DIR [--workers N] [--address auto|ray://host:10001] [--bags]
     sweep SPEC.yaml --out DIR --in-process        # serially in this process, no Ray
 
-A spec names a base scene (packaged name, scene YAML or URDF with its options), a duration,
-an optional command schedule (the ``run_headless`` format, docs/replay.md) and the axes:
-lists crossed as a grid, and seeded random samples (uniform / normal / choice), each over a
-scene field named by a dotted path (``joints.elbow.external_torque.torque``,
-``bodies.forearm.density``, ``dt``, ``integrator``, ``robot.initial_positions.<joint>``):
-
-.. code-block:: yaml
-
-    scene: default            # packaged name, scene YAML or URDF (paths relative to the spec)
-    duration: 0.5             # simulated seconds per case
-    schedule: cmds.yaml       # optional (or the schedule inline, as a mapping)
-    grid:                     # crossed: 2 x 2 = 4 combinations
-      dt: [0.002, 0.001]
-      joints.shoulder.external_torque.torque: [0.5, 2.0]
-    random:                   # n seeded samples, crossed with the grid: 4 x 3 = 12 cases
-      n: 3
-      seed: 11
-      uniform: {bodies.forearm.density: [800.0, 1500.0]}
-
-Every case is checked before anything runs (the path exists, the scene format accepts the
-value, the URDF loads, the schedule's joints are the scene's, at most ``max_cases`` cases);
-the first problem is one line on stderr naming the path and the case, exit status 2.
-
-Each case runs through sim_node's loop exactly as ``run_headless`` runs it (ros/loop.py via
-tools/sim.py: commands, timeouts, faults), records its bag with ``--bags`` and gives one
-row: its axis values, final joint angles and velocities, the change of mechanical energy,
-the largest joint separation, Newton iterations (mean, max), sub-steps, status (ok, fault,
-error, died) with its message, and its wall time. DIR gets ``results.csv`` (rows in case
-order), ``summary.md`` and ``figure.png``; ``rows.jsonl`` and ``sweep.json`` let a re-run
-of the same command resume (finished cases are skipped). See docs/sweeps.md.
-
-Exit status: 0 every case ran (faulted cases are results, not errors); 1 a case raised an
+The spec (docs/sweeps.md) names a base scene, a duration, an optional schedule and the axes
+(scene fields by dotted path): a grid, seeded random samples, listed cases; or a `runner:`
+in place of sim_node's loop. Every case is checked before anything runs. Each case runs
+through the loop as ``run_headless`` runs it and gives one row of ``DIR/results.csv``
+(also ``summary.md``, ``figure.png``; ``rows.jsonl`` and ``sweep.json`` let a re-run
+resume). Exit status: 0 every case ran (faulted cases are results); 1 a case raised an
 exception or lost its worker twice; 2 bad input; 130 interrupted (re-run to resume).
 """
 from __future__ import annotations
@@ -57,11 +31,9 @@ from abd_joint_sim.tools import cli
 
 PROG = 'sweep'
 DEFAULT_MAX_CASES = 10_000
-"""Most cases a spec may ask for unless it (or --max-cases) raises the cap."""
 SPEC_KEYS = ('scene', 'urdf_options', 'duration', 'schedule', 'grid', 'random', 'cases',
              'runner', 'max_cases', 'plot')
-RUNNER_EXCLUDES = ('scene', 'urdf_options', 'duration', 'schedule')
-"""Keys of a loop case that a spec with a `runner:` does not take (the runner builds its case)."""
+RUNNER_EXCLUDES = ('scene', 'urdf_options', 'duration', 'schedule')   # a runner builds these
 RESERVED_COLUMNS = ('case', 'status', 'message', 'wall_s')
 RANDOM_KINDS = ('uniform', 'normal', 'choice')
 STATUSES = ('ok', 'fault', 'error', 'died')
@@ -71,7 +43,7 @@ ATTACHMENT_TIME_NS = 0
 """The bags' attachment time: fixed, so a case's bag is the same bytes on every worker."""
 
 
-class SpecError(Exception):
+class SpecError(cli.InputError):
     """A spec that cannot run; one line."""
 
 
@@ -88,9 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='parallel workers (default: every core of this machine, or every '
                         'CPU of the cluster with --address)')
     p.add_argument('--address', metavar='ADDR',
-                   help="a running Ray cluster: 'auto' (started here with `ray start`), "
-                        "host:port or ray://host:10001; default: a Ray of its own on this "
-                        'machine')
+                   help="a running Ray cluster: 'auto' (started here with `ray start`), host:"
+                        'port or ray://host:10001; default: a Ray of its own on this machine')
     p.add_argument('--bags', action='store_true',
                    help='record each case\'s bag (as run_headless) in DIR/bags/CASE')
     p.add_argument('--in-process', action='store_true',
@@ -105,7 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-# ------------------------------------------------------------------------- the spec ----
 @dataclass
 class Setup:
     """What every case shares: the base scene data, the schedule, the duration."""
@@ -149,6 +119,12 @@ def _finite(where: str, value: Any) -> float:
     return float(value)
 
 
+def _integer(where: str, value: Any, low: int, expected: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise _fail(where, f'{expected}, got {value!r}')
+    return value
+
+
 def _check_path(where: str, path: Any) -> str:
     if not isinstance(path, str) or not path or any(not s for s in path.split('.')):
         raise _fail(where, f'{path!r} is not a dotted path into the scene '
@@ -167,7 +143,6 @@ def load_spec(path: str | Path, max_cases: Optional[int] = None) -> Spec:
 def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = None) -> Spec:
     """Expand and check a spec given as data (what the YAML holds): `src` names it in
     messages, `here` is where its relative paths start. SpecError (one line) on a problem."""
-    from abd_joint_sim.errors import SceneError
     if not isinstance(data, dict):
         raise _fail(src, 'expected a mapping with scene, duration, grid and/or random '
                          '(docs/sweeps.md)')
@@ -181,48 +156,25 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
         if extra:
             raise _fail(f'{src}: {extra[0]}', 'a spec with a runner: builds its cases itself '
                                               f'(leave out {", ".join(RUNNER_EXCLUDES)})')
-        base, source, scene_path, plan, parameters, duration_ns = {}, src, '', None, {}, 0
+        setup = Setup({}, src, '', None, {}, 0, [], runner)
     else:
-        try:
-            base, source, scene_path = _base_scene(src, here, data.get('scene', 'default'),
-                                                   data.get('urdf_options'))
-        except SceneError as exc:
-            raise _fail(f'{src}: scene', str(exc)) from None
-        plan, parameters = _schedule(src, here, data.get('schedule'))
-        duration = data.get('duration')
-        if duration is None:
-            if plan is None or not plan.duration_given:
-                raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
-            duration_ns = plan.segments[-1].end_ns
-        else:
-            from .schedule import MAX_TIME
-            from abd_joint_sim.ros.convert import seconds_to_ns
-            duration = _finite(f'{src}: duration', duration)
-            if not 0.0 < duration <= MAX_TIME:
-                raise _fail(f'{src}: duration', f'{duration:g} must be > 0 and at most {MAX_TIME:g} s')
-            duration_ns = seconds_to_ns(duration)
-        if plan is None:
-            from .schedule import parse_schedule
-            plan = parse_schedule({'events': []}, f'{src}: (no schedule)')
-        plan.segments[-1].end_ns = duration_ns
-
+        setup = _loop_setup(src, here, data)
     grid = _grid(src, data.get('grid'))
     rnd = _random(src, data.get('random'))
-    listed = _listed(src, data.get('cases'), list(grid) + list(rnd['axes']))
     axes = list(grid) + list(rnd['axes'])
+    listed = _listed(src, data.get('cases'), axes)
     dup = [a for a in axes if axes.count(a) > 1]
     if dup:
         raise _fail(src, f'axis {dup[0]} is given twice')
     for values in listed:
         axes += [a for a in values if a not in axes]
-    if runner is not None:
-        bad = [a for a in axes if a in RESERVED_COLUMNS]
-        if bad:
-            raise _fail(src, f'axis {bad[0]!r} is a result column of every sweep (reserved: '
-                             f'{", ".join(RESERVED_COLUMNS)})')
+    setup.axes = axes
+    bad = [a for a in axes if a in RESERVED_COLUMNS]
+    if setup.runner and bad:
+        raise _fail(src, f'axis {bad[0]!r} is a result column of every sweep (reserved: '
+                         f'{", ".join(RESERVED_COLUMNS)})')
     cap = max_cases if max_cases is not None else data.get('max_cases', DEFAULT_MAX_CASES)
-    if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
-        raise _fail(f'{src}: max_cases', f'expected an integer >= 1, got {cap!r}')
+    _integer(f'{src}: max_cases', cap, 1, 'expected an integer >= 1')
     crossed = grid or data.get('random') is not None or not listed
     count = (math.prod(len(v) for v in grid.values()) * rnd['n'] if crossed else 0) + len(listed)
     if count > cap:
@@ -233,8 +185,6 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
              for combo in itertools.product(*grid.values()) for sample in samples] \
         if crossed else []
     cases += listed
-    setup = Setup(base, source, scene_path, plan, parameters, duration_ns, axes,
-                  runner or '')
     for k, values in enumerate(cases):
         check_case(setup, k, values)
     plot = data.get('plot') or {}
@@ -244,16 +194,49 @@ def spec_from_data(data: Any, src: str, here: Path, max_cases: Optional[int] = N
         if key in plot and plot[key] not in axes:
             raise _fail(f'{src}: plot.{key}', f'{plot[key]!r} is not an axis of the spec '
                                               f'(axes: {", ".join(axes) or "none"})')
-    if 'y' in plot and not runner and not (plot['y'] in FIXED_COLUMNS or str(plot['y']).startswith(
-            ('angle.', 'velocity.'))):
+    if 'y' in plot and not setup.runner and plot['y'] not in FIXED_COLUMNS \
+            and not str(plot['y']).startswith(('angle.', 'velocity.')):
         raise _fail(f'{src}: plot.y', f'{plot["y"]!r} is not a result column (angle.<joint>, '
                                       f'velocity.<joint>, {", ".join(FIXED_COLUMNS[2:])})')
     digest = hashlib.sha256(json.dumps(
-        {'base': base, 'source': source, 'duration_ns': duration_ns, 'parameters': parameters,
-         'plan': repr(plan.segments) if plan is not None else '', 'runner': runner or '',
-         'cases': cases}, sort_keys=True, default=repr).encode()
-    ).hexdigest()[:16]
+        {'base': setup.base, 'source': setup.source, 'duration_ns': setup.duration_ns,
+         'parameters': setup.parameters, 'runner': setup.runner, 'cases': cases,
+         'plan': repr(setup.plan.segments) if setup.plan is not None else ''},
+        sort_keys=True, default=repr).encode()).hexdigest()[:16]
     return Spec(setup, cases, digest, plot)
+
+
+def _loop_setup(src: str, here: Path, data: dict) -> Setup:
+    """The Setup of a spec without a runner (but its axes)."""
+    from abd_joint_sim.errors import SceneError
+    from abd_joint_sim.ros.convert import seconds_to_ns
+    from abd_joint_sim.scene import read_yaml_file
+    from .schedule import MAX_SCHEDULE_BYTES, MAX_TIME, parse_schedule, ScheduleError
+    try:
+        base, source = _base_scene(here, data.get('scene', 'default'), data.get('urdf_options'))
+    except SceneError as exc:
+        raise _fail(f'{src}: scene', str(exc)) from None
+    schedule, where = data.get('schedule'), f'{src}: schedule'
+    try:
+        if schedule is None:
+            schedule, where = {'events': []}, f'{src}: (no schedule)'
+        elif isinstance(schedule, str):         # a file, read as schedule.load_schedule reads it
+            where = str(here / os.path.expanduser(schedule))
+            _, schedule = read_yaml_file(where, ScheduleError, 'schedule',
+                                         max_bytes=MAX_SCHEDULE_BYTES)
+        plan = parse_schedule(schedule, where)
+    except ScheduleError as exc:
+        raise SpecError(str(exc)) from None
+    duration = data.get('duration')
+    given = isinstance(schedule, dict) and schedule.get('duration') is not None
+    if duration is None and not given:             # (the schedule's duration is the default)
+        raise _fail(f'{src}: duration', 'missing (simulated seconds per case)')
+    if duration is not None:
+        duration = _finite(f'{src}: duration', duration)
+        if not 0.0 < duration <= MAX_TIME:
+            raise _fail(f'{src}: duration', f'{duration:g} must be > 0 and at most {MAX_TIME:g} s')
+        plan.segments[-1].end_ns = seconds_to_ns(duration)
+    return Setup(base, source, source, plan, dict(plan.parameters), plan.segments[-1].end_ns, [])
 
 
 def _listed(src: str, listed: Any, crossed_axes: list) -> list:
@@ -263,7 +246,6 @@ def _listed(src: str, listed: Any, crossed_axes: list) -> list:
     where = f'{src}: cases'
     if not isinstance(listed, list) or not listed:
         raise _fail(where, f'expected a non-empty list of {{axis: value}}, got {listed!r}')
-    out = []
     for k, values in enumerate(listed):
         if not isinstance(values, dict) or not values:
             raise _fail(f'{where}[{k}]', f'expected a mapping {{axis: value}}, got {values!r}')
@@ -272,8 +254,7 @@ def _listed(src: str, listed: Any, crossed_axes: list) -> list:
         if crossed_axes and set(values) != set(crossed_axes):
             raise _fail(f'{where}[{k}]', f'names {", ".join(sorted(values))}; beside grid/random '
                                          f'a listed case names their axes ({", ".join(crossed_axes)})')
-        out.append(dict(values))
-    return out
+    return [dict(values) for values in listed]
 
 
 def _load_runner(where: str, runner: Any) -> Callable:
@@ -291,12 +272,12 @@ def _load_runner(where: str, runner: Any) -> Callable:
     return fn
 
 
-def _base_scene(src: str, here: Path, scene: Any, urdf_options: Any) -> tuple[dict, str, str]:
-    """(scene data, its source path, the scene path a bag stores) of the spec's `scene`."""
+def _base_scene(here: Path, scene: Any, urdf_options: Any) -> tuple[dict, str]:
+    """(scene data, its path) of the spec's `scene`; SceneError on a problem."""
     from abd_joint_sim import urdf
+    from abd_joint_sim.errors import SceneError
     from abd_joint_sim.ros.params import resolve_scene
     from abd_joint_sim.scene import read_yaml_file
-    from abd_joint_sim.errors import SceneError
     if not isinstance(scene, str) or not scene.strip():
         raise SceneError('expected a packaged scene name or the path of a .yaml or .urdf file, '
                          f'got {scene!r}')
@@ -305,42 +286,27 @@ def _base_scene(src: str, here: Path, scene: Any, urdf_options: Any) -> tuple[di
     scene_path = resolve_scene(scene)
     if not os.path.isfile(scene_path):
         raise SceneError(f'{scene_path}: no such file')
-    if urdf_options is not None and not scene_path.lower().endswith('.urdf'):
-        raise SceneError('urdf_options apply to a .urdf scene only (a scene YAML has a '
-                         'robot: block for that)')
-    if scene_path.lower().endswith('.urdf'):
-        options = urdf_options or {}
-        if not isinstance(options, dict):
-            raise SceneError(f'urdf_options: expected a mapping, got {options!r}')
-        allowed = urdf.ROBOT_OPTIONS + urdf.SCENE_OPTIONS
-        bad = [k for k in options if k not in allowed]
-        if bad:
-            raise SceneError(f'urdf_options.{bad[0]}: unknown option (allowed: '
-                             f'{", ".join(allowed)})')
-        data = {k: v for k, v in options.items() if k in urdf.SCENE_OPTIONS}
-        data.setdefault('dt', urdf.DEFAULT_DT)
-        data.setdefault('gravity', list(urdf.DEFAULT_GRAVITY))
-        data['robot'] = {'urdf': scene_path,
-                         **{k: v for k, v in options.items() if k in urdf.ROBOT_OPTIONS}}
-        return data, scene_path, scene_path
-    _, data = read_yaml_file(scene_path, SceneError, 'scene file')
-    if not isinstance(data, dict):
-        raise SceneError(f'{scene_path}: expected a scene mapping')
-    return data, scene_path, scene_path
-
-
-def _schedule(src: str, here: Path, value: Any):
-    from .schedule import load_schedule, parse_schedule, ScheduleError
-    if value is None:
-        return None, {}
-    try:
-        if isinstance(value, str):
-            plan = load_schedule(here / os.path.expanduser(value))
-        else:
-            plan = parse_schedule(value, f'{src}: schedule')
-    except ScheduleError as exc:
-        raise SpecError(str(exc)) from None
-    return plan, dict(plan.parameters)
+    if not scene_path.lower().endswith('.urdf'):
+        if urdf_options is not None:
+            raise SceneError('urdf_options apply to a .urdf scene only (a scene YAML has a '
+                             'robot: block for that)')
+        _, data = read_yaml_file(scene_path, SceneError, 'scene file')
+        if not isinstance(data, dict):
+            raise SceneError(f'{scene_path}: expected a scene mapping')
+        return data, scene_path
+    options = urdf_options or {}
+    if not isinstance(options, dict):
+        raise SceneError(f'urdf_options: expected a mapping, got {options!r}')
+    allowed = urdf.ROBOT_OPTIONS + urdf.SCENE_OPTIONS
+    bad = [k for k in options if k not in allowed]
+    if bad:
+        raise SceneError(f'urdf_options.{bad[0]}: unknown option (allowed: {", ".join(allowed)})')
+    data = {k: v for k, v in options.items() if k in urdf.SCENE_OPTIONS}
+    data.setdefault('dt', urdf.DEFAULT_DT)
+    data.setdefault('gravity', list(urdf.DEFAULT_GRAVITY))
+    data['robot'] = {'urdf': scene_path,
+                     **{k: v for k, v in options.items() if k in urdf.ROBOT_OPTIONS}}
+    return data, scene_path
 
 
 def _grid(src: str, grid: Any) -> dict:
@@ -348,15 +314,13 @@ def _grid(src: str, grid: Any) -> dict:
         return {}
     if not isinstance(grid, dict):
         raise _fail(f'{src}: grid', f'expected {{path: [values]}}, got {grid!r}')
-    out = {}
     for path, values in grid.items():
         _check_path(f'{src}: grid', path)
         if not isinstance(values, list):
             raise _fail(f'{src}: grid.{path}', f'expected a list of values, got {values!r}')
         if not values:
             raise _fail(f'{src}: grid.{path}', 'empty list: an axis needs at least one value')
-        out[path] = values
-    return out
+    return dict(grid)
 
 
 def _random(src: str, rnd: Any) -> dict:
@@ -368,35 +332,29 @@ def _random(src: str, rnd: Any) -> dict:
     bad = [k for k in rnd if k not in ('n', 'seed') + RANDOM_KINDS]
     if bad:
         raise _fail(f'{where}.{bad[0]}', f'unknown key (allowed: n, seed, {", ".join(RANDOM_KINDS)})')
-    n, seed = rnd.get('n'), rnd.get('seed')
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise _fail(f'{where}.n', f'expected the number of samples, an integer >= 1, got {n!r}')
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise _fail(f'{where}.seed', f'expected an integer >= 0 (samples are seeded), got {seed!r}')
+    n = _integer(f'{where}.n', rnd.get('n'), 1, 'expected the number of samples, an integer >= 1')
+    seed = _integer(f'{where}.seed', rnd.get('seed'), 0,
+                    'expected an integer >= 0 (samples are seeded)')
     axes: dict = {}
-    for kind in RANDOM_KINDS:
-        block = rnd.get(kind)
-        if block is None:
-            continue
+    for kind in (k for k in RANDOM_KINDS if rnd.get(k) is not None):
+        block = rnd[kind]
         if not isinstance(block, dict) or not block:
             raise _fail(f'{where}.{kind}', f'expected {{path: ...}}, got {block!r}')
         for path, arg in block.items():
             w = f'{where}.{kind}.{_check_path(f"{where}.{kind}", path)}'
             if path in axes:
                 raise _fail(w, 'axis given twice')
-            if kind == 'choice':
-                if not isinstance(arg, list) or not arg:
-                    raise _fail(w, f'expected a non-empty list of values, got {arg!r}')
-            else:
+            if kind == 'choice' and (not isinstance(arg, list) or not arg):
+                raise _fail(w, f'expected a non-empty list of values, got {arg!r}')
+            if kind != 'choice':
                 if not isinstance(arg, list) or len(arg) != 2:
                     want = '[low, high]' if kind == 'uniform' else '[mean, std]'
                     raise _fail(w, f'expected {want}, got {arg!r}')
-                a, b = (_finite(w, v) for v in arg)
-                if kind == 'uniform' and not a <= b:
-                    raise _fail(w, f'low {a:g} is above high {b:g}')
-                if kind == 'normal' and b < 0.0:
-                    raise _fail(w, f'std {b:g} is negative')
-                arg = [a, b]
+                arg = [_finite(w, v) for v in arg]
+                if kind == 'uniform' and not arg[0] <= arg[1]:
+                    raise _fail(w, f'low {arg[0]:g} is above high {arg[1]:g}')
+                if kind == 'normal' and arg[1] < 0.0:
+                    raise _fail(w, f'std {arg[1]:g} is negative')
             axes[path] = (kind, arg)
     if not axes:
         raise _fail(where, 'no axis: give uniform, normal or choice')
@@ -406,19 +364,11 @@ def _random(src: str, rnd: Any) -> dict:
 def _samples(rnd: dict) -> list[dict]:
     """n samples {path: value}: one seeded generator, axes drawn in spec order, n at a time."""
     import numpy as np
-    n = rnd['n']
-    if not rnd['axes']:
-        return [{}] * n
-    gen = np.random.default_rng(rnd['seed'])
-    columns = {}
-    for path, (kind, arg) in rnd['axes'].items():
-        if kind == 'uniform':
-            columns[path] = [float(x) for x in gen.uniform(arg[0], arg[1], n)]
-        elif kind == 'normal':
-            columns[path] = [float(x) for x in gen.normal(arg[0], arg[1], n)]
-        else:
-            columns[path] = [arg[int(k)] for k in gen.integers(0, len(arg), n)]
-    return [{p: columns[p][i] for p in columns} for i in range(n)]
+    n, gen = rnd['n'], np.random.default_rng(rnd['seed'])
+    columns = {path: [arg[int(k)] for k in gen.integers(0, len(arg), n)] if kind == 'choice'
+               else [float(x) for x in getattr(gen, kind)(arg[0], arg[1], n)]
+               for path, (kind, arg) in rnd['axes'].items()}
+    return [{p: c[i] for p, c in columns.items()} for i in range(n)]
 
 
 def case_name(index: int, total: int) -> str:
@@ -430,7 +380,6 @@ def _describe(index: int, values: dict) -> str:
     return f'case {index}' + (f' ({shown})' if shown else '')
 
 
-# ------------------------------------------------------------- scene of one case ----
 def _set_path(data: dict, path: str, value: Any) -> None:
     """data[path] = value: mapping keys by name, list items (bodies, joints) by their name.
     Missing mapping keys are created (the scene format decides whether they are allowed)."""
@@ -460,73 +409,60 @@ def _set_path(data: dict, path: str, value: Any) -> None:
                              f'({cur!r}), not a mapping or list')
 
 
+_TOP_SCENE_KEYS = ('name', 'description', 'dt', 'gravity', 'integrator', 'newton')
+
+
 def case_scene(setup: Setup, values: dict):
-    """The Scene of one case (SceneError naming the path on a refused value)."""
-    from abd_joint_sim.scene import Scene
+    """The Scene of one case (SceneError naming the path on a refused value). With a URDF
+    robot, `robot.*` and the top-level keys are set before the URDF is lowered."""
     from abd_joint_sim.errors import SceneError
-    from abd_joint_sim.scene import _Parser, _with_robot
+    from abd_joint_sim.scene import Scene, _Parser, _with_robot
     data = copy.deepcopy(setup.base)
     robot = None
+    rest = dict(values)
     if 'robot' in data:
-        for path, value in values.items():
-            if path.split('.')[0] in ('robot',) + _TOP_SCENE_KEYS:
-                _set_path(data, path, value)
+        for path in [p for p in values if p.split('.')[0] in ('robot',) + _TOP_SCENE_KEYS]:
+            _set_path(data, path, rest.pop(path))
         try:
             data, robot = _Parser(setup.source).robot(data)
         except SceneError as exc:
             raise SceneError(f'robot: {exc}') from None
-        rest = {p: v for p, v in values.items()
-                if p.split('.')[0] not in ('robot',) + _TOP_SCENE_KEYS}
-    else:
-        rest = values
     for path, value in rest.items():
         if path.split('.')[0] == 'robot':
             raise SceneError(f'{path}: unknown path: the scene has no robot: block')
         _set_path(data, path, value)
     scene = Scene.from_dict(data, source=setup.source)
-    if robot is not None:
-        scene = _with_robot(scene, *robot)
-    return scene
-
-
-_TOP_SCENE_KEYS = ('name', 'description', 'dt', 'gravity', 'integrator', 'newton')
+    return scene if robot is None else _with_robot(scene, *robot)
 
 
 def check_case(setup: Setup, index: int, values: dict) -> None:
     """Build the case's scene and check the schedule against it (SpecError naming the case).
     With a runner: the runner's own `check(values)`, when it has one."""
-    from abd_joint_sim.errors import SceneError
-    if setup.runner:
-        check = getattr(_load_runner('runner', setup.runner), 'check', None)
-        if check is not None:
-            try:
-                check(dict(values))
-            except (ValueError, KeyError, TypeError) as exc:
-                raise SpecError(f'{_describe(index, values)}: {exc}') from None
-        return
-    from abd_joint_sim.ros.commands import CommandBuffer
-    from .bagrun import config_for
-    from .schedule import check_plan, ScheduleError
     try:
+        if setup.runner:
+            check = getattr(_load_runner('runner', setup.runner), 'check', None)
+            if check is not None:
+                check(dict(values))
+            return
+        from abd_joint_sim.ros.commands import CommandBuffer
+        from .bagrun import config_for
+        from .schedule import check_plan
         scene = case_scene(setup, values)
         config = config_for(setup.parameters, scene_path=setup.scene_path)
-        actuated = [j.name for j in scene.joints if j.external_torque is not None]
+        torqued = [j for j in scene.joints if j.external_torque is not None]
+        actuated = [j.name for j in torqued]
         buffer = CommandBuffer(actuated, config.joints, config.effort_limits, 0.0,
                                scene_limits={j.name: j.external_torque.effort_limit
-                                             for j in scene.joints
-                                             if j.external_torque is not None},
+                                             for j in torqued},
                                driven=[j.name for j in scene.joints if j.driving is not None])
         check_plan(setup.plan, actuated, buffer.order, buffer)
-    except (SceneError, ScheduleError, ValueError) as exc:
-        raise SpecError(f'{_describe(index, values)}: {exc}') from None
+    except ((ValueError, KeyError, TypeError) if setup.runner else ValueError) as exc:
+        raise SpecError(f'{_describe(index, values)}: {exc}') from None   # (SceneError too)
 
 
-# ------------------------------------------------------------------ one case -----
 def _outputs():
-    """The loop outputs of a case (defined on first use: they import the ROS messages)."""
-    global _Metrics, _CaseBag
-    if _Metrics is not None:
-        return _Metrics, _CaseBag
+    """The loop outputs of a case, defined when used (they import the ROS messages; not
+    lru_cache'd: that would not reach a Ray worker when this module runs as __main__)."""
     from abd_joint_sim.ros.loop import LoopOutput
     from .sim import BagRecorder
 
@@ -555,16 +491,13 @@ def _outputs():
         def close(self) -> None:
             pass
 
-    class CaseBag(Metrics, BagRecorder):
+    class CaseBag(BagRecorder, Metrics):
         """run_headless's bag with the statistics, the same bytes on every worker and run:
-        diagnostics carry no wall-clock value (real_time_factor_achieved 0) and no
-        serialiser's padding garbage."""
+        diagnostics carry no wall-clock value (real_time_factor_achieved 0), the messages
+        it serialises have their padding zeroed."""
 
         def __init__(self, path, sim, scene_path, scene_text, extra_custom, urdf_text):
             Metrics.__init__(self, sim)
-            # the messages serialised by the recording (diagnostics, commands, parameter
-            # events) with their padding bytes zeroed: the serialiser leaves them as its
-            # buffer had them
             BagRecorder.__init__(self, path, sim, scene_path, scene_text, extra_custom,
                                  urdf_text=urdf_text, attachment_time_ns=ATTACHMENT_TIME_NS,
                                  zero_padding=True)
@@ -576,14 +509,7 @@ def _outputs():
                 t_ns, f'{NODE_NAME}: solver', real_time_factor_requested=0.0,
                 real_time_factor_achieved=0.0, recording=True))
 
-        def close(self) -> None:
-            BagRecorder.close(self)
-
-    _Metrics, _CaseBag = Metrics, CaseBag
     return Metrics, CaseBag
-
-
-_Metrics = _CaseBag = None
 
 
 def incomplete_marker(bag: str) -> Path:
@@ -597,108 +523,85 @@ def _plain(value: Any) -> Any:
     return item() if item is not None and type(value).__module__ == 'numpy' else value
 
 
-def run_runner_case(setup: Setup, job: Job) -> dict:
-    """One case of a spec with a runner: its columns are what the runner returns."""
-    wall0 = time.perf_counter()
-    row: dict = {'case': job.case, **job.values}
-    status, message = 'ok', ''
-    try:
-        result = _load_runner('runner', setup.runner)(dict(job.values))
-        if not isinstance(result, dict):
-            raise TypeError(f'the runner returned {type(result).__name__}, not a mapping '
-                            'of columns')
-        clash = [k for k in result if k in RESERVED_COLUMNS or k in setup.axes]
-        if clash:
-            raise KeyError(f'the runner returned column {clash[0]!r}, a reserved column or '
-                           'an axis')
-        row.update({str(k): _plain(v) for k, v in result.items()})
-    except Exception as exc:  # noqa: BLE001 - a case's failure is its row, not the sweep's
-        status, message = 'error', f'{type(exc).__name__}: {exc}'
-    row['status'] = status
-    row['message'] = message.replace('\n', ' ')
-    row['wall_s'] = time.perf_counter() - wall0
-    return row
-
-
 def run_case(setup: Setup, job: Job) -> dict:
     """Run one case; always returns its row (a failure is a status and a message)."""
-    from abd_joint_sim.errors import SimulationError
-    if setup.runner:
-        return run_runner_case(setup, job)
     wall0 = time.perf_counter()
     row: dict = {'case': job.case, **job.values}
-    status, message = 'ok', ''
-    out = None
     try:
-        from .bagrun import config_for
-        from .sim import HeadlessSim
-        scene = case_scene(setup, job.values)
-        config = config_for(setup.parameters, scene_path=setup.scene_path)
-        sim = HeadlessSim(scene, config, clamp=True)
-        plan = copy.deepcopy(setup.plan)
-        Metrics, CaseBag = _outputs()
-        if job.bag:
-            marker = incomplete_marker(job.bag)
-            marker.parent.mkdir(parents=True, exist_ok=True)
-            marker.write_text('this bag is being written; a bag beside this file is partial\n')
-            if os.path.isdir(job.bag):
-                shutil.rmtree(job.bag)          # a partial bag of an interrupted run
-            config.record = job.bag
-            out = CaseBag(job.bag, sim, setup.scene_path, getattr(scene, 'source_text', ''),
-                          {'abd_joint_sim.recorded_by': f'sweep ({job.case})',
-                           'abd_joint_sim.sweep_case': json.dumps(job.values, sort_keys=True)},
-                          getattr(scene, 'robot_description', '') or '')
-        else:
-            out = Metrics(sim)
-        world = sim.world
-        energy0 = world.mechanical_energy()
-        try:
-            sim.run(plan, out)
-        except (SimulationError, ArithmeticError, ValueError) as exc:
-            what = str(exc) if isinstance(exc, SimulationError) else f'{type(exc).__name__}: {exc}'
-            status, message = 'fault', f'step at t={world.time:.6f} s failed: {what}'
-        finally:
-            out.close()
-        if job.bag:
-            incomplete_marker(job.bag).unlink()
-        for name, a, v in zip(world.joint_names, world.joint_angles().tolist(),
-                              world.joint_velocities().tolist()):
-            row[f'angle.{name}'] = a
-            row[f'velocity.{name}'] = v
-        row.update({
-            'sim_time': float(world.time), 'steps': out.steps,
-            'energy_drift': float(world.mechanical_energy() - energy0),
-            'max_joint_separation': out.max_sep,
-            'newton_mean': out.newton_sum / out.steps if out.steps else 0.0,
-            'newton_max': out.newton_max, 'substep_steps': out.substep_steps,
-            'substeps_max': out.substeps_max,
-            'not_converged': sim.not_converged})
+        message = (_runner_case if setup.runner else _loop_case)(setup, job, row)
+        status = 'fault' if message else 'ok'
     except Exception as exc:  # noqa: BLE001 - a case's failure is its row, not the sweep's
         status, message = 'error', f'{type(exc).__name__}: {exc}'
-        if out is not None and job.bag:
-            try:
-                out.close()
-            except Exception:  # noqa: BLE001 - the marker stays: the bag is partial
-                pass
-    row['status'] = status
-    row['message'] = message.replace('\n', ' ')
-    row['wall_s'] = time.perf_counter() - wall0
+    row.update(status=status, message=message.replace('\n', ' '),
+               wall_s=time.perf_counter() - wall0)
     return row
+
+
+def _runner_case(setup: Setup, job: Job, row: dict) -> str:
+    """A case of a spec with a runner: its columns are what the runner returns."""
+    result = _load_runner('runner', setup.runner)(dict(job.values))
+    if not isinstance(result, dict):
+        raise TypeError(f'the runner returned {type(result).__name__}, not a mapping of columns')
+    clash = [k for k in result if k in RESERVED_COLUMNS or k in setup.axes]
+    if clash:
+        raise KeyError(f'the runner returned column {clash[0]!r}, a reserved column or an axis')
+    row.update({str(k): _plain(v) for k, v in result.items()})
+    return ''
+
+
+def _loop_case(setup: Setup, job: Job, row: dict) -> str:
+    """A case through sim_node's loop: adds its columns to `row`, returns the fault ('' none)."""
+    from abd_joint_sim.errors import SimulationError
+    from .bagrun import config_for
+    from .sim import HeadlessSim
+    scene = case_scene(setup, job.values)
+    config = config_for(setup.parameters, scene_path=setup.scene_path)
+    sim = HeadlessSim(scene, config, clamp=True)
+    world, fault = sim.world, ''
+    energy0 = world.mechanical_energy()
+    Metrics, CaseBag = _outputs()
+    if job.bag:
+        marker = incomplete_marker(job.bag)
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text('this bag is being written; a bag beside this file is partial\n')
+        if os.path.isdir(job.bag):
+            shutil.rmtree(job.bag)          # a partial bag of an interrupted run
+        config.record = job.bag
+        out = CaseBag(job.bag, sim, setup.scene_path, getattr(scene, 'source_text', ''),
+                      {'abd_joint_sim.recorded_by': f'sweep ({job.case})',
+                       'abd_joint_sim.sweep_case': json.dumps(job.values, sort_keys=True)},
+                      getattr(scene, 'robot_description', '') or '')
+    else:
+        out = Metrics(sim)
+    try:
+        sim.run(copy.deepcopy(setup.plan), out)
+    except (SimulationError, ArithmeticError, ValueError) as exc:
+        what = str(exc) if isinstance(exc, SimulationError) else f'{type(exc).__name__}: {exc}'
+        fault = f'step at t={world.time:.6f} s failed: {what}'
+    finally:
+        out.close()         # on an error the marker stays: the bag is partial
+    if job.bag:
+        incomplete_marker(job.bag).unlink()
+    for name, a, v in zip(world.joint_names, world.joint_angles().tolist(),
+                          world.joint_velocities().tolist()):
+        row[f'angle.{name}'] = a
+        row[f'velocity.{name}'] = v
+    row.update({
+        'sim_time': float(world.time), 'steps': out.steps,
+        'energy_drift': float(world.mechanical_energy() - energy0),
+        'max_joint_separation': out.max_sep,
+        'newton_mean': out.newton_sum / out.steps if out.steps else 0.0,
+        'newton_max': out.newton_max, 'substep_steps': out.substep_steps,
+        'substeps_max': out.substeps_max, 'not_converged': sim.not_converged})
+    return fault
 
 
 def warm_kernels() -> None:
     """Load (or compile) the compiled step, and import what a case uses, once in this
     process: a short case of the packaged hinge scene runs through the loop."""
-    from abd_joint_sim.errors import SceneError
-    from abd_joint_sim.ros.params import resolve_scene
-    from abd_joint_sim.scene import read_yaml_file
-    from .schedule import parse_schedule
-    path = resolve_scene('hinge')
-    _, data = read_yaml_file(path, SceneError, 'scene file')
-    plan = parse_schedule({'duration': 0.05, 'events': [{'t': 0.0, 'torque': {'hinge': 1.0}}]},
-                          '<warm-up>')
-    row = run_case(Setup(data, path, path, plan, {}, plan.segments[-1].end_ns, []),
-                   Job(0, 'warm-up', {}))
+    spec = spec_from_data({'scene': 'hinge', 'duration': 0.05, 'schedule': {
+        'events': [{'t': 0.0, 'torque': {'hinge': 1.0}}]}}, '<warm-up>', Path('.'))
+    row = run_case(spec.setup, Job(0, 'warm-up', {}))
     if row['status'] != 'ok':
         raise RuntimeError(f'the warm-up case failed: {row["message"]}')
 
@@ -708,27 +611,19 @@ class CaseWorker:
 
     def __init__(self, setup: Setup):
         self.setup = setup
-        if setup.runner:            # the runner's own warm-up, when it has one
-            warm = getattr(_load_runner('runner', setup.runner), 'warm', None)
-            if warm is not None:
-                warm()
-        else:
-            warm_kernels()
+        warm = getattr(_load_runner('runner', setup.runner), 'warm', None) if setup.runner \
+            else warm_kernels
+        if warm is not None:            # a runner's own warm-up, when it has one
+            warm()
 
     def run(self, job: Job) -> dict:
         return run_case(self.setup, job)
 
 
-# ---------------------------------------------------------------------- engines -----
 def run_in_process(setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
     worker = CaseWorker(setup)
     for job in jobs:
         on_row(worker.run(job))
-
-
-def _died_row(job: Job, why: str) -> dict:
-    return {'case': job.case, **job.values, 'status': 'died',
-            'message': f'worker process died twice: {why}'.replace('\n', ' '), 'wall_s': 0.0}
 
 
 class RayEngine:
@@ -738,41 +633,36 @@ class RayEngine:
     def __init__(self, workers: Optional[int], address: Optional[str],
                  temp_dir: Optional[str] = None):
         import ray
-        self.ray = ray
-        self.own_temp = None
-        kwargs: dict = dict(include_dashboard=False, log_to_driver=False,
-                            logging_level='ERROR', configure_logging=True)
+        self.ray, self.own_temp = ray, None
+        kwargs: dict = dict(log_to_driver=False, logging_level='ERROR', configure_logging=True)
         if address:
-            ray.init(address=address, **{k: v for k, v in kwargs.items()
-                                         if k not in ('include_dashboard',)})
-            cpus = int(ray.cluster_resources().get('CPU', 1))
-            self.workers = workers or cpus
+            ray.init(address=address, **kwargs)
+            self.workers = workers or int(ray.cluster_resources().get('CPU', 1))
         else:
             import tempfile
             self.workers = workers or os.cpu_count() or 1
             if temp_dir is None:
                 temp_dir = self.own_temp = tempfile.mkdtemp(prefix='ray-sweep-')
-            ray.init(num_cpus=self.workers, _temp_dir=os.path.abspath(temp_dir), **kwargs)
+            ray.init(num_cpus=self.workers, _temp_dir=os.path.abspath(temp_dir),
+                     include_dashboard=False, **kwargs)
         self.nodes = sum(1 for n in ray.nodes() if n.get('Alive'))
         self.setup: Optional[Setup] = None
-        self.setup_ref = None
-        self.actors: list = []
+        self.setup_ref, self.actors = None, []
         self.remote = ray.remote(num_cpus=1, max_restarts=0)(CaseWorker)
 
     def run(self, setup: Setup, jobs: list, on_row: Callable[[dict], None]) -> None:
+        """Run `jobs`, each row to `on_row` as it comes; the workers stay up (warm) between
+        calls of the same set-up."""
         ray = self.ray
         from ray.exceptions import RayActorError, WorkerCrashedError
         if self.setup is not setup:             # workers of another set-up: new ones
             for actor in self.actors:
                 ray.kill(actor, no_restart=True)
             self.setup, self.setup_ref, self.actors = setup, ray.put(setup), []
-        setup_ref = self.setup_ref
-        queue = [(job, 0) for job in jobs]
-        queue.reverse()                         # pop() takes the next in case order
-        # the workers stay up between calls (warm kernels); more are started as needed
+        queue = [(job, 0) for job in reversed(jobs)]    # pop() takes the next in case order
         actors = self.actors
         while len(actors) < min(self.workers, len(jobs)):
-            actors.append(self.remote.remote(setup_ref))
+            actors.append(self.remote.remote(self.setup_ref))
         pending: dict = {}
 
         def submit(slot: int) -> None:
@@ -790,13 +680,14 @@ class RayEngine:
                     row = ray.get(ref)
                 except (RayActorError, WorkerCrashedError) as exc:
                     ray.kill(actors[slot], no_restart=True)
-                    actors[slot] = self.remote.remote(setup_ref)
+                    actors[slot] = self.remote.remote(self.setup_ref)
                     if attempt == 0:
                         queue.append((job, 1))
                         submit(slot)
                         continue
-                    first = str(exc).strip().splitlines()
-                    row = _died_row(job, first[0] if first else type(exc).__name__)
+                    why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                    row = {'case': job.case, **job.values, 'status': 'died',
+                           'message': f'worker process died twice: {why}', 'wall_s': 0.0}
                 on_row(row)
                 submit(slot)
 
@@ -811,16 +702,14 @@ class RayEngine:
             shutil.rmtree(self.own_temp, ignore_errors=True)
 
 
-# --------------------------------------------------------------------- progress -----
 class Progress:
     """Cases done / failed / ETA: a bar on a terminal, else a line per 10 %."""
 
     def __init__(self, total: int, done: int, stream=None, quiet: bool = False):
-        self.total, self.done, self.failed = total, done, 0
+        self.total, self.done, self.start_done, self.failed = total, done, done, 0
         self.stream = stream or sys.stderr
         self.tty = hasattr(self.stream, 'isatty') and self.stream.isatty()
         self.quiet = quiet
-        self.start_done = done
         self.t0 = time.monotonic()
         self.next_tenth = (10 * done // max(total, 1)) + 1
 
@@ -832,22 +721,18 @@ class Progress:
         ran = self.done - self.start_done
         elapsed = time.monotonic() - self.t0
         eta = elapsed / ran * (self.total - self.done) if ran else math.nan
-        text = (f'{self.done}/{self.total} cases, {self.failed} failed, '
-                f'ETA {eta:.0f} s' if self.done < self.total else
-                f'{self.done}/{self.total} cases, {self.failed} failed, {elapsed:.1f} s')
+        text = f'{self.done}/{self.total} cases, {self.failed} failed, ' + (
+            f'ETA {eta:.0f} s' if self.done < self.total else f'{elapsed:.1f} s')
         if self.tty:
-            width = 30
-            filled = int(width * self.done / self.total)
-            self.stream.write(f'\r{PROG}: [{"#" * filled}{"." * (width - filled)}] {text}  ')
+            filled = int(30 * self.done / self.total)
+            self.stream.write(f'\r{PROG}: [{"#" * filled}{"." * (30 - filled)}] {text}  ')
             if self.done == self.total:
                 self.stream.write('\n')
             self.stream.flush()
-        else:
-            tenth = 10 * self.done // self.total
-            if tenth >= self.next_tenth:
-                self.next_tenth = tenth + 1
-                print(f'{PROG}: {100 * self.done // self.total}% {text}', file=self.stream,
-                      flush=True)
+        elif 10 * self.done // self.total >= self.next_tenth:
+            self.next_tenth = 10 * self.done // self.total + 1
+            print(f'{PROG}: {100 * self.done // self.total}% {text}', file=self.stream,
+                  flush=True)
 
     def end_line(self) -> None:
         if self.tty and not self.quiet and self.done < self.total:
@@ -855,27 +740,20 @@ class Progress:
             self.stream.flush()
 
 
-# ---------------------------------------------------------------------- results -----
 FIXED_COLUMNS = ('status', 'message', 'sim_time', 'steps', 'energy_drift',
                  'max_joint_separation', 'newton_mean', 'newton_max', 'substep_steps',
                  'substeps_max', 'not_converged', 'wall_s')
 
 
 def columns_of(rows: list, axes: list, runner: bool = False) -> list:
-    if runner:                  # the runner's columns, in the order it first gives them
-        extra: dict = {}
-        for row in rows:
-            extra.update((k, None) for k in row if k not in RESERVED_COLUMNS and k not in axes)
-        return ['case'] + list(axes) + ['status', 'message'] + list(extra) + ['wall_s']
-    joints = []
-    for row in rows:
-        for key in row:
-            if key.startswith(('angle.', 'velocity.')) and key not in joints:
-                joints.append(key)
-    angles = [k for k in joints if k.startswith('angle.')]
-    vels = [k for k in joints if k.startswith('velocity.')]
-    return ['case'] + list(axes) + ['status', 'message'] + angles + vels + \
-        [c for c in FIXED_COLUMNS if c not in ('status', 'message')]
+    seen = dict.fromkeys(k for row in rows for k in row)        # in the order first given
+    if runner:                  # the runner's columns
+        middle, end = [k for k in seen if k not in RESERVED_COLUMNS and k not in axes], []
+    else:                       # the joints' angles, then their velocities
+        middle = sorted((k for k in seen if k.startswith(('angle.', 'velocity.'))),
+                        key=lambda k: k.startswith('velocity.'))
+        end = list(FIXED_COLUMNS[2:-1])
+    return ['case'] + list(axes) + ['status', 'message'] + middle + end + ['wall_s']
 
 
 def _cell(value: Any) -> str:
@@ -892,20 +770,21 @@ def write_csv(path: Path, rows: list, columns: list) -> None:
     with open(tmp, 'w', newline='') as f:
         w = csv.writer(f)
         w.writerow(columns)
-        for row in rows:
-            w.writerow([_cell(row.get(c)) for c in columns])
+        w.writerows([_cell(row.get(c)) for c in columns] for row in rows)
     os.replace(tmp, path)
 
 
 def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return f'{v:.4g}'
-    return str(v).replace('|', '/')
+    return f'{v:.4g}' if isinstance(v, float) else str(v).replace('|', '/')
+
+
+def _counts(rows: list) -> dict:
+    return {s: sum(r.get('status') == s for r in rows) for s in STATUSES}
 
 
 def summary_md(spec_path: str, rows: list, columns: list, total: int, wall: float,
                engine: str, figure: str, argv: Sequence[str]) -> str:
-    counts = {s: sum(r.get('status') == s for r in rows) for s in STATUSES}
+    counts = _counts(rows)
     case_wall = sum(float(r.get('wall_s') or 0.0) for r in rows)
     lines = [f'# Sweep {Path(spec_path).name}', '',
              f'Command: `sweep {" ".join(argv)}`; engine: {engine}.', '',
@@ -919,12 +798,10 @@ def summary_md(spec_path: str, rows: list, columns: list, total: int, wall: floa
         lines += ['## Cases that did not finish', '',
                   '| case | status | message |', '|---|---|---|']
         lines += [f'| {r["case"]} | {r["status"]} | {_fmt(r.get("message", ""))[:300]} |'
-                  for r in failed[:100]]
-        lines.append('')
-    shown = [c for c in columns if c not in ('message',)]
+                  for r in failed[:100]] + ['']
+    shown = [c for c in columns if c != 'message']
     lines += ['## Results', '', '| ' + ' | '.join(shown) + ' |', '|' + '---|' * len(shown)]
-    for r in rows[:200]:
-        lines.append('| ' + ' | '.join(_fmt(r.get(c, '')) for c in shown) + ' |')
+    lines += ['| ' + ' | '.join(_fmt(r.get(c, '')) for c in shown) + ' |' for r in rows[:200]]
     if len(rows) > 200:
         lines.append(f'\n{len(rows) - 200} more rows in results.csv.')
     return '\n'.join(lines) + '\n'
@@ -963,17 +840,14 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
     for r in ok:
         groups.setdefault(r.get(series) if series else None, []).append(r)
     for key, members in sorted(groups.items(), key=lambda kv: str(kv[0])):
-        members = sorted(members, key=lambda r: float(r.get(x, 0.0))
-                         if isinstance(r.get(x), (int, float)) else 0.0)
+        members = sorted(members, key=lambda r: float(r[x]))     # (x is numeric in each)
         label = f'{series} = {key:.4g}' if isinstance(key, float) else (
             f'{series} = {key}' if series else None)
         xs = [r.get(x) for r in members]
         # a line only where it is one: one point per x (other axes vary otherwise)
         style = 'o-' if len(groups) <= 12 and len(set(xs)) == len(xs) else 'o'
         ax.plot(xs, [r.get(y) for r in members], style, ms=4, alpha=0.8, label=label)
-    ax.set_xlabel(x)
-    ax.set_ylabel(y)
-    ax.set_title(f'{y} against {x} ({len(ok)} cases)')
+    ax.set(xlabel=x, ylabel=y, title=f'{y} against {x} ({len(ok)} cases)')
     ax.grid(True, alpha=0.3)
     if series and len(groups) <= 12:
         ax.legend(fontsize=8)
@@ -982,15 +856,9 @@ def write_figure(path: Path, rows: list, axes: list, plot: dict) -> str:
     return path.name
 
 
-# -------------------------------------------------------------------------- main -----
 def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = cli.own_args(argv)
-    args = build_parser().parse_args(argv)
-    try:
-        return _run(args, argv)
-    except SpecError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
+    return cli.run(PROG, build_parser(), lambda args: _run(args, argv), argv)
 
 
 def run_spec(data: dict, out: str | Path, *, workers: Optional[int] = None,
@@ -1031,31 +899,16 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
             raise SpecError(INSTALL_HINT) from None
     spec = make_spec() if make_spec else load_spec(args.spec, args.max_cases)
     out = Path(args.out)
-    state_path = out / 'sweep.json'
-    rows_path = out / 'rows.jsonl'
-    if out.exists() and not out.is_dir():
-        raise SpecError(f'--out {out}: exists and is not a directory')
-    done: dict = {}
-    if state_path.exists():
-        try:
-            state = json.loads(state_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise SpecError(f'{state_path}: unreadable ({exc}); use a new --out') from None
-        if state.get('digest') != spec.digest:
-            raise SpecError(f'--out {out}: holds the results of a different sweep (spec '
-                            f'{state.get("spec")}); use a new --out')
-        done = _read_rows(rows_path)
-    elif out.exists() and any(out.iterdir()):
-        raise SpecError(f'--out {out}: exists and holds no sweep; use a new or empty directory')
+    done = _earlier_rows(out, spec)
     total = len(spec.cases)
-    jobs, kept = [], {}
+    jobs, rows = [], {}
     for k, values in enumerate(spec.cases):
         name = case_name(k, total)
         bag = str((out / 'bags' / name).resolve()) if args.bags else ''
         row = done.get(name)
         if row is not None and row.get('status') != 'died' and (
                 not bag or (os.path.isdir(bag) and not incomplete_marker(bag).exists())):
-            kept[name] = row
+            rows[name] = row
         else:
             jobs.append(Job(k, name, values, bag))
     engine = None
@@ -1076,20 +929,15 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
                        f'{engine.nodes} node(s)'
                        + (f' of {args.address}' if args.address else ' (local)'))
     out.mkdir(parents=True, exist_ok=True)
-    state_path.write_text(json.dumps({'spec': args.spec if make_spec else os.path.abspath(args.spec),
-                                      'digest': spec.digest, 'cases': len(spec.cases)}) + '\n')
-    rows = dict(kept)
-    progress = Progress(total, len(kept), quiet=args.quiet)
-    if not args.quiet and kept:
-        print(f'{PROG}: resuming: {len(kept)} of {total} cases done already', file=sys.stderr)
-    if rows_path.exists() and rows_path.stat().st_size:
-        with open(rows_path, 'rb') as f:       # a torn last line ends before new rows
-            f.seek(-1, os.SEEK_END)
-            torn = f.read(1) != b'\n'
-        if torn:
-            with open(rows_path, 'a') as f:
-                f.write('\n')
-    rows_file = open(rows_path, 'a')
+    (out / 'sweep.json').write_text(json.dumps(
+        {'spec': args.spec if make_spec else os.path.abspath(args.spec),
+         'digest': spec.digest, 'cases': total}) + '\n')
+    progress = Progress(total, len(rows), quiet=args.quiet)
+    if not args.quiet and rows:
+        print(f'{PROG}: resuming: {len(rows)} of {total} cases done already', file=sys.stderr)
+    rows_file = open(out / 'rows.jsonl', 'a')
+    if rows_file.tell() and not (out / 'rows.jsonl').read_bytes().endswith(b'\n'):
+        rows_file.write('\n')                   # a torn last line ends before new rows
 
     def on_row(row: dict) -> None:
         rows[row['case']] = row
@@ -1100,10 +948,8 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
     wall0 = time.monotonic()
     interrupted = False
     try:
-        if jobs and engine is None:
-            run_in_process(spec.setup, jobs, on_row)
-        elif jobs:
-            engine.run(spec.setup, jobs, on_row)
+        if jobs:
+            (engine.run if engine else run_in_process)(spec.setup, jobs, on_row)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -1115,14 +961,14 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
             except KeyboardInterrupt:
                 interrupted = True
     wall = time.monotonic() - wall0
-    ordered = [rows[case_name(k, total)] for k in range(total) if case_name(k, total) in rows]
+    ordered = [rows[n] for n in (case_name(k, total) for k in range(total)) if n in rows]
     columns = columns_of(ordered, spec.setup.axes, bool(spec.setup.runner))
     write_csv(out / 'results.csv', ordered, columns)
     figure = write_figure(out / 'figure.png', ordered, spec.setup.axes, spec.plot) \
         if ordered and (spec.plot or not spec.setup.runner) else ''
     (out / 'summary.md').write_text(summary_md(args.spec, ordered, columns, total, wall,
                                                engine_name, figure, argv))
-    counts = {s: sum(r.get('status') == s for r in ordered) for s in STATUSES}
+    counts = _counts(ordered)
     if interrupted:
         print(f'{PROG}: interrupted: {len(ordered)} of {total} cases done, kept in {out}; '
               'run the same command again to resume', file=sys.stderr)
@@ -1133,13 +979,27 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
     return 1 if counts['error'] or counts['died'] else 0
 
 
-def _read_rows(path: Path) -> dict:
-    """The finished rows of an earlier run (a torn last line is ignored: it is re-run)."""
+def _earlier_rows(out: Path, spec: Spec) -> dict:
+    """The finished rows of an earlier run of `spec` in `out` (a torn last line is ignored:
+    it is re-run); SpecError when `out` holds something else."""
+    if out.exists() and not out.is_dir():
+        raise SpecError(f'--out {out}: exists and is not a directory')
+    state_path = out / 'sweep.json'
+    if not state_path.exists():
+        if out.exists() and any(out.iterdir()):
+            raise SpecError(f'--out {out}: exists and holds no sweep; use a new or empty '
+                            'directory')
+        return {}
+    try:
+        state = json.loads(state_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise SpecError(f'{state_path}: unreadable ({exc}); use a new --out') from None
+    if state.get('digest') != spec.digest:
+        raise SpecError(f'--out {out}: holds the results of a different sweep (spec '
+                        f'{state.get("spec")}); use a new --out')
     rows: dict = {}
-    if not path.exists():
-        return rows
-    with open(path) as f:
-        for line in f:
+    if (out / 'rows.jsonl').exists():
+        for line in (out / 'rows.jsonl').read_text().split('\n'):
             try:
                 row = json.loads(line)
             except ValueError:
@@ -1149,23 +1009,19 @@ def _read_rows(path: Path) -> dict:
     return rows
 
 
-LOOPBACK_HOSTS = ('127.0.0.1', 'localhost')
-
-
 def _ray_environment(address: Optional[str]) -> None:
     """Before Ray is imported: usage statistics off (unless the user chose), and a Ray on
-    this machine (or a cluster addressed on loopback) kept on 127.0.0.1: Ray otherwise
-    advertises the machine's routable address and its servers listen on every interface.
-    (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 is Ray's switch for a single-machine Ray.)"""
+    this machine (or a cluster addressed on loopback) kept on 127.0.0.1 with Ray's
+    single-machine switch (docs/decisions.md "Sweeps")."""
     os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')
     host = (address or '').split('://')[-1].rsplit(':', 1)[0]
-    if not address or host in LOOPBACK_HOSTS:
+    if not address or host in ('127.0.0.1', 'localhost'):
         os.environ.setdefault('RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER', '0')
 
 
 PROBE_TIMEOUT = 5.0
-"""[s] How long a cluster's address may take to accept a connection before the sweep gives
-up (Ray itself retries for minutes, logging each attempt)."""
+"""[s] How long a cluster's address may take to accept a connection (Ray itself retries for
+minutes, logging each attempt)."""
 
 
 def _probe_address(address: Optional[str]) -> None:
@@ -1174,13 +1030,11 @@ def _probe_address(address: Optional[str]) -> None:
     import socket
     if not address or address == 'auto':
         return
-    hostport = address.split('://', 1)[-1]
-    host, sep, port = hostport.rpartition(':')
+    host, sep, port = address.split('://', 1)[-1].rpartition(':')
     if not sep or not port.isdigit() or not host:
         raise SpecError(f'--address {address}: expected auto, HOST:PORT or ray://HOST:PORT')
     try:
-        with socket.create_connection((host.strip('[]'), int(port)), timeout=PROBE_TIMEOUT):
-            pass
+        socket.create_connection((host.strip('[]'), int(port)), timeout=PROBE_TIMEOUT).close()
     except OSError as exc:
         raise SpecError(f'--address {address}: no Ray there ({exc.strerror or exc}); start '
                         'one with `ray start --head`, or leave --address out for a local '
