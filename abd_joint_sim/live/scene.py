@@ -1,18 +1,10 @@
 """What the live server sends, as plain JSON-ready dicts (Foxglove's JSON encoding of its
 ``foxglove.SceneUpdate`` and ``foxglove.FrameTransforms`` schemas), built from a scene.
 
-Frames. Each body has a frame named as the body (for a URDF robot: its link), posed in the
-world frame (``world``, or ``marker_frame_id``) by the body's position p and the rotation
-nearest to its affine A (``ros/markers.py``: the orthogonal polar factor, det +1). A URDF
-link merged into a body (a fixed joint) gets a frame of its own named as the link, the child
-of its body's frame at the chain of joint origins between them (a joint held rigid by
-``lock`` counts at angle 0). So Foxglove's 3D panel shows the URDF's tf tree.
-
-Geometry. One ``SceneUpdate`` entity per body, in the body's frame (``frame_locked``: it
-moves with the frame): exactly the parts the markers draw (``MarkerBuilder``'s parts: URDF
-visuals, with their mesh URLs, else the scene's shape, else the box of equal inertia), with
-their origins in the body frame. A marker sits at A t + p, the entity's part at R t + p: the
-same point up to the body's strain (|A - R|, ~1e-6 here).
+Each body has a frame named as the body, posed in the world frame by its position p and the
+rotation nearest to its affine A; a URDF link merged into a body gets a frame of its own,
+the child of its body's frame. One ``SceneUpdate`` entity per body, frame-locked in the
+body's frame, holds exactly the parts the markers draw (``MarkerBuilder``'s parts).
 """
 from __future__ import annotations
 
@@ -64,10 +56,9 @@ def scene_entities(scene: Any, builder: Optional[MarkerBuilder] = None) -> list[
         pose = _pose(part.t, part.R)
         colour = _colour(part.colour)
         size = {'x': part.scale[0], 'y': part.scale[1], 'z': part.scale[2]}
-        if part.kind == M.CUBE:
-            e['cubes'].append({'pose': pose, 'size': size, 'color': colour})
-        elif part.kind == M.SPHERE:
-            e['spheres'].append({'pose': pose, 'size': size, 'color': colour})
+        if part.kind in (M.CUBE, M.SPHERE):
+            e['cubes' if part.kind == M.CUBE else 'spheres'].append(
+                {'pose': pose, 'size': size, 'color': colour})
         elif part.kind == M.CYLINDER:
             e['cylinders'].append({'pose': pose, 'size': size, 'bottom_scale': 1.0,
                                    'top_scale': 1.0, 'color': colour})
