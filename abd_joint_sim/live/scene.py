@@ -35,10 +35,6 @@ def _pose(t, R) -> dict:
     return {'position': _vec(t), 'orientation': {'x': x, 'y': y, 'z': z, 'w': w}}
 
 
-def _colour(rgba) -> dict:
-    return {'r': rgba[0], 'g': rgba[1], 'b': rgba[2], 'a': rgba[3]}
-
-
 def scene_entities(scene: Any, builder: Optional[MarkerBuilder] = None) -> list[dict]:
     """One ``foxglove.SceneEntity`` (JSON) per body of `scene`, in the body's frame, without
     a timestamp (``scene_update`` adds it). Geometry from `builder` (a MarkerBuilder of the
@@ -54,7 +50,7 @@ def scene_entities(scene: Any, builder: Optional[MarkerBuilder] = None) -> list[
     for part in builder.parts:
         e = entities[part.body]
         pose = _pose(part.t, part.R)
-        colour = _colour(part.colour)
+        colour = dict(zip('rgba', part.colour))
         size = {'x': part.scale[0], 'y': part.scale[1], 'z': part.scale[2]}
         if part.kind in (M.CUBE, M.SPHERE):
             e['cubes' if part.kind == M.CUBE else 'spheres'].append(
@@ -122,17 +118,13 @@ class FrameBuilder:
         self._poses = np.empty((B, 7))
         self._points = np.empty((0, 3))
 
-    def body_poses(self, pose) -> Optional[np.ndarray]:
+    def body_poses(self, body_pose) -> Optional[np.ndarray]:
         """(B, 7) = (x, y, z, qx, qy, qz, qw) of each body frame: p and the rotation nearest
-        A; `pose` is ``World.body_pose`` or the (B, 12) states [p, A]. None if not finite."""
+        A, from ``World.body_pose`` (name -> (p, A)). None if not finite."""
         from abd_joint_sim.smallmat import frame_poses
-        if isinstance(pose, np.ndarray):
-            P = np.ascontiguousarray(pose[:, :3], dtype=float)
-            A = np.ascontiguousarray(pose[:, 3:12], dtype=float).reshape(-1, 3, 3)
-        else:
-            pa = [pose(n) for n in self.body_names]
-            P = np.array([p for p, _ in pa], dtype=float)
-            A = np.array([a for _, a in pa], dtype=float)
+        pa = [body_pose(n) for n in self.body_names]
+        P = np.array([p for p, _ in pa], dtype=float)
+        A = np.array([a for _, a in pa], dtype=float)
         if not frame_poses(P, A, self._k, self._t, self._Rv, self._none_i, self._none_p,
                            self._poses, self._points):
             return None

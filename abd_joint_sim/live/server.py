@@ -52,10 +52,6 @@ def check_port(value: Any, what: str = 'live_port') -> int:
     return value
 
 
-def is_loopback(host: str) -> bool:
-    return host in ('127.0.0.1', 'localhost', '::1') or host.startswith('127.')
-
-
 class LiveServer:
     """A live view of a simulation (module docstring): `scene`'s bodies, `joint_names` in
     the world's order, on `port` (1..65535; the page, if `page`, on ``port + 1``) of `host`
@@ -126,7 +122,7 @@ class LiveServer:
                          ('response', schemas.TRIGGER_RESPONSE))})
         services = [Service(name, schema=trigger, handler=self._service_handler(name))
                     for name in SERVICES if name in self.services]
-        if not is_loopback(self.host):
+        if not (self.host in ('127.0.0.1', 'localhost', '::1') or self.host.startswith('127.')):
             self.log('warn', f'live view bound to {self.host}:{self.port}: anyone who can '
                      'reach this address sees the run and can pause, step and reset it')
         try:
@@ -138,8 +134,9 @@ class LiveServer:
                 playback_time_range=((0, self.playback_end_ns) if self.playback is not None
                                      else None))
         except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError/OSError
+            why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             raise LiveError(f'live_port {self.port}: cannot listen on {self.host}:{self.port} '
-                            f'({_first_line(exc)})') from None
+                            f'({why})') from None
         if self.page:
             self._start_page()
         return self
@@ -270,10 +267,6 @@ class LiveServer:
 
 def _floats(values) -> str:
     return json.dumps(np.asarray(values, dtype=float).tolist())
-
-
-def _first_line(exc: BaseException) -> str:
-    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
 class _PageServer(http.server.ThreadingHTTPServer):

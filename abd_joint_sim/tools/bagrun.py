@@ -178,9 +178,8 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
 
 def scene_from_text(text: str, source: str):
     """Parse stored scene YAML like ``Scene.from_yaml`` (SceneError names `source`)."""
-    from abd_joint_sim.scene import Scene
     from abd_joint_sim.errors import SceneError
-    from abd_joint_sim.scene import load_yaml
+    from abd_joint_sim.scene import load_yaml, Scene
     try:
         data = load_yaml(text)
     except yaml.YAMLError as exc:

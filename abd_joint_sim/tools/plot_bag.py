@@ -86,14 +86,12 @@ def scene_name(custom: dict) -> str:
     return Path(path).stem if path else ''
 
 
-def mesh_boxes(bag: str | os.PathLike[str], scene: Any = False) -> dict[str, tuple]:
+def mesh_boxes(scene: Any) -> dict[str, tuple]:
     """{body with mesh visuals: (visual origins {index: (t, R_v)}, box sides, centre, axes in
-    the body frame)}: the box of equal inertia drawn for its mesh visuals, from the scene
-    stored in the bag; {} when the bag stores none that parses (then meshes are crosses)."""
+    the body frame)}: the box of equal inertia drawn for its mesh visuals, from `scene` (the
+    bag's stored scene); {} when it is None (then meshes are crosses)."""
     from abd_joint_sim.geometry import rpy_matrix
     from abd_joint_sim.ros.markers import equal_inertia_box
-    if scene is False:
-        scene = _stored_scene(bag)[0]
     out = {}
     for body in scene.bodies if scene is not None else ():
         visuals = getattr(body, 'visuals', ()) or ()
@@ -128,14 +126,6 @@ def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
     return wanted
 
 
-def _stamp_ns(msg) -> Optional[int]:
-    """Header stamp of a JointState or of a MarkerArray's first marker (simulated time)."""
-    header = getattr(msg, 'header', None)
-    if header is None and getattr(msg, 'markers', None):
-        header = msg.markers[0].header
-    return None if header is None else header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-
-
 def read_run(bag: str | os.PathLike[str]) -> Run:
     """Read joint states, commands and markers of `bag` (raises PlotError), in the order
     they were written. Log time is simulated time since the recording began (it runs on
@@ -151,7 +141,11 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
             is_state = msg_type == 'sensor_msgs/msg/JointState' and _STATES.search(topic)
             kind = 'states' if is_state else (
                 'markers' if msg_type == 'visualization_msgs/msg/MarkerArray' else '')
-            stamp = _stamp_ns(msg) if kind else None
+            # simulated time: the stamp of a JointState or of a MarkerArray's first marker
+            header = msg.header if is_state else \
+                msg.markers[0].header if kind and msg.markers else None
+            stamp = None if header is None else header.stamp.sec * 1_000_000_000 + \
+                header.stamp.nanosec
             restarted = log_ns < last       # log time restarted from 0 at a reset
             if restarted:
                 offset += last * 1e-9
@@ -187,7 +181,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
     if scene is not None:
         run.fixed_bodies = {b.name for b in scene.bodies if b.fixed}
     if run.markers:
-        run.mesh_boxes = mesh_boxes(bag, scene)
+        run.mesh_boxes = mesh_boxes(scene)
     return run
 
 

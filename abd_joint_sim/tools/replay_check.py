@@ -80,8 +80,7 @@ class ReplayResult:
                 f't={w.first[1] * 1e-9:.6f} s')
             lines.append(f'  {f:<8}  worst |diff| {w.deviation:.3g} {UNITS[f]}{where}; '
                          f'atol {self.atol[f]:g}: {verdict}')
-        for err in self.name_errors[:5]:
-            lines.append(f'  names: {err}')
+        lines += [f'  names: {err}' for err in self.name_errors[:5]]
         if self.unmatched:
             seg, t = self.unmatched[0]
             lines.append(f'  {len(self.unmatched)} recorded state(s) never reached by the '

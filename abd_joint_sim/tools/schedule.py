@@ -77,12 +77,8 @@ def _per_joint(t_ns: int, where: str, mapping: dict, kind: str, value) -> list[C
     `value(where, v)`."""
     if not mapping:
         raise _fail(where, 'empty mapping')
-    commands = []
-    for joint, v in mapping.items():
-        joint = _joint_name(where, joint)
-        commands.append(Command(t_ns, kind, joint, value(f'{where}.{joint}', v),
-                                f'{where}.{joint}'))
-    return commands
+    return [Command(t_ns, kind, j, value(f'{where}.{j}', v), f'{where}.{j}')
+            for j, v in ((_joint_name(where, j), v) for j, v in mapping.items())]
 
 
 def _fail(where: str, what: str) -> ScheduleError:
