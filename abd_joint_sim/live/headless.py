@@ -1,19 +1,11 @@
-"""The live view of a headless run: real-time pacing and the loop's own pause / unpause /
-step / reset services (``run_headless --live PORT``, ``replay_bag BAG --live PORT``).
-
-:class:`RealTimePacer` is the hook ``HeadlessSim.run`` calls before each advance: it
-publishes the state to the live server, sleeps until the next step is due at real time x
-`speed`, waits while paused (a ``step`` lets one step through) and returns how many steps may
-be taken now. Pacing decides only when the steps are taken, never what they compute: the
-run's results are those of the same run without the live view.
-
-A replay (``seekable``) also answers Foxglove's playback control (play, pause, speed, seek):
-a seek forward steps as fast as possible to the time asked for, a seek backward (and
-``reset``, a seek to 0) starts the run again from the bag (:class:`Restart`) and steps to
-it. A run that records a bag (``run_headless``) refuses ``reset``: its bag holds one run.
+"""The live view of a headless run (``run_headless --live``, ``replay_bag --live``): real-time
+pacing and the loop's own pause / unpause / step / reset services, and for a replay Foxglove's
+playback control (docs/live.md). Pacing decides only when the steps are taken, never what they
+compute: the run's results are those of the same run without the live view.
 """
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from typing import Any, Optional
@@ -28,9 +20,12 @@ class Restart(Exception):
 
 
 class RealTimePacer:
-    """See the module docstring. `loop`: the ``SimLoop`` (``replace_loop`` after a restart);
-    `live`: the ``LiveServer`` (set once it runs); `end_ns`: the replay's last time (the
-    playback range), None for a run that records."""
+    """The hook ``HeadlessSim.run`` calls before each advance: it publishes the state to
+    `live` (the ``LiveServer``), sleeps until the next step is due at real time x `speed`,
+    waits while paused (``step`` lets one through) and returns how many steps to take now.
+    `loop`: the ``SimLoop`` (``replace_loop`` after a :class:`Restart`); `end_ns`: the
+    replay's last time (the playback range; a seek backward or ``reset`` restarts the run),
+    None for a run that records (it refuses ``reset``: its bag holds one run)."""
 
     def __init__(self, loop: Any, speed: float = 1.0, end_ns: Optional[int] = None):
         self.loop = loop
@@ -177,3 +172,16 @@ class RealTimePacer:
             if self.live.refresh_due:
                 self.live.publish_loop(self.loop, force=True)
             time.sleep(IDLE)
+
+
+def start_live(prog: str, scene: Any, pacer: RealTimePacer, port: int, host: str, source: str,
+               **options: Any) -> Any:
+    """The started ``LiveServer`` of a headless run paced by `pacer` (and attached to it);
+    LiveError if it cannot listen. Its log lines go to stderr as ``PROG: LEVEL: text``."""
+    from .server import LiveServer
+    pacer.live = LiveServer(scene, pacer.loop.joint_names, port, host,
+                            world_frame=pacer.loop.config.marker_frame_id,
+                            services=pacer.services(), name=prog, source=source,
+                            log=lambda level, text: print(f'{prog}: {level}: {text}',
+                                                          file=sys.stderr), **options).start()
+    return pacer.live

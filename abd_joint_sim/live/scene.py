@@ -1,18 +1,10 @@
 """What the live server sends, as plain JSON-ready dicts (Foxglove's JSON encoding of its
 ``foxglove.SceneUpdate`` and ``foxglove.FrameTransforms`` schemas), built from a scene.
 
-Frames. Each body has a frame named as the body (for a URDF robot: its link), posed in the
-world frame (``world``, or ``marker_frame_id``) by the body's position p and the rotation
-nearest to its affine A (``ros/markers.py``: the orthogonal polar factor, det +1). A URDF
-link merged into a body (a fixed joint) gets a frame of its own named as the link, the child
-of its body's frame at the chain of joint origins between them (a joint held rigid by
-``lock`` counts at angle 0). So Foxglove's 3D panel shows the URDF's tf tree.
-
-Geometry. One ``SceneUpdate`` entity per body, in the body's frame (``frame_locked``: it
-moves with the frame): exactly the parts the markers draw (``MarkerBuilder``'s parts: URDF
-visuals, with their mesh URLs, else the scene's shape, else the box of equal inertia), with
-their origins in the body frame. A marker sits at A t + p, the entity's part at R t + p: the
-same point up to the body's strain (|A - R|, ~1e-6 here).
+Each body has a frame named as the body, posed in the world frame by its position p and the
+rotation nearest to its affine A; a URDF link merged into a body gets a frame of its own,
+the child of its body's frame. One ``SceneUpdate`` entity per body, frame-locked in the
+body's frame, holds exactly the parts the markers draw (``MarkerBuilder``'s parts).
 """
 from __future__ import annotations
 
@@ -43,10 +35,6 @@ def _pose(t, R) -> dict:
     return {'position': _vec(t), 'orientation': {'x': x, 'y': y, 'z': z, 'w': w}}
 
 
-def _colour(rgba) -> dict:
-    return {'r': rgba[0], 'g': rgba[1], 'b': rgba[2], 'a': rgba[3]}
-
-
 def scene_entities(scene: Any, builder: Optional[MarkerBuilder] = None) -> list[dict]:
     """One ``foxglove.SceneEntity`` (JSON) per body of `scene`, in the body's frame, without
     a timestamp (``scene_update`` adds it). Geometry from `builder` (a MarkerBuilder of the
@@ -62,12 +50,11 @@ def scene_entities(scene: Any, builder: Optional[MarkerBuilder] = None) -> list[
     for part in builder.parts:
         e = entities[part.body]
         pose = _pose(part.t, part.R)
-        colour = _colour(part.colour)
+        colour = dict(zip('rgba', part.colour))
         size = {'x': part.scale[0], 'y': part.scale[1], 'z': part.scale[2]}
-        if part.kind == M.CUBE:
-            e['cubes'].append({'pose': pose, 'size': size, 'color': colour})
-        elif part.kind == M.SPHERE:
-            e['spheres'].append({'pose': pose, 'size': size, 'color': colour})
+        if part.kind in (M.CUBE, M.SPHERE):
+            e['cubes' if part.kind == M.CUBE else 'spheres'].append(
+                {'pose': pose, 'size': size, 'color': colour})
         elif part.kind == M.CYLINDER:
             e['cylinders'].append({'pose': pose, 'size': size, 'bottom_scale': 1.0,
                                    'top_scale': 1.0, 'color': colour})
@@ -131,17 +118,13 @@ class FrameBuilder:
         self._poses = np.empty((B, 7))
         self._points = np.empty((0, 3))
 
-    def body_poses(self, pose) -> Optional[np.ndarray]:
+    def body_poses(self, body_pose) -> Optional[np.ndarray]:
         """(B, 7) = (x, y, z, qx, qy, qz, qw) of each body frame: p and the rotation nearest
-        A; `pose` is ``World.body_pose`` or the (B, 12) states [p, A]. None if not finite."""
+        A, from ``World.body_pose`` (name -> (p, A)). None if not finite."""
         from abd_joint_sim.smallmat import frame_poses
-        if isinstance(pose, np.ndarray):
-            P = np.ascontiguousarray(pose[:, :3], dtype=float)
-            A = np.ascontiguousarray(pose[:, 3:12], dtype=float).reshape(-1, 3, 3)
-        else:
-            pa = [pose(n) for n in self.body_names]
-            P = np.array([p for p, _ in pa], dtype=float)
-            A = np.array([a for _, a in pa], dtype=float)
+        pa = [body_pose(n) for n in self.body_names]
+        P = np.array([p for p, _ in pa], dtype=float)
+        A = np.array([a for _, a in pa], dtype=float)
         if not frame_poses(P, A, self._k, self._t, self._Rv, self._none_i, self._none_p,
                            self._poses, self._points):
             return None

@@ -1,30 +1,11 @@
 """The live server: a Foxglove WebSocket server (``foxglove-sdk``) and the page that watches it.
 
-:class:`LiveServer` serves, stamped in simulated time, on channels with JSON encoding:
-
-* ``/scene`` (``foxglove.SceneUpdate``): one entity per body (``live/scene.py``), sent when a
-  client subscribes and then once per second of wall time (the entities are frame-locked:
-  the transforms move them);
-* ``/tf`` (``foxglove.FrameTransforms``): every body frame in the world frame and every
-  merged URDF link in its body's frame, once per publish;
-* ``/joint_states`` (``abd_joint_sim.JointStates``): name, position, velocity, effort;
-* ``/status`` (``abd_joint_sim.Status``): simulated time, steps, paused, the solver's last
-  step (Newton iterations, converged, joint separation), fault, the real-time factor
-  achieved;
-
-and the server time (the simulated time). Services ``pause``, ``unpause``, ``step``,
-``reset`` (JSON, ``std_srvs/Trigger``'s fields) call the owner's own (sim_node's ``~/pause``
-..., or the headless loop's).
-
-A publish happens after a step, at most :data:`LIVE_RATE_HZ` times per wall second (a
-step's state is on the wire at most 1/LIVE_RATE_HZ s after it is taken), and only while a
-client subscribes to a channel: with nobody subscribed a publish is one attribute test. While
-the simulation is paused nothing is published, except the state after a ``step`` or
-``reset`` and the current state to a client that subscribes.
-
-The page: a small HTTP server on the next port (``port + 1``) serves ``web/index.html``
-and three.js from ``web/node_modules`` (installed by ``npm ci`` in ``web/``, never
-committed); without three.js the page says how to install it.
+:class:`LiveServer` serves ``/scene``, ``/tf``, ``/joint_states`` and ``/status`` (JSON, stamped
+in simulated time), the server time and the owner's services ``pause``, ``unpause``,
+``step``, ``reset`` (docs/live.md, "What is served"). A publish happens after a step, at most
+:data:`LIVE_RATE_HZ` times per wall second and only while a client subscribes. The page: a
+small HTTP server on ``port + 1`` serving ``web/index.html`` and three.js from
+``web/node_modules`` (``npm ci`` in ``web/``; without it the page says how to install it).
 """
 from __future__ import annotations
 
@@ -71,44 +52,13 @@ def check_port(value: Any, what: str = 'live_port') -> int:
     return value
 
 
-def is_loopback(host: str) -> bool:
-    return host in ('127.0.0.1', 'localhost', '::1') or host.startswith('127.')
-
-
-class _Listener:
-    """The SDK's server listener: counts subscriptions (the has-subscribers signal)."""
-
-    def __init__(self, owner: 'LiveServer'):
-        self.owner = owner
-
-    def on_subscribe(self, client, channel) -> None:
-        with self.owner._sub_lock:
-            self.owner._subscriptions += 1
-            if channel.topic == TOPIC_SCENE:
-                self.owner._scene_due = True
-            self.owner.refresh_due = True
-
-    def on_unsubscribe(self, client, channel) -> None:
-        with self.owner._sub_lock:
-            self.owner._subscriptions = max(0, self.owner._subscriptions - 1)
-
-    def on_playback_control_request(self, request):
-        playback = self.owner.playback
-        return None if playback is None else playback.on_playback_control_request(request)
-
-
 class LiveServer:
-    """A live view of a simulation (module docstring).
-
-    :param scene: the ``Scene`` (bodies, their visuals, a URDF robot's link tree).
-    :param joint_names: the joints of ``/joint_states``, in the world's order.
-    :param port: WebSocket port (1..65535); the page is served on ``port + 1``.
-    :param host: address to bind (default 127.0.0.1; anything else logs a warning).
-    :param services: name (of :data:`SERVICES`) -> callable() -> (success, message).
-    :param page: also serve the page on ``port + 1``.
-    :param log: callable(level, text) for the owner's log ('info', 'warn', 'error').
-    :param playback: a replay's pacer (``live/headless.py``): Foxglove's playback control.
-    """
+    """A live view of a simulation (module docstring): `scene`'s bodies, `joint_names` in
+    the world's order, on `port` (1..65535; the page, if `page`, on ``port + 1``) of `host`
+    (anything but loopback logs a warning). `services`: name (of :data:`SERVICES`) ->
+    callable() -> (success, message); `log`: callable(level, text) for the owner's log;
+    `playback`: a replay's pacer, answering Foxglove's playback control over
+    0..`playback_end_ns` of simulated time (None: a live run)."""
 
     def __init__(self, scene: Any, joint_names, port: int, host: str = DEFAULT_HOST,
                  world_frame: str = 'world',
@@ -126,8 +76,6 @@ class LiveServer:
         self.entities = scene_entities(scene)
         self.services = dict(services or {})
         self.playback = playback
-        """Answers Foxglove's playback control (``on_playback_control_request``) over the
-        range 0..`playback_end_ns` of simulated time (a replay); None: a live run."""
         self.playback_end_ns = int(playback_end_ns)
         self.page = page
         self.http_port: Optional[int] = None
@@ -145,7 +93,6 @@ class LiveServer:
         self._names_json = json.dumps(self.joint_names)
         self._server = None
         self._http = None
-        self._http_thread = None
 
     # ------------------------------------------------------------------ start/stop ----
     def start(self) -> 'LiveServer':
@@ -160,36 +107,36 @@ class LiveServer:
                             'pip install -r requirements-live.txt') from None
         self._context = foxglove.Context()
 
-        def channel(topic, schema):
-            return foxglove.Channel(
-                topic, schema=Schema(name=schema['title'], encoding='jsonschema',
-                                     data=schemas.text(schema)),
-                message_encoding='json', context=self._context)
-        self._scene_ch = channel(TOPIC_SCENE, schemas.SCENE_UPDATE)
-        self._tf_ch = channel(TOPIC_TF, schemas.FRAME_TRANSFORMS)
-        self._js_ch = channel(TOPIC_JOINT_STATES, schemas.JOINT_STATES)
-        self._status_ch = channel(TOPIC_STATUS, schemas.STATUS)
-        json_schema = lambda s: MessageSchema(encoding='json', schema=Schema(  # noqa: E731
-            name=s['title'], encoding='jsonschema', data=schemas.text(s)))
-        trigger = ServiceSchema('std_srvs/srv/Trigger',
-                                request=json_schema(schemas.TRIGGER_REQUEST),
-                                response=json_schema(schemas.TRIGGER_RESPONSE))
+        def schema(s: dict) -> Schema:
+            return Schema(name=s['title'], encoding='jsonschema', data=schemas.text(s))
+        self._scene_ch, self._tf_ch, self._js_ch, self._status_ch = (
+            foxglove.Channel(topic, schema=schema(s), message_encoding='json',
+                             context=self._context)
+            for topic, s in ((TOPIC_SCENE, schemas.SCENE_UPDATE),
+                             (TOPIC_TF, schemas.FRAME_TRANSFORMS),
+                             (TOPIC_JOINT_STATES, schemas.JOINT_STATES),
+                             (TOPIC_STATUS, schemas.STATUS)))
+        trigger = ServiceSchema('std_srvs/srv/Trigger', **{
+            k: MessageSchema(encoding='json', schema=schema(s))
+            for k, s in (('request', schemas.TRIGGER_REQUEST),
+                         ('response', schemas.TRIGGER_RESPONSE))})
         services = [Service(name, schema=trigger, handler=self._service_handler(name))
                     for name in SERVICES if name in self.services]
-        if not is_loopback(self.host):
+        if not (self.host in ('127.0.0.1', 'localhost', '::1') or self.host.startswith('127.')):
             self.log('warn', f'live view bound to {self.host}:{self.port}: anyone who can '
                      'reach this address sees the run and can pause, step and reset it')
         try:
             self._server = foxglove.start_server(
                 name=self.name, host=self.host, port=self.port, context=self._context,
                 capabilities=[Capability.Time] + ([Capability.Services] if services else []),
-                server_listener=_Listener(self), supported_encodings=['json'],
+                server_listener=self, supported_encodings=['json'],
                 services=services or None,
                 playback_time_range=((0, self.playback_end_ns) if self.playback is not None
                                      else None))
         except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError/OSError
+            why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             raise LiveError(f'live_port {self.port}: cannot listen on {self.host}:{self.port} '
-                            f'({_first_line(exc)})') from None
+                            f'({why})') from None
         if self.page:
             self._start_page()
         return self
@@ -208,10 +155,8 @@ class LiveServer:
                      f'Foxglove can still connect to ws://{self.host}:{self.port}')
             return
         self.http_port = port
-        self._http_thread = threading.Thread(target=self._http.serve_forever,
-                                             kwargs={'poll_interval': 0.2},
-                                             name='live_page', daemon=True)
-        self._http_thread.start()
+        threading.Thread(target=self._http.serve_forever, kwargs={'poll_interval': 0.2},
+                         name='live_page', daemon=True).start()
 
     def describe(self) -> str:
         page = (f'; page http://{self.host}:{self.http_port}/' if self.http_port else '')
@@ -226,6 +171,21 @@ class LiveServer:
         if http is not None:
             http.shutdown()
             http.server_close()
+
+    # ---------------------------------------- the SDK's server listener: subscriptions ----
+    def on_subscribe(self, client, channel) -> None:
+        with self._sub_lock:
+            self._subscriptions += 1
+            if channel.topic == TOPIC_SCENE:
+                self._scene_due = True
+            self.refresh_due = True
+
+    def on_unsubscribe(self, client, channel) -> None:
+        with self._sub_lock:
+            self._subscriptions = max(0, self._subscriptions - 1)
+
+    def on_playback_control_request(self, request):
+        return None if self.playback is None else self.playback.on_playback_control_request(request)
 
     # ------------------------------------------------------------------- publishing ----
     @property
@@ -290,10 +250,6 @@ class LiveServer:
             self._rtf = (t - anchor[1]) / (now - anchor[0])
             self._rtf_anchor = (now, t)
 
-    def restart_rtf(self) -> None:
-        """Forget the measurement window (after a pause: paused time is no slowness)."""
-        self._rtf_anchor = None
-
     # ------------------------------------------------------------------- services ----
     def _service_handler(self, name: str):
         call = self.services[name]
@@ -304,17 +260,13 @@ class LiveServer:
             except Exception as exc:  # noqa: BLE001 - answered, not raised into the SDK
                 ok, message = False, f'{type(exc).__name__}: {exc}'
             if name in ('pause', 'unpause'):
-                self.restart_rtf()
+                self._rtf_anchor = None     # paused time is no slowness
             return json.dumps({'success': bool(ok), 'message': str(message)}).encode()
         return handler
 
 
 def _floats(values) -> str:
     return json.dumps(np.asarray(values, dtype=float).tolist())
-
-
-def _first_line(exc: BaseException) -> str:
-    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
 class _PageServer(http.server.ThreadingHTTPServer):

@@ -1,20 +1,10 @@
 """A recorded bag as what is needed to run it again: scene, parameters, commands, states.
 
-Messages are read in *file* order (the order sim_node wrote them, which is step order). A
-segment starts at the first message and wherever the stamp of ``/clock`` or
-``/joint_states`` does not advance (the node writes both, with increasing stamps, after
-every step, and again at t = 0 on ``~/reset``). Log times run on across a reset (simulated
-time since the recording began, docs/bag-format.md "Resets"); a segment's offset is the log
-time minus the stamp of its first ``/clock`` or ``/joint_states``, and a command's time in
-its segment is its log time minus that offset. (Bags whose log times restart at 0 have
-offset 0 throughout and read the same way.)
-
-Topics are recognised by their last components, so a namespaced node's bag works:
-``.../joint_torque_commands`` (array, in the stored ``joints`` order),
-``.../joint_torque/<joint>``, ``.../joint_torque_enable/<joint>``,
-``.../joint_torque_enable`` (all joints), ``.../joint_commands`` (sensor_msgs/JointState:
-efforts and driving aims as applied), ``.../joint_states``, ``/clock``, and
-``/parameter_events`` (live parameter changes, applied from their log time on).
+Messages are read in *file* order (the node's step order). A segment starts at the first
+message and wherever the stamp of ``/clock`` or ``/joint_states`` does not advance (a
+``~/reset``); a command's time in its segment is its log time minus the segment's offset
+(log time minus the stamp of its first ``/clock`` or ``/joint_states``; docs/replay.md).
+Topics are recognised by their last components, so a namespaced node's bag works.
 """
 from __future__ import annotations
 
@@ -34,15 +24,27 @@ from abd_joint_sim.ros.topics import (pattern, TOPIC_CLOCK, TOPIC_ENABLE_ALL, TO
 
 from .schedule import Command, Plan, Segment
 
-# Recorded topics under any namespace, from the node's topic table (ros/topics.py).
-_ARRAY = pattern(TOPIC_TORQUE_ARRAY)
-_TORQUE = pattern(TOPIC_TORQUE_JOINT)
-_ENABLE = pattern(TOPIC_ENABLE_JOINT)
-_ENABLE_ALL = pattern(TOPIC_ENABLE_ALL)
-_JOINT_COMMANDS = pattern(TOPIC_JOINT_COMMANDS)
 _STATES = pattern(TOPIC_JOINT_STATES)
 _CLOCK = pattern(TOPIC_CLOCK)
-_PARAMETERS = pattern(TOPIC_PARAMETER_EVENTS)
+
+
+def _parameters(msg) -> Optional[dict]:
+    from abd_joint_sim.ros.recording import parameter_changes
+    return parameter_changes(msg) or None if hasattr(msg, 'changed_parameters') else None
+
+
+def _joint_state(msg) -> Optional[dict]:
+    return {'name': list(msg.name), 'position': list(msg.position), 'velocity':
+            list(msg.velocity), 'effort': list(msg.effort)} if hasattr(msg, 'effort') else None
+
+
+_COMMANDS = ((pattern(TOPIC_TORQUE_ARRAY), 'array', convert.array_values),
+             (pattern(TOPIC_TORQUE_JOINT), 'torque', lambda msg: float(msg.data)),
+             (pattern(TOPIC_ENABLE_JOINT), 'enable', lambda msg: bool(msg.data)),
+             (pattern(TOPIC_PARAMETER_EVENTS), 'parameter', _parameters),
+             (pattern(TOPIC_JOINT_COMMANDS), 'joint_state', _joint_state),
+             (pattern(TOPIC_ENABLE_ALL), 'enable_all', lambda msg: bool(msg.data)))
+"""(recorded topic under any namespace, command kind, its value from the message or None)"""
 
 
 class BagInputError(RuntimeError):
@@ -92,10 +94,7 @@ def _iter_file_order(path: str | os.PathLike[str], topics: Optional[list[str]] =
 
 def _stored_text(custom: dict[str, str], attachments: dict[str, bytes], key: str,
                  attachment: str) -> str:
-    text = custom.get(key) or ''
-    if not text and attachment in attachments:
-        text = attachments[attachment].decode('utf-8', errors='replace')
-    return text
+    return custom.get(key) or attachments.get(attachment, b'').decode('utf-8', 'replace')
 
 
 def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
@@ -162,29 +161,13 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
                 list(msg.effort)))
             continue
         log_ns -= offset[0]         # the command's time in its segment
-        where = f'{topic} at t={log_ns / convert.NS_PER_S:.9g} s'
-        if _ARRAY.search(topic):
-            segments[-1].commands.append(Command(log_ns, 'array', None,
-                                                 convert.array_values(msg), where))
-        elif (m := _TORQUE.search(topic)) is not None:
-            segments[-1].commands.append(Command(log_ns, 'torque', m.group(1),
-                                                 float(msg.data), where))
-        elif (m := _ENABLE.search(topic)) is not None:
-            segments[-1].commands.append(Command(log_ns, 'enable', m.group(1),
-                                                 bool(msg.data), where))
-        elif _PARAMETERS.search(topic) and hasattr(msg, 'changed_parameters'):
-            from abd_joint_sim.ros.recording import parameter_changes
-            changes = parameter_changes(msg)
-            if changes:
-                segments[-1].commands.append(Command(log_ns, 'parameter', None, changes,
-                                                     where))
-        elif _JOINT_COMMANDS.search(topic) and hasattr(msg, 'effort'):
-            segments[-1].commands.append(Command(log_ns, 'joint_state', None, {
-                'name': list(msg.name), 'position': list(msg.position),
-                'velocity': list(msg.velocity), 'effort': list(msg.effort)}, where))
-        elif _ENABLE_ALL.search(topic):
-            segments[-1].commands.append(Command(log_ns, 'enable_all', None,
-                                                 bool(msg.data), where))
+        for regex, kind, value_of in _COMMANDS:
+            if (m := regex.search(topic)) is not None:
+                if (value := value_of(msg)) is not None:
+                    segments[-1].commands.append(Command(
+                        log_ns, kind, m.group(1) if regex.groups else None, value,
+                        f'{topic} at t={log_ns / convert.NS_PER_S:.9g} s'))
+                break
     for seg, end in zip(segments, ends):
         seg.end_ns = end
     plan = Plan(segments, {}, source=path)
@@ -195,9 +178,8 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
 
 def scene_from_text(text: str, source: str):
     """Parse stored scene YAML like ``Scene.from_yaml`` (SceneError names `source`)."""
-    from abd_joint_sim.scene import Scene
     from abd_joint_sim.errors import SceneError
-    from abd_joint_sim.scene import load_yaml
+    from abd_joint_sim.scene import load_yaml, Scene
     try:
         data = load_yaml(text)
     except yaml.YAMLError as exc:

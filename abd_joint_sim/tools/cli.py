@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
 import sys
 from typing import Callable, Optional, Sequence
 
@@ -19,6 +20,15 @@ class Parser(argparse.ArgumentParser):
 
 class InputError(Exception):
     """Bad input found after the arguments parsed: one line on stderr, exit 2."""
+
+
+@contextmanager
+def input_errors(*types: type, prefix: str = ''):
+    """An exception of `types` raised inside becomes an InputError (`prefix` + its text)."""
+    try:
+        yield
+    except types as exc:
+        raise InputError(f'{prefix}{exc}') from None
 
 
 def own_args(argv: Optional[Sequence[str]]) -> list[str]:

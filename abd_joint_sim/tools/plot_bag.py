@@ -1,39 +1,19 @@
-"""plot_bag: pictures of a recorded run (PNG), for people to look at.
+"""plot_bag: pictures of a recorded run (PNG), for people to look at (docs/viewing.md).
 
     python -m abd_joint_sim.tools.plot_bag BAG --out DIR [--times 0,0.5,1] [--view xy]
 
-writes
-
-* ``DIR/joints.png``: joint angle, velocity and effort against simulated time (from
-  ``/joint_states``), one line per joint, with a dotted vertical line wherever a recorded
-  command took effect (torque, array or enable topics; the log time of a command is the
-  step boundary it was applied at), and a dashed one at each reset (simulated time going
-  back to 0 starts a new segment, drawn after the previous one);
-* ``DIR/poses.png``: a grid of the bodies at chosen times, drawn from the recorded
-  ``markers`` (docs/bag-format.md): each box, cylinder or sphere projected on a plane
-  (boxes and cylinders as the convex hull of their projected outline, spheres as
-  circles), joint-axis arrows as black lines, and a thin line for the path each moving
-  body took over the last TRAIL_SECONDS before that time. Each body has its own colour and
-  legend entry (`body_styles`: the bodies of a robot often share one URDF material colour);
-  fixed bodies are light grey and labelled "(fixed)". Without markers in the bag (recorded
-  with ``marker_rate`` 0) only joints.png is written.
-
-The default title names the scene (the robot's name for a URDF robot) and the bag.
-
-Meshes (URDF ``<mesh>`` visuals, ``MESH_RESOURCE`` markers) are not loaded: a body with
-mesh visuals is drawn as its box of equal inertia (``markers.equal_inertia_box``: sides
-a_i = sqrt(6 (I_j + I_k - I_i) / m), at the COM, along the principal axes; hatched, and
-labelled so), from the scene stored in the bag. The body's pose comes from the mesh
-marker: with the visual's origin (t, R_v) in the body frame, R_b = R_m R_vᵀ and
-p_b = p_m - R_b t. Without a readable scene in the bag a mesh is a cross at its origin.
-
-The view plane (``--view xy|xz|yz``) defaults to the one in which the bodies move most.
-matplotlib is optional (requirements-study.txt); without it the command says so in one line
-and exits with status 2, as it does for a bag it cannot read.
+writes ``DIR/joints.png`` (joint angle, velocity and effort against simulated time; dotted
+lines where a recorded command took effect, dashed ones at resets, after which the next
+segment is drawn on) and, when the bag has markers, ``DIR/poses.png`` (the bodies at chosen
+times projected on the plane they move in, with each moving body's path over the last
+TRAIL_SECONDS; a body with mesh visuals is drawn, hatched, as its box of equal inertia from
+the scene stored in the bag, or as a cross without one). matplotlib is optional
+(requirements-study.txt); without it, as for a bag it cannot read: one line, exit status 2.
 """
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass, field
 import math
 import os
 from pathlib import Path
@@ -55,32 +35,30 @@ BODY_COLOURS = ('#1f77b4', '#ff7f0e', '#2ca02c', '#d62728', '#9467bd', '#8c564b'
 FIXED_COLOUR = '0.78'
 _COMMAND_TYPES = ('std_msgs/msg/Float64', 'std_msgs/msg/Float64MultiArray',
                   'std_msgs/msg/Bool')
-_AXES = {'x': 0, 'y': 1, 'z': 2}
+_CORNERS = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
 
 
 class PlotError(RuntimeError):
     """The bag cannot be plotted; the message says why (one line)."""
 
 
+@dataclass
 class Run:
     """What the pictures need from a bag, in simulated time (segments laid end to end)."""
 
-    def __init__(self) -> None:
-        self.joint_names: list[str] = []
-        self.t: list[float] = []           # s, continuous across resets
-        self.position: list[list[float]] = []
-        self.velocity: list[list[float]] = []
-        self.effort: list[list[float]] = []
-        self.commands: list[tuple[float, str]] = []     # (t, topic)
-        self.resets: list[float] = []
-        self.reset_index: list[int] = []   # index into t of the first state after a reset
-        self.markers: list[tuple[float, Any]] = []      # (t, MarkerArray)
-        self.marker_segment: list[int] = []             # segment (0, 1, ...) of each
-        # body -> (visual origins {index: (t, R_v)}, box sides, centre, axes in the body
-        # frame): the stand-in drawn for mesh visuals (see the module docstring)
-        self.mesh_boxes: dict[str, tuple] = {}
-        self.fixed_bodies: Optional[set[str]] = None    # from the stored scene; None: unknown
-        self.scene_name = ''               # the robot's name, else the scene file's stem
+    joint_names: list[str] = field(default_factory=list)
+    t: list[float] = field(default_factory=list)            # s, continuous across resets
+    position: list[list[float]] = field(default_factory=list)
+    velocity: list[list[float]] = field(default_factory=list)
+    effort: list[list[float]] = field(default_factory=list)
+    commands: list[tuple[float, str]] = field(default_factory=list)     # (t, topic)
+    resets: list[float] = field(default_factory=list)
+    reset_index: list[int] = field(default_factory=list)    # index in t of a reset's first
+    markers: list[tuple[float, Any]] = field(default_factory=list)      # (t, MarkerArray)
+    marker_segment: list[int] = field(default_factory=list)     # segment (0, 1, ...) of each
+    mesh_boxes: dict[str, tuple] = field(default_factory=dict)  # see mesh_boxes()
+    fixed_bodies: Optional[set[str]] = None     # from the stored scene; None: unknown
+    scene_name: str = ''        # the robot's name, else the scene file's stem
 
 
 def _stored_scene(bag: str | os.PathLike[str]):
@@ -108,13 +86,12 @@ def scene_name(custom: dict) -> str:
     return Path(path).stem if path else ''
 
 
-def mesh_boxes(bag: str | os.PathLike[str], scene: Any = False) -> dict[str, tuple]:
-    """Per body with mesh visuals, what :attr:`Run.mesh_boxes` holds, from the scene
-    stored in the bag; {} when the bag stores none that parses (then meshes are crosses)."""
+def mesh_boxes(scene: Any) -> dict[str, tuple]:
+    """{body with mesh visuals: (visual origins {index: (t, R_v)}, box sides, centre, axes in
+    the body frame)}: the box of equal inertia drawn for its mesh visuals, from `scene` (the
+    bag's stored scene); {} when it is None (then meshes are crosses)."""
     from abd_joint_sim.geometry import rpy_matrix
     from abd_joint_sim.ros.markers import equal_inertia_box
-    if scene is False:
-        scene = _stored_scene(bag)[0]
     out = {}
     for body in scene.bodies if scene is not None else ():
         visuals = getattr(body, 'visuals', ()) or ()
@@ -149,14 +126,6 @@ def _wanted_topics(bag: str | os.PathLike[str]) -> Optional[list[str]]:
     return wanted
 
 
-def _stamp_ns(msg) -> Optional[int]:
-    """Header stamp of a JointState or of a MarkerArray's first marker (simulated time)."""
-    header = getattr(msg, 'header', None)
-    if header is None and getattr(msg, 'markers', None):
-        header = msg.markers[0].header
-    return None if header is None else header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-
-
 def read_run(bag: str | os.PathLike[str]) -> Run:
     """Read joint states, commands and markers of `bag` (raises PlotError), in the order
     they were written. Log time is simulated time since the recording began (it runs on
@@ -172,14 +141,16 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
             is_state = msg_type == 'sensor_msgs/msg/JointState' and _STATES.search(topic)
             kind = 'states' if is_state else (
                 'markers' if msg_type == 'visualization_msgs/msg/MarkerArray' else '')
-            stamp = _stamp_ns(msg) if kind else None
-            if log_ns < last:   # log time restarted from 0 at a reset
+            # simulated time: the stamp of a JointState or of a MarkerArray's first marker
+            header = msg.header if is_state else \
+                msg.markers[0].header if kind and msg.markers else None
+            stamp = None if header is None else header.stamp.sec * 1_000_000_000 + \
+                header.stamp.nanosec
+            restarted = log_ns < last       # log time restarted from 0 at a reset
+            if restarted:
                 offset += last * 1e-9
-                run.resets.append(offset)
-                run.reset_index.append(len(run.t))
-                stamps.clear()
-            elif stamp is not None and kind in stamps and stamp <= stamps[kind]:
-                run.resets.append(offset + log_ns * 1e-9)     # the stamps went back: reset
+            if restarted or (stamp is not None and kind in stamps and stamp <= stamps[kind]):
+                run.resets.append(offset if restarted else offset + log_ns * 1e-9)
                 run.reset_index.append(len(run.t))
                 stamps.clear()
             if stamp is not None:
@@ -210,7 +181,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
     if scene is not None:
         run.fixed_bodies = {b.name for b in scene.bodies if b.fixed}
     if run.markers:
-        run.mesh_boxes = mesh_boxes(bag, scene)
+        run.mesh_boxes = mesh_boxes(scene)
     return run
 
 
@@ -218,29 +189,19 @@ def body_styles(run: Run) -> dict[str, tuple[Any, bool]]:
     """{body: (colour, fixed)} in the order the bodies' markers first appear: a colour of
     its own for each moving body, FIXED_COLOUR for the fixed ones (from the stored scene; a
     bag without one: the bodies whose markers never moved)."""
-    names: list[str] = []
     where: dict[str, list] = {}
     for _, arr in run.markers:
         for m in arr.markers:
             if m.ns.startswith('bodies/'):
-                name = m.ns.split('/', 1)[1]
-                if name not in where:
-                    names.append(name)
-                    where[name] = []
                 p = m.pose.position
-                where[name].append((p.x, p.y, p.z))
+                where.setdefault(m.ns.split('/', 1)[1], []).append((p.x, p.y, p.z))
     out = {}
-    k = 0
-    for name in names:
-        if run.fixed_bodies is not None:
-            fixed = name in run.fixed_bodies
-        else:
-            fixed = float(np.ptp(np.array(where[name]), axis=0).max()) < 1e-9
-        if fixed:
-            out[name] = (FIXED_COLOUR, True)
-        else:
-            out[name] = (BODY_COLOURS[k % len(BODY_COLOURS)], False)
-            k += 1
+    for name, points in where.items():
+        fixed = name in run.fixed_bodies if run.fixed_bodies is not None else \
+            float(np.ptp(np.array(points), axis=0).max()) < 1e-9
+        moving = sum(not f for _, f in out.values())
+        out[name] = (FIXED_COLOUR, True) if fixed else \
+            (BODY_COLOURS[moving % len(BODY_COLOURS)], False)
     return out
 
 
@@ -272,16 +233,6 @@ def joints_notes(run: Run) -> str:
     notes = (['dotted: a command took effect'] if run.commands else []) + \
         (['dashed: reset'] if run.resets else [])
     return '; '.join(notes)
-
-
-def _pyplot():
-    try:
-        import matplotlib
-    except ImportError:
-        return None
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt
 
 
 def plot_joints(plt, run: Run, path: Path, title: str) -> None:
@@ -325,7 +276,7 @@ def _outline(marker) -> Optional[np.ndarray]:
     from visualization_msgs.msg import Marker
     s = np.array([marker.scale.x, marker.scale.y, marker.scale.z]) / 2.0
     if marker.type == Marker.CUBE:
-        local = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)]) * s
+        local = _CORNERS * s
     elif marker.type == Marker.CYLINDER:
         a = np.linspace(0.0, 2 * math.pi, 24, endpoint=False)
         ring = np.stack([np.cos(a) * s[0], np.sin(a) * s[1], np.zeros_like(a)], axis=1)
@@ -371,8 +322,7 @@ def _mesh_box_points(run: Run, marker) -> Optional[np.ndarray]:
     p = marker.pose.position
     R_b = R_m @ R_v.T
     p_b = np.array([p.x, p.y, p.z]) - R_b @ t_v
-    local = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)]) \
-        * (sides / 2.0)
+    local = _CORNERS * (sides / 2.0)
     return (local @ axes.T + com) @ R_b.T + p_b
 
 
@@ -408,7 +358,7 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
     """The strip of body poses; returns the times drawn."""
     from matplotlib.patches import Circle, Polygon
     from visualization_msgs.msg import Marker
-    i, j = _AXES[view[0]], _AXES[view[1]]
+    i, j = 'xyz'.index(view[0]), 'xyz'.index(view[1])
     chosen = pick_times(run, times)
     all_pts = []
     for _, arr in run.markers:
@@ -454,14 +404,13 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
                 (f'{name} (fixed)' if fixed else name)
             p = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
             if m.type == Marker.ARROW and len(m.points) == 2:
-                a, b = m.points
-                ax.annotate('', xy=([b.x, b.y, b.z][i], [b.x, b.y, b.z][j]),
-                            xytext=([a.x, a.y, a.z][i], [a.x, a.y, a.z][j]),
+                a, b = ([q.x, q.y, q.z] for q in m.points)
+                ax.annotate('', xy=(b[i], b[j]), xytext=(a[i], a[j]),
                             arrowprops=dict(arrowstyle='->', color='k', lw=1.5))
                 continue
+            style = dict(facecolor=colour, edgecolor='k', lw=0.6, alpha=0.85, label=label)
             if m.type == Marker.SPHERE:
-                ax.add_patch(Circle((p[i], p[j]), m.scale.x / 2, facecolor=colour,
-                                    edgecolor='k', lw=0.6, alpha=0.85, label=label))
+                ax.add_patch(Circle((p[i], p[j]), m.scale.x / 2, **style))
             elif m.type == Marker.MESH_RESOURCE:
                 pts = _mesh_box_points(run, m)
                 if pts is None:
@@ -469,17 +418,14 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
                 elif (t, name) not in boxed:        # one stand-in per body
                     boxed.add((t, name))
                     ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
-                                         facecolor=colour, edgecolor='k', lw=0.6,
-                                         alpha=0.6, hatch='//', label=label))
+                                         **dict(style, alpha=0.6, hatch='//')))
                 else:
                     continue
             else:
                 pts = _outline(m)
                 if pts is None:
                     continue
-                ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True,
-                                     facecolor=colour, edgecolor='k', lw=0.6,
-                                     alpha=0.85, label=label))
+                ax.add_patch(Polygon(_hull(pts[:, [i, j]]), closed=True, **style))
             if name:
                 labelled.add(name)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
@@ -535,22 +481,26 @@ def main(argv: Optional[list[str]] = None) -> int:
                         help='title (default: the scene or robot name and the bag name)')
     parser.add_argument('-q', '--quiet', action='store_true', help='no summary line')
     args = parser.parse_args(cli.own_args(argv))
-    plt = _pyplot()
-    if plt is None:
-        print(f'{PROG}: matplotlib is not installed (it is optional); install it with '
-              '`python -m pip install -r requirements-study.txt`', file=sys.stderr)
+
+    def fail(text: str) -> int:
+        print(f'{PROG}: {text}', file=sys.stderr)
         return 2
+    try:
+        import matplotlib
+    except ImportError:
+        return fail('matplotlib is not installed (it is optional); install it with '
+                    '`python -m pip install -r requirements-study.txt`')
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
     try:
         run = read_run(args.bag)
     except PlotError as exc:
-        print(f'{PROG}: {exc}', file=sys.stderr)
-        return 2
+        return fail(str(exc))
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        print(f'{PROG}: cannot create {out}: {exc.strerror or exc}', file=sys.stderr)
-        return 2
+        return fail(f'cannot create {out}: {exc.strerror or exc}')
     bag_name = Path(os.path.normpath(args.bag)).name
     title = args.title or (f'{run.scene_name} (bag {bag_name})' if run.scene_name else bag_name)
     written = [out / 'joints.png']

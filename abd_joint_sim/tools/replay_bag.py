@@ -3,12 +3,9 @@
     replay_bag BAG --live PORT [--speed 1] [--live-host 127.0.0.1]
     ros2 run abd_joint_sim replay_bag BAG --live 8765
 
-The run is simulated again from the bag (its scene, parameters and commands, as
-``run_headless --from-bag`` does: the same results, docs/replay.md) and served by the live
-server (docs/live.md) at real time x `--speed`: the page on PORT+1, Foxglove on
-ws://127.0.0.1:PORT with its playback bar (play, pause, speed, seek). At the end the last
-state stays served until Ctrl-C; a seek or Reset plays it again. Nothing is recorded.
-Input errors (unreadable bag, port in use or out of range): one line on stderr, exit 2.
+The run is simulated again from the bag (as ``run_headless --from-bag``) and served by the
+live server at real time x `--speed` (docs/live.md). Nothing is recorded. Input errors: one
+line on stderr, exit 2.
 """
 from __future__ import annotations
 
@@ -20,8 +17,6 @@ from typing import Optional, Sequence
 from abd_joint_sim.tools import cli
 
 PROG = 'replay_bag'
-STORED = ('time_step', 'publish_rate', 'command_timeout', 'effort_limits', 'joints', 'frame_id')
-"""The bag's parameters the replay takes (as run_headless --from-bag)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,40 +39,30 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 def _run(args) -> int:
     from abd_joint_sim.errors import SceneError, SimulationError
-    from abd_joint_sim.live import check_port, LiveError, LiveServer
-    from abd_joint_sim.live.headless import RealTimePacer, Restart
+    from abd_joint_sim.live import check_port, LiveError
+    from abd_joint_sim.live.headless import RealTimePacer, Restart, start_live
     from abd_joint_sim.ros.loop import LoopOutput
 
     from .bagrun import BagInputError, config_for, load_bag, scene_from_text
+    from .run_headless import STORED
     from .sim import HeadlessSim
 
-    try:
+    with cli.input_errors(ValueError):
         check_port(args.live, '--live')
-    except ValueError as exc:
-        raise cli.InputError(str(exc)) from None
     if not (math.isfinite(args.speed) and 0.0 < args.speed <= 1e3):
         raise cli.InputError(f'--speed {args.speed}: must be a number in (0, 1000]')
-    try:
+    with cli.input_errors(BagInputError, SceneError, ValueError):
         run = load_bag(args.bag)
         scene = scene_from_text(run.scene_text, f'{args.bag}: scene.yaml')
         config = config_for({k: v for k, v in run.parameters.items() if k in STORED},
                             scene_path=run.scene_path)
         sim = HeadlessSim(scene, config, clamp=False)
-    except (BagInputError, SceneError, ValueError) as exc:
-        raise cli.InputError(str(exc)) from None
     plan = run.plan
     end_ns = max(seg.end_ns for seg in plan.segments)
     pacer = RealTimePacer(sim.loop, speed=args.speed, end_ns=end_ns)
-    try:
-        live = LiveServer(scene, sim.loop.joint_names, args.live, args.live_host,
-                          world_frame=config.marker_frame_id, services=pacer.services(),
-                          name=PROG, source=f'{PROG} {args.bag}', playback=pacer,
-                          playback_end_ns=end_ns,
-                          log=lambda level, text: print(f'{PROG}: {level}: {text}',
-                                                        file=sys.stderr)).start()
-    except LiveError as exc:
-        raise cli.InputError(str(exc)) from None
-    pacer.live = live
+    with cli.input_errors(LiveError):
+        live = start_live(PROG, scene, pacer, args.live, args.live_host, f'{PROG} {args.bag}',
+                          playback=pacer, playback_end_ns=end_ns)
     print(f'{PROG}: {args.bag}: {end_ns / 1e9:g} s of simulated time; {live.describe()}; '
           'Ctrl-C ends', file=sys.stderr, flush=True)
     status = 0

@@ -3,15 +3,8 @@
     replay_check BAG [--atol-angle 1e-6] [--atol-velocity 1e-5] [--atol-effort 1e-9]
     ros2 run abd_joint_sim replay_check BAG
 
-Reads the scene and parameters stored in the bag (sim_node or run_headless), re-applies the
-recorded commands at their log times (= the step boundaries at which they took effect), with
-the node's command semantics (command timeout from the stored parameter), re-simulates, and
-compares every recorded ``/joint_states`` message (matched by header stamp, segment by
-segment across ``~/reset``) field by field: position, velocity, effort.
-
 Exit status: 0 all within tolerance; 1 a deviation beyond tolerance, a recorded state the
-re-simulation never reached, or different joint names; 2 unusable input (no such bag,
-unreadable bag, no scene stored, invalid stored scene or parameters). See docs/replay.md.
+re-simulation never reached, or different joint names; 2 unusable input. See docs/replay.md.
 """
 from __future__ import annotations
 
@@ -30,10 +23,7 @@ PROG = 'replay_check'
 DEFAULT_ATOL = {'position': 1e-6, 'velocity': 1e-5, 'effort': 1e-9}
 UNITS = {'position': 'rad', 'velocity': 'rad/s', 'effort': 'N m'}
 FIELDS = ('position', 'velocity', 'effort')
-
-
-class ReplayInputError(Exception):
-    """Unusable input (exit status 2)."""
+ReplayInputError = cli.InputError       # unusable input (exit status 2)
 
 
 @dataclass
@@ -90,8 +80,7 @@ class ReplayResult:
                 f't={w.first[1] * 1e-9:.6f} s')
             lines.append(f'  {f:<8}  worst |diff| {w.deviation:.3g} {UNITS[f]}{where}; '
                          f'atol {self.atol[f]:g}: {verdict}')
-        for err in self.name_errors[:5]:
-            lines.append(f'  names: {err}')
+        lines += [f'  names: {err}' for err in self.name_errors[:5]]
         if self.unmatched:
             seg, t = self.unmatched[0]
             lines.append(f'  {len(self.unmatched)} recorded state(s) never reached by the '
@@ -159,12 +148,9 @@ class _Comparer(LoopOutput):
                     if i is None or k >= len(arr):
                         continue
                     a, b = float(arr[k]), float(values[f][i])
-                    if math.isnan(a) and math.isnan(b):
-                        d = 0.0
-                    else:
-                        d = abs(a - b)
-                        if math.isnan(d):
-                            d = math.inf
+                    d = abs(a - b)
+                    if math.isnan(d):       # NaN in both: equal; in one: infinitely apart
+                        d = 0.0 if math.isnan(a) and math.isnan(b) else math.inf
                     if d > worst.deviation or (worst.joint == '' and d >= worst.deviation):
                         worst.deviation, worst.joint, worst.t_ns = d, name, t_ns
                         worst.recorded, worst.replayed = a, b
@@ -182,16 +168,12 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
     from .schedule import check_plan, ScheduleError
     from .sim import HeadlessSim
 
-    try:
+    with cli.input_errors(BagInputError):
         run = load_bag(bag)
-    except BagInputError as exc:
-        raise ReplayInputError(str(exc)) from None
-    try:
+    with cli.input_errors(SceneError, ValueError, prefix='stored scene/parameters: '):
         scene = scene_from_text(run.scene_text, f'{bag}: scene.yaml')
         config = config_for(run.parameters, scene_path=run.scene_path)
         sim = HeadlessSim(scene, config, clamp=False)
-    except (SceneError, ValueError) as exc:
-        raise ReplayInputError(f'stored scene/parameters: {exc}') from None
     stored_dt = run.custom.get('abd_joint_sim.time_step')
     if stored_dt:
         try:
@@ -202,11 +184,9 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
             raise ReplayInputError(
                 f'{bag}: stored time step {stored_dt} differs from the one the stored scene '
                 f'and parameters give ({sim.world.dt!r})')
-    try:
+    with cli.input_errors(ScheduleError,
+                          prefix=f'{bag}: recorded command does not fit the stored scene: '):
         check_plan(run.plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
-    except ScheduleError as exc:
-        raise ReplayInputError(f'{bag}: recorded command does not fit the stored scene: '
-                               f'{exc}') from None
     if run.state_count == 0:
         raise ReplayInputError(f'{bag}: no /joint_states messages to compare')
     result = ReplayResult(bag=bag, scene_name=scene.name or run.scene_path, dt=sim.world.dt,
@@ -223,10 +203,8 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
     result.wall = time.monotonic() - wall0
     result.steps = sim.steps
     result.unapplied = len(sim.unapplied)
-    for k, seg in enumerate(run.states):
-        for t_ns in sorted(seg):
-            if (k, t_ns) not in comparer.seen:
-                result.unmatched.append((k, t_ns))
+    result.unmatched = [(k, t_ns) for k, seg in enumerate(run.states) for t_ns in sorted(seg)
+                        if (k, t_ns) not in comparer.seen]
     # A gap: a state due by the publish schedule, before the segment's last recorded one
     # (a recording cut short, e.g. a killed recorder's lost chunk, ends the check there).
     last = [max(seg) if seg else -1 for seg in run.states]
@@ -248,24 +226,18 @@ def build_parser() -> argparse.ArgumentParser:
         'parameters and compare every recorded joint state. Exit 0 = reproduced within '
         'tolerance, 1 = not, 2 = unusable input. See docs/replay.md.'))
     p.add_argument('bag', help='bag directory (or its .mcap file)')
-    p.add_argument('--atol-angle', type=_tolerance, default=DEFAULT_ATOL['position'],
-                   metavar='RAD', help='position tolerance [rad] (default %(default)g)')
-    p.add_argument('--atol-velocity', type=_tolerance, default=DEFAULT_ATOL['velocity'],
-                   metavar='RAD/S', help='velocity tolerance [rad/s] (default %(default)g)')
-    p.add_argument('--atol-effort', type=_tolerance, default=DEFAULT_ATOL['effort'],
-                   metavar='NM', help='effort tolerance [N m] (default %(default)g)')
+    for f, flag, metavar in zip(FIELDS, ('angle', 'velocity', 'effort'), ('RAD', 'RAD/S', 'NM')):
+        p.add_argument(f'--atol-{flag}', type=_tolerance, default=DEFAULT_ATOL[f], dest=f,
+                       metavar=metavar, help=f'{f} tolerance [{UNITS[f]}] (default %(default)g)')
     return p
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    args = build_parser().parse_args(cli.own_args(argv))
-    try:
-        result = replay(args.bag, {'position': args.atol_angle,
-                                   'velocity': args.atol_velocity,
-                                   'effort': args.atol_effort})
-    except ReplayInputError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
+    return cli.run(PROG, build_parser(), _run, argv)
+
+
+def _run(args) -> int:
+    result = replay(args.bag, {f: getattr(args, f) for f in FIELDS})
     print(result.report())
     return 0 if result.ok else 1
 

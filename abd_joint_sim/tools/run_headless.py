@@ -4,11 +4,9 @@
     run_headless --from-bag bags/recorded --out bags/again
     ros2 run abd_joint_sim run_headless ...
 
-Steps as fast as possible; commands take effect at step boundaries with sim_node's
-semantics (validation, effort-limit clamping, command timeout); the bag has sim_node's
-topics, types, QoS, custom data and attachments, so ``replay_check`` and every bag tool
-treat it like a node bag. Input errors: one line on stderr, exit status 2. A failed step:
-exit 1 (the bag is closed and readable). See docs/replay.md.
+Steps as fast as possible with sim_node's loop and records sim_node's bag. Input errors:
+one line on stderr, exit status 2. A failed step: exit 1 (the bag is closed and readable).
+See docs/replay.md.
 """
 from __future__ import annotations
 
@@ -22,6 +20,8 @@ from abd_joint_sim.tools import cli
 
 PROG = 'run_headless'
 MAX_WARNINGS = 10     # clamp warnings listed one by one; the rest are counted
+STORED = ('time_step', 'publish_rate', 'command_timeout', 'effort_limits', 'joints', 'frame_id')
+"""The parameters of a bag that ``--from-bag`` (and replay_bag) take."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -77,37 +77,28 @@ def _run(args) -> int:
     from .sim import BagRecorder, HeadlessSim
 
     # -- what to run ---------------------------------------------------------------------
-    stored_params: dict = {}
-    try:
+    with cli.input_errors(ScheduleError, BagInputError):
         if args.schedule:
             plan = load_schedule(args.schedule)
-            stored_params = dict(plan.parameters)
+            overrides = dict(plan.parameters)
             provenance = f'schedule {args.schedule}'
         else:
             run = load_bag(args.from_bag)
             plan = run.plan
-            stored_params = {k: v for k, v in run.parameters.items()
-                             if k in ('time_step', 'publish_rate', 'command_timeout',
-                                      'effort_limits', 'joints', 'frame_id')}
+            overrides = {k: v for k, v in run.parameters.items() if k in STORED}
             provenance = f'commands of bag {args.from_bag}'
-    except (ScheduleError, BagInputError) as exc:
-        raise cli.InputError(str(exc)) from None
-
-    overrides = dict(stored_params)
     for name, value in (('--dt', args.dt), ('--duration', args.duration),
                         ('--publish-rate', args.publish_rate)):
         if value is not None and (not math.isfinite(value) or value < 0.0
                                   or (value == 0.0 and name != '--publish-rate')):
             raise cli.InputError(f'{name} {value}: must be a finite number > 0'
-                              + (' (or 0)' if name == '--publish-rate' else ''))
+                                 + (' (or 0)' if name == '--publish-rate' else ''))
     if args.duration is not None and args.duration > MAX_TIME:
         raise cli.InputError(f'--duration {args.duration:g}: beyond the supported {MAX_TIME:g} s')
     if args.live is not None:
         from abd_joint_sim.live import check_port
-        try:
+        with cli.input_errors(ValueError):
             check_port(args.live, '--live')
-        except ValueError as exc:
-            raise cli.InputError(str(exc)) from None
     if args.publish_every is not None and args.publish_every < 1:
         raise cli.InputError(f'--publish-every {args.publish_every}: must be >= 1')
     if args.dt is not None:
@@ -115,9 +106,9 @@ def _run(args) -> int:
     if args.publish_rate is not None:
         overrides['publish_rate'] = args.publish_rate
 
-    # -- scene -----------------------------------------------------------------------------
+    # -- scene and parameters (the same validation as sim_node's) ----------------------------
     urdf_text = ''
-    try:
+    with cli.input_errors(SceneError):
         if args.scene is not None or args.schedule:
             scene_path = resolve_scene(args.scene or '')
             scene = Scene.from_file(scene_path)      # .urdf: a robot with default options
@@ -125,28 +116,18 @@ def _run(args) -> int:
             scene_path = run.scene_path
             scene = scene_from_text(run.scene_text, f'{args.from_bag}: scene.yaml')
             urdf_text = run.custom.get('abd_joint_sim.urdf', '')    # kept in the new bag
-    except SceneError as exc:
-        raise cli.InputError(str(exc)) from None
-    scene_text = getattr(scene, 'source_text', '') or ''
-
-    # -- parameters (same validation as sim_node's) ----------------------------------------
-    try:
+    with cli.input_errors(ValueError, SceneError):
         config = config_for(overrides, scene_path=scene_path)
         if args.publish_every is not None:
             dt = world_dt(config.time_step) or float(scene.dt)
             config.publish_rate = 0.0 if args.publish_every == 1 else \
                 1.0 / (args.publish_every * dt)
         sim = HeadlessSim(scene, config, clamp=bool(args.schedule))
-    except (ValueError, SceneError) as exc:
-        raise cli.InputError(str(exc)) from None
     config.record = args.out
-
     if args.duration is not None:
         plan.segments[-1].end_ns = seconds_to_ns(args.duration)
-    try:
+    with cli.input_errors(ScheduleError):
         check_plan(plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
-    except ScheduleError as exc:
-        raise cli.InputError(str(exc)) from None
     late = [(cmd, seg) for seg in plan.segments for cmd in seg.commands if cmd.t_ns >= seg.end_ns]
     if late:
         cmd, seg = late[0]
@@ -156,10 +137,15 @@ def _run(args) -> int:
 
     # -- run and record --------------------------------------------------------------------
     live = pace = None
-    if args.live is not None:
-        live, pace = _start_live(args, scene, sim)
+    if args.live is not None:       # a port in use: exit 2 before anything is recorded
+        from abd_joint_sim.live import LiveError
+        from abd_joint_sim.live.headless import RealTimePacer, start_live
+        pace = RealTimePacer(sim.loop)
+        with cli.input_errors(LiveError):
+            live = start_live(PROG, scene, pace, args.live, args.live_host, PROG)
+        print(f'{PROG}: {live.describe()}', file=sys.stderr, flush=True)
     try:
-        recorder = BagRecorder(args.out, sim, scene_path, scene_text, extra_custom={
+        recorder = BagRecorder(args.out, sim, scene_path, scene.source_text or '', extra_custom={
             'abd_joint_sim.recorded_by': f'run_headless ({provenance})'},
             urdf_text=getattr(scene, 'robot_description', '') or urdf_text)
     except BagError as exc:
@@ -200,25 +186,6 @@ def _run(args) -> int:
               f'commands -> {args.out}'
               + (f'; {sim.not_converged} steps not converged' if sim.not_converged else ''))
     return status
-
-
-def _start_live(args, scene, sim):
-    """The live server and its real-time pacer (abd_joint_sim/live/headless.py); a port in
-    use ends the run before it starts (exit 2: --live was asked for)."""
-    from abd_joint_sim.live import LiveError, LiveServer
-    from abd_joint_sim.live.headless import RealTimePacer
-    pace = RealTimePacer(sim.loop)
-    try:
-        live = LiveServer(scene, sim.loop.joint_names, args.live, args.live_host,
-                          world_frame=sim.config.marker_frame_id, services=pace.services(),
-                          name=PROG, source=PROG,
-                          log=lambda level, text: print(f'{PROG}: {level}: {text}',
-                                                        file=sys.stderr)).start()
-    except LiveError as exc:
-        raise cli.InputError(str(exc)) from None
-    pace.live = live
-    print(f'{PROG}: {live.describe()}', file=sys.stderr, flush=True)
-    return live, pace
 
 
 if __name__ == '__main__':

@@ -1,33 +1,10 @@
-"""Commands over simulated time: the schedule YAML of ``run_headless`` (docs/replay.md).
+"""Commands over simulated time: the schedule YAML of ``run_headless`` (format:
+docs/replay.md, "Schedule format").
 
-A schedule is a list of events, each at a time ``t`` [s] with torque and/or enable commands:
-
-.. code-block:: yaml
-
-    duration: 1.0                    # s, optional (default: last event + 1 s)
-    parameters:                      # optional, sim_node's parameters (same meaning)
-      time_step: 0.004               #   0 = the scene's dt
-      publish_rate: 100.0            #   Hz of simulated time; 0 = every step
-      command_timeout: 0.0
-      effort_limits: []              #   one per joint of `joints`
-      joints: []                     #   order of the array form below
-      frame_id: ''
-    events:
-      - t: 0.0
-        enable: {shoulder: true}     # per joint, or `enable: false` for all actuated joints
-        torque: {shoulder: 2.0}      # per joint [N m] (= joint_torque/<joint>)
-      - t: 0.5
-        torque: [1.0, -0.5]          # array form, in `joints` order (= joint_torque_commands)
-      - t: 0.8
-        joint_command: {effort: {shoulder: 1.0}, position: {elbow: 0.3}}   # = joint_commands
-
-A bare list is accepted as ``events``. Times must be finite, >= 0 and strictly increasing.
-An event takes effect at the first step boundary at or after ``t`` (as a command sent to
+An event takes effect at the first step boundary at or after its ``t`` (as a command sent to
 sim_node does); within one event enables act before torques, the array before per-joint
-torques (the order sim_node records and a replay applies them).
-
-Everything here is plain Python; errors are :class:`ScheduleError` with one line naming the
-file and the field.
+torques (the order sim_node records and a replay applies them). Errors are
+:class:`ScheduleError` with one line naming the file and the field.
 """
 from __future__ import annotations
 
@@ -35,7 +12,6 @@ from dataclasses import dataclass, field
 import math
 from pathlib import Path
 from typing import Any, Optional, Sequence
-
 
 from abd_joint_sim.ros.convert import NS_PER_S, seconds_to_ns
 from abd_joint_sim.ros.params import coerce
@@ -101,16 +77,19 @@ def _per_joint(t_ns: int, where: str, mapping: dict, kind: str, value) -> list[C
     `value(where, v)`."""
     if not mapping:
         raise _fail(where, 'empty mapping')
-    commands = []
-    for joint, v in mapping.items():
-        joint = _joint_name(where, joint)
-        commands.append(Command(t_ns, kind, joint, value(f'{where}.{joint}', v),
-                                f'{where}.{joint}'))
-    return commands
+    return [Command(t_ns, kind, j, value(f'{where}.{j}', v), f'{where}.{j}')
+            for j, v in ((_joint_name(where, j), v) for j, v in mapping.items())]
 
 
 def _fail(where: str, what: str) -> ScheduleError:
     return ScheduleError(f'{where}: {what}')
+
+
+def _only(where: str, mapping: dict, allowed: tuple[str, ...]) -> None:
+    """`where` + ``.key`` of the first key of `mapping` not in `allowed`: unknown."""
+    unknown = sorted(set(map(str, mapping)) - set(allowed))
+    if unknown:
+        raise _fail(f'{where}{unknown[0]}', f'unknown key (allowed: {", ".join(allowed)})')
 
 
 def _number(where: str, value: Any) -> float:
@@ -146,10 +125,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
     if not isinstance(data, dict):
         raise _fail(source, f'expected a mapping with `events` (or a list of events), got '
                             f'{type(data).__name__}')
-    unknown = sorted(set(map(str, data)) - {'duration', 'parameters', 'events'})
-    if unknown:
-        raise _fail(f'{source}: {unknown[0]}',
-                    'unknown key (allowed: duration, parameters, events)')
+    _only(f'{source}: ', data, ('duration', 'parameters', 'events'))
     params: dict[str, Any] = {}
     raw_params = data.get('parameters') or {}
     if not isinstance(raw_params, dict):
@@ -163,9 +139,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
             params[name] = coerce(name, value)
         except ValueError as exc:
             raise _fail(f'{source}: parameters.{name}', str(exc)) from None
-    events = data.get('events')
-    if events is None:
-        events = []
+    events = [] if data.get('events') is None else data['events']
     if not isinstance(events, list):
         raise _fail(f'{source}: events', f'expected a list of events, got {events!r}')
     commands: list[Command] = []
@@ -174,10 +148,7 @@ def parse_schedule(data: Any, source: str = '<schedule>') -> Plan:
         where = f'{source}: events[{i}]'
         if not isinstance(event, dict):
             raise _fail(where, f'expected a mapping with t and torque/enable, got {event!r}')
-        unknown = sorted(set(map(str, event)) - {'t', 'torque', 'enable', 'joint_command'})
-        if unknown:
-            raise _fail(f'{where}.{unknown[0]}',
-                        'unknown key (allowed: t, torque, enable, joint_command)')
+        _only(f'{where}.', event, ('t', 'torque', 'enable', 'joint_command'))
         if 't' not in event:
             raise _fail(f'{where}.t', 'missing (the time in seconds)')
         t = _number(f'{where}.t', event['t'])
@@ -233,9 +204,7 @@ def _joint_command(where: str, value: Any, t_ns: int) -> Command:
     if not isinstance(value, dict) or not value:
         raise _fail(where, f'expected {{effort: {{joint: N m}}, position: {{joint: rad}}}}, '
                            f'got {value!r}')
-    unknown = sorted(set(map(str, value)) - {'effort', 'position'})
-    if unknown:
-        raise _fail(f'{where}.{unknown[0]}', 'unknown key (allowed: effort, position)')
+    _only(f'{where}.', value, ('effort', 'position'))
     parts = {}
     for key in ('effort', 'position'):
         part = value.get(key) or {}

@@ -1,21 +1,13 @@
 """The headless driver of sim_node's loop (``ros/loop.py``), and the bag recorder.
 
-:class:`HeadlessSim` drives a :class:`~abd_joint_sim.ros.loop.SimLoop` — the loop sim_node
-runs — from a :class:`Plan`: it hands each command to the loop's command buffer at its time
-(as the node's subscription callbacks do), advances the loop up to the next command's step
-boundary (in batches), and resets between segments as ``~/reset``. Applying commands,
-timeouts, live parameters and what is published when are the loop's rules, not restated
-here.
-
-:class:`BagRecorder` is the loop output ``run_headless`` uses: it writes sim_node's bag
-layout (topics from ``ros/topics.py``, custom data, attachments) with what the loop hands
-it, plus ``/diagnostics`` once per simulated second (a headless run has no wall clock).
+:class:`HeadlessSim` drives the node's :class:`~abd_joint_sim.ros.loop.SimLoop` from a
+:class:`Plan`; :class:`BagRecorder` is the loop output writing sim_node's bag layout.
 """
 from __future__ import annotations
 
 from collections import deque
 import time
-from typing import Any, Optional, Protocol
+from typing import Any, Optional
 
 from abd_joint_sim.ros import convert
 from abd_joint_sim.ros.commands import Applied, CommandBuffer
@@ -30,23 +22,12 @@ NODE_FQN = '/' + NODE_NAME
 DIAGNOSTICS_PERIOD_NS = convert.NS_PER_S   # headless: one /diagnostics per simulated second
 
 
-class Observer(Protocol):
-    """A plain per-step observer (tests, scripts): it reads ``sim.world`` after every step,
-    so the run is not batched for it. Tools use a :class:`LoopOutput` instead."""
-
-    def on_state(self, sim: 'HeadlessSim', segment: int, force: bool) -> None: ...
-
-    def on_applied(self, sim: 'HeadlessSim', applied: Applied) -> None: ...
-
-    # Optional: def on_parameters(self, sim, t_ns: int, changes: dict) -> None
-
-
 class _ObserverOutput(LoopOutput):
-    """An :class:`Observer` as a loop output: called after every step with the world there."""
+    """A plain observer as a loop output: called after every step with the world there."""
 
     world_each_step = True
 
-    def __init__(self, sim: 'HeadlessSim', observer: Observer):
+    def __init__(self, sim: 'HeadlessSim', observer: Any):
         self.sim, self.observer = sim, observer
 
     def applied(self, applied: Applied) -> None:
@@ -70,41 +51,21 @@ class HeadlessSim:
 
     def __init__(self, scene: Any, config: SimConfig, clamp: bool = True):
         self.loop = SimLoop(scene, config, clamp=clamp, raise_faults=True)
-        self.scene = scene
-        self.config = config
-        self.world = self.loop.world
-        self.actuated = self.loop.actuated
-        self.commands = self.loop.commands
-        self.clamp = clamp
         self.segment = 0
         self.clamps: list[tuple[Command, Any]] = []
         self.unapplied: list[Command] = []
 
-    @property
-    def steps(self) -> int:
-        return self.loop.steps
-
-    @property
-    def not_converged(self) -> int:
-        return self.loop.not_converged
-
-    @property
-    def publish_schedule(self):
-        return self.loop.publish_schedule
-
-    @property
-    def time_ns(self) -> int:
-        return self.loop.time_ns
+    def __getattr__(self, name: str):
+        """The loop's own: world, actuated, commands, steps, time_ns, reset(), ..."""
+        if name == 'loop':
+            raise AttributeError(name)
+        return getattr(self.loop, name)
 
     def fresh_buffer(self) -> CommandBuffer:
         """A CommandBuffer configured as this run's, for checking a plan before it runs."""
         return CommandBuffer(self.actuated, self.commands.order,
                              self.config.effort_limits if self.clamp else [], 0.0,
                              scene_limits=self.commands.scene_limits, driven=self.commands.driven)
-
-    def reset(self) -> None:
-        """As sim_node's ``~/reset`` (publishes the initial state to the output)."""
-        self.loop.reset()
 
     def _queue(self, cmd: Command) -> None:
         """Hand one command to the loop, as the node's subscription callback would."""
@@ -125,12 +86,12 @@ class HeadlessSim:
 
     def run(self, plan: Plan, output: Any, pace: Any = None) -> None:
         """Simulate every segment of `plan` into `output` (a :class:`LoopOutput`, or a plain
-        :class:`Observer`); raises SimulationError if a step fails. `pace(n)`, if given, is
-        called before each advance of up to n steps and returns how many to take now (1..n;
-        ``live/headless.py``: real time, pause, the live view): when, never what."""
-        self.loop.output = output if isinstance(output, LoopOutput) \
-            else _ObserverOutput(self, output)
+        observer with ``on_state(sim, segment, force)``, ``on_applied(sim, applied)`` and
+        optionally ``on_parameters(sim, t_ns, changes)``, called after every step); raises
+        SimulationError if a step fails. `pace(n)`, if given, is called before each advance
+        of up to n steps and returns how many to take now (1..n): when, never what."""
         loop = self.loop
+        loop.output = output if isinstance(output, LoopOutput) else _ObserverOutput(self, output)
         for k, seg in enumerate(plan.segments):
             self.segment = k
             if k > 0:
@@ -138,18 +99,18 @@ class HeadlessSim:
             else:
                 loop.publish_state(force=True)
             pending = deque(seg.commands)
-            while self.time_ns < seg.end_ns:
-                now = self.time_ns
+            while loop.time_ns < seg.end_ns:
+                now = loop.time_ns
                 while pending and pending[0].t_ns <= now:
                     self._queue(pending.popleft())
                 until = min(pending[0].t_ns, seg.end_ns) if pending else seg.end_ns
-                n = steps_until(until, now, self.world.dt)
+                n = steps_until(until, now, loop.world.dt)
                 loop.advance(n if pace is None else pace(n))
             # A live parameter change logged at the segment's last time (set, then ~/reset
             # or the end before another step) took effect in the node at once and stays in
             # force across the reset: apply it here too. Commands cannot be in this
             # position (the node logs them only as a step boundary applies them).
-            while pending and pending[0].kind == 'parameter' and pending[0].t_ns <= self.time_ns:
+            while pending and pending[0].kind == 'parameter' and pending[0].t_ns <= loop.time_ns:
                 self._queue(pending.popleft())
             self.unapplied.extend(pending)
 
@@ -176,39 +137,23 @@ class BagRecorder(LoopOutput):
                                         attachment_time_ns=attachment_time_ns,
                                         zero_padding=zero_padding)
         self.counts = self.recording.counts
+        rec = self.recording        # what the loop hands on unchanged
+        self.batch_begin, self.batch_end, self.markers = rec.batch_begin, rec.batch_end, rec.markers
+        self.applied, self.restarted, self.parameters = rec.applied, rec.restarted, rec.parameters
         # One /diagnostics per simulated second, on the loop's grid.
         sim.loop.diagnostics_period_ns = DIAGNOSTICS_PERIOD_NS
         sim.loop.next_diagnostics_ns = DIAGNOSTICS_PERIOD_NS
         self._wall0 = time.monotonic()
 
-    # -- LoopOutput -----------------------------------------------------------------------
     def clock(self, t_ns: int) -> None:
         self.recording.clock(t_ns, self._clock.encode(t_ns))
 
     def clocks(self, stamps_ns: list) -> None:
         self.recording.clocks(stamps_ns, self._clock.encode_many(stamps_ns))
 
-    def batch_begin(self) -> None:
-        self.recording.batch_begin()
-
-    def batch_end(self) -> None:
-        self.recording.batch_end()
-
-    def markers(self, t_ns: int, data: bytes) -> None:
-        self.recording.markers(t_ns, data)
-
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
         self.recording.joint_state(t_ns, self._joint_state.encode(t_ns, position, velocity,
                                                                   effort))
-
-    def applied(self, applied: Applied) -> None:
-        self.recording.applied(applied)
-
-    def restarted(self) -> None:
-        self.recording.restarted()      # log times keep increasing across the reset
-
-    def parameters(self, t_ns: int, changes) -> None:
-        self.recording.parameters(t_ns, changes)
 
     def diagnostics(self, t_ns: int) -> None:
         wall = max(time.monotonic() - self._wall0, 1e-9)
