@@ -139,29 +139,12 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def _distinct_nodes(root) -> int:
-    seen, stack = set(), [root]
-    while stack:
-        node = stack.pop()
-        if id(node) in seen:
-            continue
-        seen.add(id(node))
-        if isinstance(node, yaml.SequenceNode):
-            stack.extend(node.value)
-        elif isinstance(node, yaml.MappingNode):
-            stack.extend(n for pair in node.value for n in pair)
-    return len(seen)
-
-
 def _expanded_size(root) -> int:
     """Nodes of the document with every alias expanded (memoised over the shared nodes);
     YAMLLimitError beyond the bound of ALIAS_EXPANSION or for a node that contains itself."""
-    distinct = _distinct_nodes(root)
-    limit = max(MAX_YAML_NODES, ALIAS_EXPANSION * distinct)
-    sizes: dict[int, int] = {}
+    sizes: dict[int, tuple] = {}            # id -> (expanded size, node), in post-order
     active: set[int] = set()
-    # Iterative post-order walk: the depth is already bounded, but keep Python's stack out.
-    stack = [(root, False)]
+    stack = [(root, False)]                 # iterative: keep Python's stack out
     while stack:
         node, done = stack.pop()
         key = id(node)
@@ -172,21 +155,21 @@ def _expanded_size(root) -> int:
             children = [n for pair in node.value for n in pair]
         if done:
             active.discard(key)
-            sizes[key] = size = 1 + sum(sizes[id(c)] for c in children)
-            if size > limit:
-                raise YAMLLimitError(
-                    f'more than {limit} values once aliases (*name) are expanded, from '
-                    f'{distinct} in the text (an alias bomb?)', node.start_mark)
-            continue
-        if key in sizes:
-            continue
-        if key in active:
-            raise YAMLLimitError('an alias (*name) refers to a node that contains it',
-                                 node.start_mark)
-        active.add(key)
-        stack.append((node, True))
-        stack.extend((c, False) for c in children if id(c) not in sizes)
-    return sizes[id(root)]
+            sizes[key] = (1 + sum(sizes[id(c)][0] for c in children), node)
+        elif key not in sizes:
+            if key in active:
+                raise YAMLLimitError('an alias (*name) refers to a node that contains it',
+                                     node.start_mark)
+            active.add(key)
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in sizes)
+    limit = max(MAX_YAML_NODES, ALIAS_EXPANSION * len(sizes))
+    for size, node in sizes.values():
+        if size > limit:
+            raise YAMLLimitError(
+                f'more than {limit} values once aliases (*name) are expanded, from '
+                f'{len(sizes)} in the text (an alias bomb?)', node.start_mark)
+    return sizes[id(root)][0]
 
 
 for _tag, _regexp, _first in (
@@ -765,42 +748,34 @@ class _Parser:
             self.fail(f'{where}.p1', f'must differ from p0 (the axis is p0 -> p1), both are {list(p0)}')
         unit = POSITION_UNIT[jtype]
         position = 'position' if sliding else 'angle'       # RANGES row of positions and aims
-        init_key = 'init_distance' if sliding else 'init_angle'
-        torque = force = driving = limit = None
-        if d.get('external_torque') is not None:
-            w = f'{where}.external_torque'
-            t = self.mapping(w, d['external_torque'], ('torque', 'enabled', 'effort_limit'))
-            torque = TorqueSpec(self.number(f'{w}.torque', t.get('torque', 0.0), bound='torque'),
-                                self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                                self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
-                                            bound='effort_limit')
-                                if 'effort_limit' in t else math.inf)
-            if abs(torque.torque) > torque.effort_limit:
-                self.fail(f'{w}.torque', f'|{torque.torque}| exceeds effort_limit {torque.effort_limit}')
-        if d.get('external_force') is not None:
-            w = f'{where}.external_force'
-            t = self.mapping(w, d['external_force'], ('force', 'enabled', 'effort_limit'))
-            force = ForceSpec(self.number(f'{w}.force', t.get('force', 0.0), bound='force'),
-                              self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                              self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
-                                          bound='force_limit')
-                              if 'effort_limit' in t else math.inf)
-            if abs(force.force) > force.effort_limit:
-                self.fail(f'{w}.force', f'|{force.force}| N exceeds effort_limit {force.effort_limit} N')
+        init_key, aim_key, other = (('init_distance', 'aim_distance', 'aim_angle') if sliding
+                                    else ('init_angle', 'aim_angle', 'aim_distance'))
+        effort_key, value_key = (('external_force', 'force') if sliding
+                                 else ('external_torque', 'torque'))
+        effort = driving = limit = None
+        if d.get(effort_key) is not None:
+            w, u = f'{where}.{effort_key}', ' N' if sliding else ''
+            t = self.mapping(w, d[effort_key], (value_key, 'enabled', 'effort_limit'))
+            effort = (ForceSpec if sliding else TorqueSpec)(
+                self.number(f'{w}.{value_key}', t.get(value_key, 0.0), bound=value_key),
+                self.boolean(f'{w}.enabled', t.get('enabled', False)),
+                self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
+                            bound='force_limit' if sliding else 'effort_limit')
+                if 'effort_limit' in t else math.inf)
+            value, top = getattr(effort, value_key), effort.effort_limit
+            if abs(value) > top:
+                self.fail(f'{w}.{value_key}', f'|{value}|{u} exceeds effort_limit {top}{u}')
         if d.get('driving') is not None:
             w = f'{where}.driving'
-            aim_key = 'aim_distance' if sliding else 'aim_angle'
-            other = 'aim_angle' if sliding else 'aim_distance'
             t = self.mapping(w, d['driving'], ('strength_ratio', aim_key, 'passive', 'enabled', other))
             if other in t:
                 self.fail(f'{w}.{other}', f'joint {name!r} is {jtype}: its drive takes {aim_key} ({unit})')
             aim = self.number(f'{w}.{aim_key}', t.get(aim_key, 0.0), bound=position)
-            driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0), positive=True,
-                                              bound='strength'),
-                                  aim if not sliding else 0.0,
-                                  self.boolean(f'{w}.passive', t.get('passive', False)),
-                                  self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                                  aim if sliding else 0.0)
+            driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0),
+                                              positive=True, bound='strength'),
+                                  passive=self.boolean(f'{w}.passive', t.get('passive', False)),
+                                  enabled=self.boolean(f'{w}.enabled', t.get('enabled', False)),
+                                  **{aim_key: aim})
         if d.get('limit') is not None:
             w = f'{where}.limit'
             t = self.mapping(w, d['limit'], ('lower', 'upper', 'strength'), ('lower', 'upper'))
@@ -811,13 +786,10 @@ class _Parser:
             if limit.lower > limit.upper:
                 self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper} ({unit})')
             init = d.get(init_key, 0.0)
+            # a start outside a limit is refused, a zero-width limit (a lock) is not: why in
+            # docs/robustness.md
             if isinstance(init, (int, float)) and not isinstance(init, bool) and \
                     limit.upper > limit.lower and not limit.lower <= init <= limit.upper:
-                # The limit energy grows as the cube of the distance outside the range over
-                # its width: a start far outside is a huge kick at the first step, not a
-                # mechanism anyone meant (the backends fail or fling the body differently).
-                # A zero-width limit is a lock (s|x - l|^3, no width to divide by) that pulls
-                # the joint to its position from wherever it starts: allowed.
                 self.fail(f'{where}.{init_key}', f'{init!r} {unit} is outside the joint\'s limit '
                                                  f'[{limit.lower:g}, {limit.upper:g}] {unit}; start inside it')
         init_value = self.number(f'{where}.{init_key}', d.get(init_key, 0.0), bound=position)
@@ -827,6 +799,6 @@ class _Parser:
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
                                                     positive=True, bound='strength'),
                          init_angle=0.0 if sliding else init_value,
-                         external_torque=torque, driving=driving, limit=limit,
+                         external_torque=None if sliding else effort, driving=driving, limit=limit,
                          damping=damping, type=jtype, init_distance=init_value if sliding else 0.0,
-                         external_force=force)
+                         external_force=effort if sliding else None)
