@@ -7,6 +7,7 @@ The format: docs/scene-format.md (test/test_docs_tables.py checks it against thi
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -38,22 +39,13 @@ MAX_YAML_DEPTH = 64
 
 
 class SceneText:
-    """A scene's YAML text, written from its data the first time it is asked for.
-
-    A dict scene (and a robot scene, whose text is the lowered scene) keeps its data and
-    writes the text only when something records it (a bag, `to_dict`): the text of a robot
-    with 15 000 visuals takes seconds to write, the scene a fraction of that to build.
-    The text is the same `yaml.dump` either way; the data is the scene's own copy, which
-    nothing changes after the parser read it."""
+    """A scene's YAML text, written from its data (the scene's own copy) the first time it is
+    asked for: docs/decisions.md says why."""
 
     __slots__ = ('_data', '_text')
 
     def __init__(self, data):
         self._data, self._text = data, None
-
-    @property
-    def written(self) -> bool:
-        return self._text is not None
 
     @property
     def text(self) -> str:
@@ -70,12 +62,6 @@ class SceneText:
     def __hash__(self):
         return hash(self.text)
 
-    def __getstate__(self):
-        return self._data, self._text
-
-    def __setstate__(self, state):
-        self._data, self._text = state
-
 
 class YAMLLimitError(yaml.YAMLError):
     """A YAML document too large once aliases are expanded, nested deeper than
@@ -87,18 +73,10 @@ class YAMLLimitError(yaml.YAMLError):
 
 
 class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 core-schema scalars and bounded documents.
-
-    * Numbers are decimal as in YAML 1.2 (``1``, ``-2.5``, ``1e8``, ``.inf``): plain PyYAML
-      (YAML 1.1) reads ``1e8`` as a string but ``1:30`` as 90 and ``0x10``/``010`` as 16/8;
-      here the latter stay strings, so the field check names them. Booleans are
-      ``true``/``false`` only (YAML 1.1 also took ``yes``/``no``/``on``/``off``).
-    * A key given twice in one mapping is an error (YAML says keys are unique; PyYAML keeps
-      the last one silently).
-    * Nesting deeper than MAX_YAML_DEPTH, more values with aliases expanded than
-      `_expanded_size` allows, and an alias inside its own anchor are errors, raised before the data is
-      constructed (so an alias bomb costs microseconds, not gigabytes).
-    """
+    """SafeLoader with YAML 1.2 core-schema scalars (decimal numbers, booleans true/false
+    only) and bounded documents: a duplicate key, nesting deeper than MAX_YAML_DEPTH, more
+    values with aliases expanded than `_expanded_size` allows and an alias inside its own
+    anchor are errors, raised before the data is constructed (docs/robustness.md §6)."""
 
     yaml_implicit_resolvers: dict = {}
 
@@ -311,10 +289,6 @@ class DrivingSpec:
     enabled: bool = False
     aim_distance: float = 0.0               # [m] UID 21 (prismatic)
 
-    def aim(self, kind: str) -> float:
-        """The aim in the joint's own unit: rad (revolute) or m (prismatic)."""
-        return self.aim_distance if kind == PRISMATIC else self.aim_angle
-
 
 @dataclass(frozen=True)
 class LimitSpec:
@@ -371,15 +345,9 @@ class Scene:
 
     @classmethod
     def from_urdf(cls, source, **options) -> 'Scene':
-        """A robot scene from a URDF path or URDF XML text (docs/urdf.md).
-
-        Options: dt (default 1e-3), gravity (default [0, 0, -9.81]), integrator, newton,
-        name, fixed_base, initial_positions {joint: rad}, lock [joints], actuated [joints],
-        joints {joint: {strength_ratio, external_torque, driving, limit}}, kappa,
-        strength_ratio, limits (bool), torque_enabled (bool), driving {...} (all joints).
-        Repairs are warned as `abd_joint_sim.urdf.UrdfWarning` and listed in
-        `Scene.warnings`.
-        """
+        """A robot scene from a URDF path or URDF XML text; `options`: urdf.ROBOT_OPTIONS and
+        urdf.SCENE_OPTIONS (docs/urdf.md). Repairs are warned as `urdf.UrdfWarning` and
+        listed in `Scene.warnings`."""
         data, name, text, notes = urdf.scene_data_from_urdf(source, options)
         scene = cls.from_dict(data, source=name)
         return _with_robot(scene, text, notes)
@@ -404,9 +372,8 @@ class Scene:
         return _Parser(source).scene(data, source_text)
 
     def to_dict(self) -> dict:
-        # A robot scene's source_text is the lowered scene (bodies, joints), complete in
-        # itself: a bag replays it without the URDF file.
-        """The scene as plain data (what `from_dict` accepts)."""
+        """The scene as plain data (what `from_dict` accepts; a robot scene's is the lowered
+        scene, complete without the URDF file)."""
         return load_yaml(self.source_text) if self.source_text else {}
 
     @property
@@ -433,7 +400,6 @@ def check_dt(value, source: str = 'dt') -> float:
 
 
 def _with_robot(scene: 'Scene', urdf_text: str, notes) -> 'Scene':
-    import dataclasses
     return dataclasses.replace(scene, robot_description=urdf_text, warnings=tuple(notes))
 
 
@@ -591,7 +557,6 @@ class _Parser:
             seen.add(n)
 
     def newton(self, value):
-        defaults = NewtonSpec()
         d = self.mapping('newton', value, tuple(NewtonSpec.__dataclass_fields__))
         kw = {}
         for key in ('velocity_tol', 'transrate_tol', 'max_step_rotation'):
@@ -603,7 +568,7 @@ class _Parser:
                                       ('max_substep_depth', 0, MAX_SUBSTEP_DEPTH)):
             if key in d:
                 kw[key] = self.integer(f'newton.{key}', d[key], minimum, maximum)
-        spec = NewtonSpec(**{**defaults.__dict__, **kw})
+        spec = NewtonSpec(**kw)
         if spec.max_step_rotation >= math.pi:
             self.fail('newton.max_step_rotation', 'must be < pi: the multi-turn angle is only '
                                                   f'exact below pi per step, got {spec.max_step_rotation}')
@@ -620,29 +585,26 @@ class _Parser:
                              f' (got {shapes or "none"})')
         kind = shapes[0]
         w = f'{where}.{kind}'
-        density = 0.0
+        if kind != 'inertial' and 'density' not in d:
+            self.fail(where, f'body {name!r} with a {kind} needs a density (kg/m^3)')
+        shape = self.inertial(w, d[kind]) if kind == 'inertial' else None
+        density = (self.number(f'{where}.density', d['density'], positive=True, bound='density')
+                   if 'density' in d else 0.0)
         if kind == 'inertial':
-            shape = self.inertial(w, d[kind])
-            if 'density' in d:
-                density = self.number(f'{where}.density', d['density'], positive=True, bound='density')
-                if shape.volume == 0.0:
-                    shape = ShapeSpec(**{**shape.__dict__, 'volume': shape.mass / density})
+            if density and shape.volume == 0.0:
+                shape = dataclasses.replace(shape, volume=shape.mass / density)
+        elif kind == 'box':
+            shape = ShapeSpec('box', self.vector(w, d[kind], positive=True, bound='length'))
+        elif kind == 'sphere':
+            r = d[kind]
+            if isinstance(r, dict):
+                r = self.mapping(w, r, ('radius',), ('radius',))['radius']
+            shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
         else:
-            if 'density' not in d:
-                self.fail(where, f'body {name!r} with a {kind} needs a density (kg/m^3)')
-            density = self.number(f'{where}.density', d['density'], positive=True, bound='density')
-            if kind == 'box':
-                shape = ShapeSpec('box', self.vector(w, d[kind], positive=True, bound='length'))
-            elif kind == 'sphere':
-                r = d[kind]
-                if isinstance(r, dict):
-                    r = self.mapping(w, r, ('radius',), ('radius',))['radius']
-                shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
-            else:
-                c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
-                shape = ShapeSpec('cylinder', (
-                    self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
-                    self.number(f'{w}.length', c['length'], positive=True, bound='length')))
+            c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
+            shape = ShapeSpec('cylinder', (
+                self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
+                self.number(f'{w}.length', c['length'], positive=True, bound='length')))
         return BodySpec(
             name=name, shape=shape, density=density,
             kappa=self.number(f'{where}.kappa', d.get('kappa', 1.0e8), positive=True, bound='kappa'),
@@ -701,8 +663,7 @@ class _Parser:
         m = [inertia[0:3], inertia[3:6], inertia[6:9]]
         if any(abs(m[r][c] - m[c][r]) > 1e-12 * (1 + abs(m[r][c])) for r in range(3) for c in range(3)):
             self.fail(f'{where}.inertia', 'must be symmetric')
-        # Physical inertia: S = tr(I)/2 - I (about the COM) must be positive definite,
-        # i.e. positive principal moments obeying the triangle inequality.
+        # physical: S = tr(I)/2 - I positive definite (moments > 0, triangle inequality)
         import numpy as np
         eig = np.linalg.eigvalsh(np.array(m))
         if eig[0] <= 0 or eig[0] + eig[1] <= eig[2] * (1 + 1e-12):

@@ -349,10 +349,7 @@ def _plain_list(v):
 class _Options:
     def __init__(self, source, opts, joints, where='robot'):
         self.source, self.where = source, where
-        unknown = [k for k in opts if k not in ROBOT_OPTIONS]
-        if unknown:
-            self.fail('', f'unknown option(s) {", ".join(map(repr, unknown))}; allowed: '
-                          f'{", ".join(ROBOT_OPTIONS + SCENE_OPTIONS)}')
+        self.keys('', opts, ROBOT_OPTIONS, 'option', ROBOT_OPTIONS + SCENE_OPTIONS)
         for key in ('fixed_base', 'limits', 'damping', 'torque_enabled'):
             value = opts.get(key, True)
             if not isinstance(value, bool):
@@ -377,17 +374,11 @@ class _Options:
             self.known('joints', name, joints)       # (a str: a list key is no dict key)
             if not isinstance(over, dict):
                 self.fail(f'joints.{name}', f'must be a mapping of {", ".join(JOINT_OVERRIDES)}')
-            bad = [k for k in over if k not in JOINT_OVERRIDES]
-            if bad:
-                self.fail(f'joints.{name}', f'unknown key(s) {", ".join(map(repr, bad))}; '
-                                            f'allowed: {", ".join(JOINT_OVERRIDES)}')
+            self.keys(f'joints.{name}', over, JOINT_OVERRIDES)
             for key, allowed in OVERRIDE_KEYS.items():
                 sub = over.get(key)
                 if isinstance(sub, dict):
-                    bad = [k for k in sub if k not in allowed]
-                    if bad:
-                        self.fail(f'joints.{name}.{key}', f'unknown key(s) '
-                                  f'{", ".join(map(repr, bad))}; allowed: {", ".join(allowed)}')
+                    self.keys(f'joints.{name}.{key}', sub, allowed)
                 elif key in over and sub is not None and sub is not False:
                     self.fail(f'joints.{name}.{key}', f'must be a mapping (or false to '
                                                       f'remove it), got {sub!r}')
@@ -402,29 +393,27 @@ class _Options:
             if 'strength_ratio' in over:
                 self.positive(f'joints.{name}.strength_ratio', over['strength_ratio'])
             if over.get('damping') not in (None, False):
-                self.nonnegative(f'joints.{name}.damping', over['damping'])
+                self.positive(f'joints.{name}.damping', over['damping'], strict=False)
         for key in ('kappa', 'strength_ratio'):
             if opts.get(key) is not None:
                 self.positive(key, opts[key])
         self.driving = opts.get('driving')
         if self.driving is not None:
-            self.mapping('driving', self.driving)
-            bad = [k for k in self.driving if k not in OVERRIDE_KEYS['driving']]
-            if bad:
-                self.fail('driving', f'unknown key(s) {", ".join(map(repr, bad))}; allowed: '
-                                     f'{", ".join(OVERRIDE_KEYS["driving"])}')
+            self.keys('driving', self.mapping('driving', self.driving), OVERRIDE_KEYS['driving'])
 
     def fail(self, field, msg):
         where = f'{self.where}.{field}' if field else self.where
         raise SceneError(f'{self.source}: {where}: {msg}')
 
-    def positive(self, field, value):
-        if not _finite_number(value) or value <= 0:
-            self.fail(field, f'must be a finite number > 0, got {value!r}')
+    def positive(self, field, value, strict=True):
+        if not _finite_number(value) or value < 0 or strict and value == 0:
+            self.fail(field, f'must be a finite number {">" if strict else ">="} 0, got {value!r}')
 
-    def nonnegative(self, field, value):
-        if not _finite_number(value) or value < 0:
-            self.fail(field, f'must be a finite number >= 0, got {value!r}')
+    def keys(self, field, value, allowed, what='key', listed=None):
+        bad = [k for k in value if k not in allowed]
+        if bad:
+            self.fail(field, f'unknown {what}(s) {", ".join(map(repr, bad))}; allowed: '
+                             f'{", ".join(listed or allowed)}')
 
     def mapping(self, field, value):
         if not isinstance(value, dict):
