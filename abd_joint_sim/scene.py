@@ -48,6 +48,10 @@ class SceneText:
         self._data, self._text = data, None
 
     @property
+    def written(self) -> bool:
+        return self._text is not None
+
+    @property
     def text(self) -> str:
         if self._text is None:
             self._text = yaml.dump(self._data, Dumper=_DUMPER, sort_keys=False)

@@ -518,8 +518,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             lim = None if over['limit'] in (None, False) else {**(lim or {}), **over['limit']}
         return (lim['lower'], lim['upper']) if lim and 'lower' in lim and 'upper' in lim else None
 
-    # A limit beyond the angles a scene takes (|x| <= 1e4 rad, ~1600 turns) is how some
-    # descriptions say "no limit" (lower="-1e+16"): such a joint is taken as continuous.
+    # a limit beyond the positions a scene takes is "no limit" (lower="-1e+16"): docs/urdf.md
     for j in joints.values():
         unit, bound = ('m', RANGES['position'][1]) if j.type == 'prismatic' else ('rad', RANGES['angle'][1])
         if j.type in LIMITED and j.lower is not None and moving(j) \
@@ -529,10 +528,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                  + (' (a continuous joint)' if unit == 'rad' else ''))
             j.lower = j.upper = None
 
-    # <limit lower upper> that gives no range. lower > upper is PyBullet's way of writing
-    # "no limit" (MuJoCo ignores it too): no limit. lower == upper is a zero-width limit that
-    # holds the joint at that position, as in a YAML scene and in PyBullet (MuJoCo ignores
-    # it, with a warning). Each said once per file, naming the joints and the way out.
+    # lower > upper is no limit, lower == upper holds the joint (docs/decisions.md): each
+    # said once per file, naming the joints and the way out
     def shown(js):
         return _few([f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in js])
     ranged = [j for j in joints.values() if j.type in LIMITED and moving(j) and opt.limits
@@ -563,8 +560,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if names:
             warn(f'{source}: ' + what.format(len(names), _few(names)))
 
-    # Initial positions: as given, else 0 -- or the nearest bound where 0 is outside the
-    # joint's limit (some descriptions have it so; the limit would throw the joint back).
+    # Initial positions: as given, else 0 or the nearest bound of a limit that excludes 0.
     q_init: dict[str, float] = {}
     for j in joints.values():
         q = float(opt.initial.get(j.name, 0.0))
@@ -755,13 +751,11 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 if key == 'driving' and 'driving' not in d:
                     base = {aim_key: q0}
                 d[key] = {**base, **value}
-        lim = d.get('limit')
-        if isinstance(lim, dict) and 'lower' in lim and 'upper' in lim \
-                and lim['upper'] > lim['lower'] and not lim['lower'] <= q0 <= lim['upper']:
-            # (a zero-width limit holds the joint from wherever it starts, as in YAML)
+        lim = effective_limit(j)        # (a zero-width one holds the joint from anywhere)
+        if lim and lim[1] > lim[0] and not lim[0] <= q0 <= lim[1]:
             raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} '
                              f'{"m" if sliding else "rad"} is outside '
-                             f'the joint\'s limit [{lim["lower"]:g}, {lim["upper"]:g}]; the limit '
+                             f'the joint\'s limit [{lim[0]:g}, {lim[1]:g}]; the limit '
                              f'would throw it back at once (widen it with joints: {{{j.name}: '
                              '{limit: ...}}, or limits: false)')
         scene_joints.append(d)
@@ -864,8 +858,8 @@ def scene_data_from_urdf(source, options: dict) -> tuple[dict, str, str, list[st
     gravity = scene_opts.pop('gravity', DEFAULT_GRAVITY)
     # a tuple or an array becomes the scene format's list; anything else goes to its check as it is
     data['gravity'] = list(gravity) if isinstance(gravity, (list, tuple, np.ndarray)) else gravity
-    if scene_opts.get('name'):
-        data['name'] = scene_opts.pop('name')
-    scene_opts.pop('name', None)
+    name_opt = scene_opts.pop('name', None)
+    if name_opt:
+        data['name'] = name_opt
     data.update(scene_opts)
     return data, name, text, notes
