@@ -582,9 +582,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         order.append(name)
         for j in reversed(children[name]):
             T = world_T[name] @ j.origin
-            joint_frame[j.name] = T
-            q = q_init[j.name]
-            M = np.eye(4)
+            joint_frame[j.name], q, M = T, q_init[j.name], np.eye(4)
             if j.type in TURNING:
                 M[:3, :3] = axis_rotation(j.axis, q)
             elif j.type == 'prismatic':
@@ -597,11 +595,10 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
 
     # Groups: a link belongs to the body of its nearest ancestor reached by a moving joint.
     group: dict[str, str] = {}
+    members: dict[str, list[str]] = {}
     for name in order:
         j = child_of.get(name)
         group[name] = name if j is None or moving(j) else group[j.parent]
-    members: dict[str, list[str]] = {}
-    for name in order:
         members.setdefault(group[name], []).append(name)
 
     # Each link's inertia checked (and repaired, one warning per link) once.
@@ -692,9 +689,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 if rgba is not None:
                     v['rgba'] = list(rgba)
                 visuals.append(v)
-        if not visuals and invented:
-            # The markers' fallback for a body without visuals is its box of equal inertia;
-            # this inertia is made up (a massless world frame), so mark the frame instead.
+        if not visuals and invented:        # (a made-up inertia: mark the frame, docs/urdf.md)
             visuals.append({'kind': 'sphere', 'size': [FRAME_MARK_RADIUS]})
         if visuals:
             body['visuals'] = visuals
