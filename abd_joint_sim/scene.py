@@ -59,8 +59,7 @@ class SceneText:
         return self._text
 
     def __eq__(self, other):
-        if isinstance(other, SceneText):
-            return self.text == other.text
+        other = other.text if isinstance(other, SceneText) else other
         return self.text == other if isinstance(other, str) else NotImplemented
 
     def __hash__(self):
@@ -630,7 +629,7 @@ class _Parser:
             w = f'{where}[{k}]'
             v = self.mapping(w, v, tuple(VisualSpec.__dataclass_fields__), ('kind',))
             kind = v['kind']
-            if kind not in sizes:
+            if not isinstance(kind, str) or kind not in sizes:
                 self.fail(f'{w}.kind', f'must be one of {", ".join(sizes)}, got {kind!r}')
             size = self.vector(f'{w}.size', v.get('size', [1.0, 1.0, 1.0] if kind == 'mesh'
                                                    else None), sizes[kind])
