@@ -733,19 +733,14 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if opt.damping and j.damping > 0.0:     # N m s/rad, or N s/m on a prismatic joint
             d['damping'] = j.damping
         over = opt.overrides.get(j.name, {})
-        for key in JOINT_OVERRIDES:
-            if key not in over:
-                continue
+        for key in (k for k in JOINT_OVERRIDES if k in over):
             value = over[key]
             if value is False or value is None:
                 d.pop(key, None)
             elif key in ('strength_ratio', 'damping'):
                 d[key] = value
-            elif isinstance(value, dict):
-                base = d.get(key) if isinstance(d.get(key), dict) else {}
-                if key == 'driving' and 'driving' not in d:
-                    base = {aim_key: q0}
-                d[key] = {**base, **value}
+            else:                           # a mapping, merged into the one the file gives
+                d[key] = {**d.get(key, {aim_key: q0} if key == 'driving' else {}), **value}
         lim = effective_limit(j)        # (a zero-width one holds the joint from anywhere)
         if lim and lim[1] > lim[0] and not lim[0] <= q0 <= lim[1]:
             raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} '
