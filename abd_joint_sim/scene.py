@@ -750,8 +750,7 @@ class _Parser:
             if limit.lower > limit.upper:
                 self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper} ({unit})')
             init = d.get(init_key, 0.0)
-            # a start outside a limit is refused, a zero-width limit (a lock) is not: why in
-            # docs/robustness.md
+            # (a start outside a limit is refused; a zero-width limit is a lock: robustness.md)
             if isinstance(init, (int, float)) and not isinstance(init, bool) and \
                     limit.upper > limit.lower and not limit.lower <= init <= limit.upper:
                 self.fail(f'{where}.{init_key}', f'{init!r} {unit} is outside the joint\'s limit '
@@ -762,7 +761,5 @@ class _Parser:
         return JointSpec(name=name, parent=d['parent'], child=d['child'], p0=p0, p1=p1,
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
                                                     positive=True, bound='strength'),
-                         init_angle=0.0 if sliding else init_value,
-                         external_torque=None if sliding else effort, driving=driving, limit=limit,
-                         damping=damping, type=jtype, init_distance=init_value if sliding else 0.0,
-                         external_force=effort if sliding else None)
+                         driving=driving, limit=limit, damping=damping, type=jtype,
+                         **{init_key: init_value, effort_key: effort})

@@ -309,7 +309,8 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
     negative = eig[0] <= 1e-12 * scale or eig[0] <= 0.0
     if negative or eig[2] < POINT_MASS_RATIO * sphere:         # (or a point mass)
         why = 'are not all > 0' if negative else (f'are negligible for its mass (under '
-                                                  f'{POINT_MASS_RATIO:g} of a water-density sphere\'s)')
+                                                  f'{POINT_MASS_RATIO:g} of a water-density '
+                                                  'sphere\'s)')
         return sphere * np.eye(3), (f'principal moments {_fmt(eig)} {why}: replaced by a solid '
                                     f'sphere of water density ({sphere:.4g} kg m^2 each)')
     if eig[0] + eig[1] <= eig[2] * (1.0 + 1e-9):
