@@ -461,13 +461,12 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     children: dict[str, list[_Joint]] = {n: [] for n in links}
     for j in joints.values():
         children[j.parent].append(j)
-    reached, stack = {roots[0]}, [roots[0]]
+    order, stack = [], [roots[0]]       # depth first (no link is reached twice)
     while stack:
-        for j in children[stack.pop()]:
-            if j.child not in reached:
-                reached.add(j.child)
-                stack.append(j.child)
-    if len(reached) != len(links):      # a loop beside the tree: name it
+        order.append(stack.pop())
+        stack.extend(j.child for j in reversed(children[order[-1]]))
+    if len(order) != len(links):        # a loop beside the tree: name it
+        reached = set(order)
         start = next(n for n in links if n not in reached)
         path = [start]
         while child_of[path[-1]].parent not in path:
@@ -576,12 +575,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     # Forward kinematics at the initial positions (world = root link frame).
     world_T: dict[str, np.ndarray] = {roots[0]: np.eye(4)}
     joint_frame: dict[str, np.ndarray] = {}
-    order: list[str] = []
-    stack = [roots[0]]
-    while stack:
-        name = stack.pop()
-        order.append(name)
-        for j in reversed(children[name]):
+    for name in order:
+        for j in children[name]:
             T = world_T[name] @ j.origin
             joint_frame[j.name], q, M = T, q_init[j.name], np.eye(4)
             if j.type in TURNING:
@@ -589,7 +584,6 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             elif j.type == 'prismatic':
                 M[:3, 3] = j.axis * q
             world_T[j.child] = T @ M
-            stack.append(j.child)
     for name in opt.initial:
         if joints[name].type == 'fixed':
             raise SceneError(f'{source}: robot.initial_positions.{name}: joint {name!r} is fixed')
