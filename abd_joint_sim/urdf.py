@@ -610,14 +610,11 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         R0, p0 = T0[:3, :3], T0[:3, 3]
         parts = []
         for name in members[top]:
-            link = links[name]
-            if link.mass <= 0.0:
-                continue
-            I = inertia[name]
-            T = world_T[name]
-            R = R0.T @ T[:3, :3]
-            c = R0.T @ (T[:3, :3] @ link.com + T[:3, 3] - p0)
-            parts.append((link.mass, c, R @ I @ R.T))
+            link, T = links[name], world_T[name]
+            if link.mass > 0.0:
+                R = R0.T @ T[:3, :3]
+                c = R0.T @ (T[:3, :3] @ link.com + T[:3, 3] - p0)
+                parts.append((link.mass, c, R @ inertia[name] @ R.T))
         m = sum(p[0] for p in parts)
         if m <= 0.0:
             return 0.0, np.zeros(3), np.zeros((3, 3))
@@ -631,9 +628,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     # Massless moving bodies: a leaf is held rigid (locked) with a warning, else an error.
     for top in reversed(list(members)):      # leaves first: a chain of them folds up
         j = child_of.get(top)
-        if j is None:
-            continue
-        if lumped(top)[0] > 0.0:
+        if j is None or lumped(top)[0] > 0.0:
             continue
         below = [k.name for n in members[top] for k in children[n] if moving(k)]
         if below:
