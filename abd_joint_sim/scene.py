@@ -240,11 +240,8 @@ class ShapeSpec:
 
 @dataclass(frozen=True)
 class VisualSpec:
-    """What a body looks like (markers, pictures); no effect on the physics.
-
-    Pose in the body's frame (the frame of `BodySpec.position`/`rpy`; for a URDF robot the
-    link frame), as a URDF ``<visual><origin>``.
-    """
+    """What a body looks like (markers, pictures; no effect on the physics), posed in the body's
+    frame (of `BodySpec.position`/`rpy`; a URDF robot's link frame) as a ``<visual><origin>``."""
 
     kind: str                               # 'box' | 'sphere' | 'cylinder' | 'mesh'
     size: tuple = ()                        # box: (a, b, c); sphere: (R,); cylinder: (radius, length); mesh: scale (sx, sy, sz)
