@@ -349,8 +349,7 @@ class Scene:
         urdf.SCENE_OPTIONS (docs/urdf.md). Repairs are warned as `urdf.UrdfWarning` and
         listed in `Scene.warnings`."""
         data, name, text, notes = urdf.scene_data_from_urdf(source, options)
-        scene = cls.from_dict(data, source=name)
-        return _with_robot(scene, text, notes)
+        return _with_robot(cls.from_dict(data, source=name), text, notes)
 
     @classmethod
     def from_file(cls, path: str | Path) -> 'Scene':

@@ -348,8 +348,8 @@ def _plain_list(v):
 
 
 class _Options:
-    def __init__(self, source, opts, joints, where='robot'):
-        self.source, self.where = source, where
+    def __init__(self, source, opts, joints):
+        self.source = source
         self.keys('', opts, ROBOT_OPTIONS, 'option', ROBOT_OPTIONS + SCENE_OPTIONS)
         for key in ('fixed_base', 'limits', 'damping', 'torque_enabled'):
             value = opts.get(key, True)
@@ -403,8 +403,7 @@ class _Options:
             self.keys('driving', self.mapping('driving', self.driving), OVERRIDE_KEYS['driving'])
 
     def fail(self, field, msg):
-        where = f'{self.where}.{field}' if field else self.where
-        raise SceneError(f'{self.source}: {where}: {msg}')
+        raise SceneError(f'{self.source}: robot{"." + field if field else ""}: {msg}')
 
     def positive(self, field, value, strict=True):
         if not _finite_number(value) or value < 0 or strict and value == 0:
