@@ -17,13 +17,24 @@ import numpy as np
 
 from .errors import SceneError
 from .geometry import rpy_matrix, skew
-from .scene import PRISMATIC, Scene, check_dt
+from .scene import PRISMATIC, REVOLUTE, Scene, check_dt
 from .terms.revolute import stiffness
 
 #: largest h d / I of a damped joint (I: the lighter body's moment about the axis): beyond it
 #: the damper outweighs the body's inertia by more than double precision resolves in Newton's
 #: matrix (measured: steps fail from ~4e19), and the joint is locked for all purposes
 DAMPING_RATIO_MAX = 1e15
+#: a Model's per-term arrays: (field prefix, joint type, JointSpec attribute, the spec's
+#: attributes, their field suffixes); bool arrays for `enabled`/`passive`, else float
+_EFFORT, _DRIVE = ('value0', 'enabled0', 'effort_limit'), ('aim0', 'passive0', 'enabled0')
+_LIMIT = ('lower', 'upper', 'strength')
+_TERMS = (('torque', REVOLUTE, 'external_torque', ('torque', 'enabled', 'effort_limit'), _EFFORT),
+          ('drive', REVOLUTE, 'driving', ('aim_angle', 'passive', 'enabled'), _DRIVE),
+          ('limit', REVOLUTE, 'limit', _LIMIT, _LIMIT),
+          ('prismatic_force', PRISMATIC, 'external_force', ('force', 'enabled', 'effort_limit'),
+           _EFFORT),
+          ('prismatic_drive', PRISMATIC, 'driving', ('aim_distance', 'passive', 'enabled'), _DRIVE),
+          ('prismatic_limit', PRISMATIC, 'limit', _LIMIT, _LIMIT))
 
 
 def mass_properties(body):
@@ -199,22 +210,25 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
             nbar[k, side], bbar[k, side] = R.T @ n, R.T @ bvec
         K[k] = stiffness(j.strength_ratio, mass[parent[k]], mass[child[k]])
 
-    def sel(pred, kind='revolute'):
-        return np.array([k for k, j in enumerate(scene.joints) if j.type == kind and pred(j)], dtype=np.int64)
+    def sel(kind, pred=lambda j: True):
+        return np.array([k for k, j in enumerate(scene.joints) if j.type == kind and pred(j)],
+                        dtype=np.int64)
 
-    tj = sel(lambda j: j.external_torque is not None)
-    dj = sel(lambda j: j.driving is not None)
-    lj = sel(lambda j: j.limit is not None)
-    pj = sel(lambda j: j.damping > 0.0)
-    sj = sel(lambda j: True, PRISMATIC)
-    sf = sel(lambda j: j.external_force is not None, PRISMATIC)
-    sd = sel(lambda j: j.driving is not None, PRISMATIC)
-    sl = sel(lambda j: j.limit is not None, PRISMATIC)
-    sp = sel(lambda j: j.damping > 0.0, PRISMATIC)
-    jf, jsd, jsl = ([scene.joints[k] for k in ks] for ks in (sf, sd, sl))
-    jt = [scene.joints[k] for k in tj]
-    jd = [scene.joints[k] for k in dj]
-    jl = [scene.joints[k] for k in lj]
+    terms = {}
+    for prefix, kind, spec, attrs, suffixes in _TERMS:
+        ks = terms[f'{prefix}_joints'] = sel(kind, lambda j: getattr(j, spec) is not None)
+        js = [getattr(scene.joints[k], spec) for k in ks]
+        for attr, suffix in zip(attrs, suffixes):
+            dtype = bool if attr in ('enabled', 'passive') else float
+            terms[f'{prefix}_{suffix}'] = np.array([getattr(x, attr) for x in js], dtype)
+        if spec == 'driving':
+            terms[f'{prefix}_K'] = np.array([stiffness(scene.joints[k].driving.strength_ratio,
+                                                       mass[parent[k]], mass[child[k]])
+                                             for k in ks], float)
+    for prefix, kind in (('damping', REVOLUTE), ('prismatic_damping', PRISMATIC)):
+        ks = terms[f'{prefix}_joints'] = sel(kind, lambda j: j.damping > 0.0)
+        terms[f'{prefix}_coeff'] = np.array([scene.joints[k].damping for k in ks], float)
+    sj = sel(PRISMATIC)
     model = Model(
         dt=scene.dt if dt is None else check_dt(dt, 'dt argument'), gravity=np.array(scene.gravity, float),
         integrator=scene.integrator, newton=scene.newton,
@@ -227,61 +241,30 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
         joint_anchor0=anchor0, joint_anchor1=anchor1, joint_K=K,
         joint_nbar=nbar, joint_bbar=bbar,
         joint_init_angle=np.array([j.init_position for j in scene.joints], float),
-        torque_joints=tj, torque_value0=np.array([j.external_torque.torque for j in jt], float),
-        torque_enabled0=np.array([j.external_torque.enabled for j in jt], bool),
-        torque_effort_limit=np.array([j.external_torque.effort_limit for j in jt], float),
-        drive_joints=dj,
-        drive_K=np.array([stiffness(j.driving.strength_ratio, mass[index[j.parent]], mass[index[j.child]])
-                          for j in jd], float),
-        drive_aim0=np.array([j.driving.aim_angle for j in jd], float),
-        drive_passive0=np.array([j.driving.passive for j in jd], bool),
-        drive_enabled0=np.array([j.driving.enabled for j in jd], bool),
-        limit_joints=lj, limit_lower=np.array([j.limit.lower for j in jl], float),
-        limit_upper=np.array([j.limit.upper for j in jl], float),
-        limit_strength=np.array([j.limit.strength for j in jl], float),
-        damping_joints=pj, damping_coeff=np.array([scene.joints[k].damping for k in pj], float),
         joint_slides=np.array([j.type == PRISMATIC for j in scene.joints], bool),
-        revolute_joints=sel(lambda j: True), prismatic_joints=sj,
-        prismatic_K=np.array([K[k] for k in sj], float),
-        prismatic_force_joints=sf,
-        prismatic_force_value0=np.array([j.external_force.force for j in jf], float),
-        prismatic_force_enabled0=np.array([j.external_force.enabled for j in jf], bool),
-        prismatic_force_effort_limit=np.array([j.external_force.effort_limit for j in jf], float),
-        prismatic_drive_joints=sd,
-        prismatic_drive_K=np.array([stiffness(j.driving.strength_ratio, mass[index[j.parent]],
-                                              mass[index[j.child]]) for j in jsd], float),
-        prismatic_drive_aim0=np.array([j.driving.aim_distance for j in jsd], float),
-        prismatic_drive_passive0=np.array([j.driving.passive for j in jsd], bool),
-        prismatic_drive_enabled0=np.array([j.driving.enabled for j in jsd], bool),
-        prismatic_limit_joints=sl, prismatic_limit_lower=np.array([j.limit.lower for j in jsl], float),
-        prismatic_limit_upper=np.array([j.limit.upper for j in jsl], float),
-        prismatic_limit_strength=np.array([j.limit.strength for j in jsl], float),
-        prismatic_damping_joints=sp,
-        prismatic_damping_coeff=np.array([scene.joints[k].damping for k in sp], float),
-    )
+        revolute_joints=sel(REVOLUTE), prismatic_joints=sj,
+        prismatic_K=np.array([K[k] for k in sj], float), **terms)
     for value in model.__dict__.values():
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
-    for k, j in enumerate(model.damping_joints):
-        d, inertia = model.damping_coeff[k], axis_inertia(model, j)
-        if model.dt * d > DAMPING_RATIO_MAX * inertia:
-            raise SceneError(
-                f'{scene.source}: joint {model.joint_names[j]!r}: damping {d:g} N m s/rad is '
-                f'{model.dt * d / inertia:.1e} times the moment of its lighter body about the axis '
-                f'({inertia:.2e} kg m^2) per step of {model.dt:g} s (dt d / I), beyond the '
-                f'{DAMPING_RATIO_MAX:g} a step can resolve: a joint damped this hard does not '
-                'move; lock it, or lower the damping')
-    for k, j in enumerate(model.prismatic_damping_joints):
-        c = model.prismatic_damping_coeff[k]
-        free = [float(model.body_mass[b]) for b in (model.joint_parent[j], model.joint_child[j])
-                if not model.body_fixed[b]]
-        mass = min(free) if free else math.inf
-        if model.dt * c > DAMPING_RATIO_MAX * mass:
-            raise SceneError(
-                f'{scene.source}: joint {model.joint_names[j]!r}: damping {c:g} N s/m is '
-                f'{model.dt * c / mass:.1e} times the mass of its lighter body ({mass:.2e} kg) per '
-                f'step of {model.dt:g} s (dt c / m), beyond the {DAMPING_RATIO_MAX:g} a step can '
-                'resolve: a joint damped this hard does not move; lock it, or lower the damping')
+    def lighter_mass(m, j):
+        return min([float(m.body_mass[b]) for b in (m.joint_parent[j], m.joint_child[j])
+                    if not m.body_fixed[b]], default=math.inf)
+
+    for joints, coeff, of, unit, what, xunit, formula in (
+            (model.damping_joints, model.damping_coeff, axis_inertia, 'N m s/rad',
+             'moment of its lighter body about the axis', 'kg m^2', 'dt d / I'),
+            (model.prismatic_damping_joints, model.prismatic_damping_coeff, lighter_mass, 'N s/m',
+             'mass of its lighter body', 'kg', 'dt c / m')):
+        for j, c in zip(joints, coeff):
+            x = of(model, j)
+            if model.dt * c > DAMPING_RATIO_MAX * x:
+                raise SceneError(
+                    f'{scene.source}: joint {model.joint_names[j]!r}: damping {c:g} {unit} is '
+                    f'{model.dt * c / x:.1e} times the {what} ({x:.2e} {xunit}) per step of '
+                    f'{model.dt:g} s ({formula}), beyond the {DAMPING_RATIO_MAX:g} a step can '
+                    'resolve: a joint damped this hard does not move; lock it, or lower the '
+                    'damping')
     return model
 
 

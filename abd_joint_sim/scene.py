@@ -7,6 +7,7 @@ The format: docs/scene-format.md (test/test_docs_tables.py checks it against thi
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -38,13 +39,8 @@ MAX_YAML_DEPTH = 64
 
 
 class SceneText:
-    """A scene's YAML text, written from its data the first time it is asked for.
-
-    A dict scene (and a robot scene, whose text is the lowered scene) keeps its data and
-    writes the text only when something records it (a bag, `to_dict`): the text of a robot
-    with 15 000 visuals takes seconds to write, the scene a fraction of that to build.
-    The text is the same `yaml.dump` either way; the data is the scene's own copy, which
-    nothing changes after the parser read it."""
+    """A scene's YAML text, written from its data (the scene's own copy) the first time it is
+    asked for: docs/decisions.md says why."""
 
     __slots__ = ('_data', '_text')
 
@@ -63,18 +59,11 @@ class SceneText:
         return self._text
 
     def __eq__(self, other):
-        if isinstance(other, SceneText):
-            return self.text == other.text
+        other = other.text if isinstance(other, SceneText) else other
         return self.text == other if isinstance(other, str) else NotImplemented
 
     def __hash__(self):
         return hash(self.text)
-
-    def __getstate__(self):
-        return self._data, self._text
-
-    def __setstate__(self, state):
-        self._data, self._text = state
 
 
 class YAMLLimitError(yaml.YAMLError):
@@ -87,18 +76,10 @@ class YAMLLimitError(yaml.YAMLError):
 
 
 class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 core-schema scalars and bounded documents.
-
-    * Numbers are decimal as in YAML 1.2 (``1``, ``-2.5``, ``1e8``, ``.inf``): plain PyYAML
-      (YAML 1.1) reads ``1e8`` as a string but ``1:30`` as 90 and ``0x10``/``010`` as 16/8;
-      here the latter stay strings, so the field check names them. Booleans are
-      ``true``/``false`` only (YAML 1.1 also took ``yes``/``no``/``on``/``off``).
-    * A key given twice in one mapping is an error (YAML says keys are unique; PyYAML keeps
-      the last one silently).
-    * Nesting deeper than MAX_YAML_DEPTH, more values with aliases expanded than
-      `_expanded_size` allows, and an alias inside its own anchor are errors, raised before the data is
-      constructed (so an alias bomb costs microseconds, not gigabytes).
-    """
+    """SafeLoader with YAML 1.2 core-schema scalars (decimal numbers, booleans true/false
+    only) and bounded documents: a duplicate key, nesting deeper than MAX_YAML_DEPTH, more
+    values with aliases expanded than `_expanded_size` allows and an alias inside its own
+    anchor are errors, raised before the data is constructed (docs/robustness.md §6)."""
 
     yaml_implicit_resolvers: dict = {}
 
@@ -139,29 +120,12 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def _distinct_nodes(root) -> int:
-    seen, stack = set(), [root]
-    while stack:
-        node = stack.pop()
-        if id(node) in seen:
-            continue
-        seen.add(id(node))
-        if isinstance(node, yaml.SequenceNode):
-            stack.extend(node.value)
-        elif isinstance(node, yaml.MappingNode):
-            stack.extend(n for pair in node.value for n in pair)
-    return len(seen)
-
-
 def _expanded_size(root) -> int:
     """Nodes of the document with every alias expanded (memoised over the shared nodes);
     YAMLLimitError beyond the bound of ALIAS_EXPANSION or for a node that contains itself."""
-    distinct = _distinct_nodes(root)
-    limit = max(MAX_YAML_NODES, ALIAS_EXPANSION * distinct)
-    sizes: dict[int, int] = {}
+    sizes: dict[int, tuple] = {}            # id -> (expanded size, node), in post-order
     active: set[int] = set()
-    # Iterative post-order walk: the depth is already bounded, but keep Python's stack out.
-    stack = [(root, False)]
+    stack = [(root, False)]                 # iterative: keep Python's stack out
     while stack:
         node, done = stack.pop()
         key = id(node)
@@ -172,21 +136,21 @@ def _expanded_size(root) -> int:
             children = [n for pair in node.value for n in pair]
         if done:
             active.discard(key)
-            sizes[key] = size = 1 + sum(sizes[id(c)] for c in children)
-            if size > limit:
-                raise YAMLLimitError(
-                    f'more than {limit} values once aliases (*name) are expanded, from '
-                    f'{distinct} in the text (an alias bomb?)', node.start_mark)
-            continue
-        if key in sizes:
-            continue
-        if key in active:
-            raise YAMLLimitError('an alias (*name) refers to a node that contains it',
-                                 node.start_mark)
-        active.add(key)
-        stack.append((node, True))
-        stack.extend((c, False) for c in children if id(c) not in sizes)
-    return sizes[id(root)]
+            sizes[key] = (1 + sum(sizes[id(c)][0] for c in children), node)
+        elif key not in sizes:
+            if key in active:
+                raise YAMLLimitError('an alias (*name) refers to a node that contains it',
+                                     node.start_mark)
+            active.add(key)
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in sizes)
+    limit = max(MAX_YAML_NODES, ALIAS_EXPANSION * len(sizes))
+    for size, node in sizes.values():
+        if size > limit:
+            raise YAMLLimitError(
+                f'more than {limit} values once aliases (*name) are expanded, from '
+                f'{len(sizes)} in the text (an alias bomb?)', node.start_mark)
+    return sizes[id(root)][0]
 
 
 for _tag, _regexp, _first in (
@@ -276,11 +240,8 @@ class ShapeSpec:
 
 @dataclass(frozen=True)
 class VisualSpec:
-    """What a body looks like (markers, pictures); no effect on the physics.
-
-    Pose in the body's frame (the frame of `BodySpec.position`/`rpy`; for a URDF robot the
-    link frame), as a URDF ``<visual><origin>``.
-    """
+    """What a body looks like (markers, pictures; no effect on the physics), posed in the body's
+    frame (of `BodySpec.position`/`rpy`; a URDF robot's link frame) as a ``<visual><origin>``."""
 
     kind: str                               # 'box' | 'sphere' | 'cylinder' | 'mesh'
     size: tuple = ()                        # box: (a, b, c); sphere: (R,); cylinder: (radius, length); mesh: scale (sx, sy, sz)
@@ -327,10 +288,6 @@ class DrivingSpec:
     passive: bool = False
     enabled: bool = False
     aim_distance: float = 0.0               # [m] UID 21 (prismatic)
-
-    def aim(self, kind: str) -> float:
-        """The aim in the joint's own unit: rad (revolute) or m (prismatic)."""
-        return self.aim_distance if kind == PRISMATIC else self.aim_angle
 
 
 @dataclass(frozen=True)
@@ -388,18 +345,11 @@ class Scene:
 
     @classmethod
     def from_urdf(cls, source, **options) -> 'Scene':
-        """A robot scene from a URDF path or URDF XML text (docs/urdf.md).
-
-        Options: dt (default 1e-3), gravity (default [0, 0, -9.81]), integrator, newton,
-        name, fixed_base, initial_positions {joint: rad}, lock [joints], actuated [joints],
-        joints {joint: {strength_ratio, external_torque, driving, limit}}, kappa,
-        strength_ratio, limits (bool), torque_enabled (bool), driving {...} (all joints).
-        Repairs are warned as `abd_joint_sim.urdf.UrdfWarning` and listed in
-        `Scene.warnings`.
-        """
+        """A robot scene from a URDF path or URDF XML text; `options`: urdf.ROBOT_OPTIONS and
+        urdf.SCENE_OPTIONS (docs/urdf.md). Repairs are warned as `urdf.UrdfWarning` and
+        listed in `Scene.warnings`."""
         data, name, text, notes = urdf.scene_data_from_urdf(source, options)
-        scene = cls.from_dict(data, source=name)
-        return _with_robot(scene, text, notes)
+        return _with_robot(cls.from_dict(data, source=name), text, notes)
 
     @classmethod
     def from_file(cls, path: str | Path) -> 'Scene':
@@ -421,9 +371,8 @@ class Scene:
         return _Parser(source).scene(data, source_text)
 
     def to_dict(self) -> dict:
-        # A robot scene's source_text is the lowered scene (bodies, joints), complete in
-        # itself: a bag replays it without the URDF file.
-        """The scene as plain data (what `from_dict` accepts)."""
+        """The scene as plain data (what `from_dict` accepts; a robot scene's is the lowered
+        scene, complete without the URDF file)."""
         return load_yaml(self.source_text) if self.source_text else {}
 
     @property
@@ -450,7 +399,6 @@ def check_dt(value, source: str = 'dt') -> float:
 
 
 def _with_robot(scene: 'Scene', urdf_text: str, notes) -> 'Scene':
-    import dataclasses
     return dataclasses.replace(scene, robot_description=urdf_text, warnings=tuple(notes))
 
 
@@ -608,7 +556,6 @@ class _Parser:
             seen.add(n)
 
     def newton(self, value):
-        defaults = NewtonSpec()
         d = self.mapping('newton', value, tuple(NewtonSpec.__dataclass_fields__))
         kw = {}
         for key in ('velocity_tol', 'transrate_tol', 'max_step_rotation'):
@@ -620,7 +567,7 @@ class _Parser:
                                       ('max_substep_depth', 0, MAX_SUBSTEP_DEPTH)):
             if key in d:
                 kw[key] = self.integer(f'newton.{key}', d[key], minimum, maximum)
-        spec = NewtonSpec(**{**defaults.__dict__, **kw})
+        spec = NewtonSpec(**kw)
         if spec.max_step_rotation >= math.pi:
             self.fail('newton.max_step_rotation', 'must be < pi: the multi-turn angle is only '
                                                   f'exact below pi per step, got {spec.max_step_rotation}')
@@ -637,29 +584,26 @@ class _Parser:
                              f' (got {shapes or "none"})')
         kind = shapes[0]
         w = f'{where}.{kind}'
-        density = 0.0
+        if kind != 'inertial' and 'density' not in d:
+            self.fail(where, f'body {name!r} with a {kind} needs a density (kg/m^3)')
+        shape = self.inertial(w, d[kind]) if kind == 'inertial' else None
+        density = (self.number(f'{where}.density', d['density'], positive=True, bound='density')
+                   if 'density' in d else 0.0)
         if kind == 'inertial':
-            shape = self.inertial(w, d[kind])
-            if 'density' in d:
-                density = self.number(f'{where}.density', d['density'], positive=True, bound='density')
-                if shape.volume == 0.0:
-                    shape = ShapeSpec(**{**shape.__dict__, 'volume': shape.mass / density})
+            if density and shape.volume == 0.0:
+                shape = dataclasses.replace(shape, volume=shape.mass / density)
+        elif kind == 'box':
+            shape = ShapeSpec('box', self.vector(w, d[kind], positive=True, bound='length'))
+        elif kind == 'sphere':
+            r = d[kind]
+            if isinstance(r, dict):
+                r = self.mapping(w, r, ('radius',), ('radius',))['radius']
+            shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
         else:
-            if 'density' not in d:
-                self.fail(where, f'body {name!r} with a {kind} needs a density (kg/m^3)')
-            density = self.number(f'{where}.density', d['density'], positive=True, bound='density')
-            if kind == 'box':
-                shape = ShapeSpec('box', self.vector(w, d[kind], positive=True, bound='length'))
-            elif kind == 'sphere':
-                r = d[kind]
-                if isinstance(r, dict):
-                    r = self.mapping(w, r, ('radius',), ('radius',))['radius']
-                shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
-            else:
-                c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
-                shape = ShapeSpec('cylinder', (
-                    self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
-                    self.number(f'{w}.length', c['length'], positive=True, bound='length')))
+            c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
+            shape = ShapeSpec('cylinder', (
+                self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
+                self.number(f'{w}.length', c['length'], positive=True, bound='length')))
         return BodySpec(
             name=name, shape=shape, density=density,
             kappa=self.number(f'{where}.kappa', d.get('kappa', 1.0e8), positive=True, bound='kappa'),
@@ -681,7 +625,7 @@ class _Parser:
             w = f'{where}[{k}]'
             v = self.mapping(w, v, tuple(VisualSpec.__dataclass_fields__), ('kind',))
             kind = v['kind']
-            if kind not in sizes:
+            if not isinstance(kind, str) or kind not in sizes:
                 self.fail(f'{w}.kind', f'must be one of {", ".join(sizes)}, got {kind!r}')
             size = self.vector(f'{w}.size', v.get('size', [1.0, 1.0, 1.0] if kind == 'mesh'
                                                    else None), sizes[kind])
@@ -718,8 +662,7 @@ class _Parser:
         m = [inertia[0:3], inertia[3:6], inertia[6:9]]
         if any(abs(m[r][c] - m[c][r]) > 1e-12 * (1 + abs(m[r][c])) for r in range(3) for c in range(3)):
             self.fail(f'{where}.inertia', 'must be symmetric')
-        # Physical inertia: S = tr(I)/2 - I (about the COM) must be positive definite,
-        # i.e. positive principal moments obeying the triangle inequality.
+        # physical: S = tr(I)/2 - I positive definite (moments > 0, triangle inequality)
         import numpy as np
         eig = np.linalg.eigvalsh(np.array(m))
         if eig[0] <= 0 or eig[0] + eig[1] <= eig[2] * (1 + 1e-12):
@@ -765,42 +708,34 @@ class _Parser:
             self.fail(f'{where}.p1', f'must differ from p0 (the axis is p0 -> p1), both are {list(p0)}')
         unit = POSITION_UNIT[jtype]
         position = 'position' if sliding else 'angle'       # RANGES row of positions and aims
-        init_key = 'init_distance' if sliding else 'init_angle'
-        torque = force = driving = limit = None
-        if d.get('external_torque') is not None:
-            w = f'{where}.external_torque'
-            t = self.mapping(w, d['external_torque'], ('torque', 'enabled', 'effort_limit'))
-            torque = TorqueSpec(self.number(f'{w}.torque', t.get('torque', 0.0), bound='torque'),
-                                self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                                self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
-                                            bound='effort_limit')
-                                if 'effort_limit' in t else math.inf)
-            if abs(torque.torque) > torque.effort_limit:
-                self.fail(f'{w}.torque', f'|{torque.torque}| exceeds effort_limit {torque.effort_limit}')
-        if d.get('external_force') is not None:
-            w = f'{where}.external_force'
-            t = self.mapping(w, d['external_force'], ('force', 'enabled', 'effort_limit'))
-            force = ForceSpec(self.number(f'{w}.force', t.get('force', 0.0), bound='force'),
-                              self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                              self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
-                                          bound='force_limit')
-                              if 'effort_limit' in t else math.inf)
-            if abs(force.force) > force.effort_limit:
-                self.fail(f'{w}.force', f'|{force.force}| N exceeds effort_limit {force.effort_limit} N')
+        init_key, aim_key, other = (('init_distance', 'aim_distance', 'aim_angle') if sliding
+                                    else ('init_angle', 'aim_angle', 'aim_distance'))
+        effort_key, value_key = (('external_force', 'force') if sliding
+                                 else ('external_torque', 'torque'))
+        effort = driving = limit = None
+        if d.get(effort_key) is not None:
+            w, u = f'{where}.{effort_key}', ' N' if sliding else ''
+            t = self.mapping(w, d[effort_key], (value_key, 'enabled', 'effort_limit'))
+            effort = (ForceSpec if sliding else TorqueSpec)(
+                self.number(f'{w}.{value_key}', t.get(value_key, 0.0), bound=value_key),
+                self.boolean(f'{w}.enabled', t.get('enabled', False)),
+                self.number(f'{w}.effort_limit', t['effort_limit'], positive=True,
+                            bound='force_limit' if sliding else 'effort_limit')
+                if 'effort_limit' in t else math.inf)
+            value, top = getattr(effort, value_key), effort.effort_limit
+            if abs(value) > top:
+                self.fail(f'{w}.{value_key}', f'|{value}|{u} exceeds effort_limit {top}{u}')
         if d.get('driving') is not None:
             w = f'{where}.driving'
-            aim_key = 'aim_distance' if sliding else 'aim_angle'
-            other = 'aim_angle' if sliding else 'aim_distance'
             t = self.mapping(w, d['driving'], ('strength_ratio', aim_key, 'passive', 'enabled', other))
             if other in t:
                 self.fail(f'{w}.{other}', f'joint {name!r} is {jtype}: its drive takes {aim_key} ({unit})')
             aim = self.number(f'{w}.{aim_key}', t.get(aim_key, 0.0), bound=position)
-            driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0), positive=True,
-                                              bound='strength'),
-                                  aim if not sliding else 0.0,
-                                  self.boolean(f'{w}.passive', t.get('passive', False)),
-                                  self.boolean(f'{w}.enabled', t.get('enabled', False)),
-                                  aim if sliding else 0.0)
+            driving = DrivingSpec(self.number(f'{w}.strength_ratio', t.get('strength_ratio', 100.0),
+                                              positive=True, bound='strength'),
+                                  passive=self.boolean(f'{w}.passive', t.get('passive', False)),
+                                  enabled=self.boolean(f'{w}.enabled', t.get('enabled', False)),
+                                  **{aim_key: aim})
         if d.get('limit') is not None:
             w = f'{where}.limit'
             t = self.mapping(w, d['limit'], ('lower', 'upper', 'strength'), ('lower', 'upper'))
@@ -811,13 +746,9 @@ class _Parser:
             if limit.lower > limit.upper:
                 self.fail(f'{w}', f'lower {limit.lower} > upper {limit.upper} ({unit})')
             init = d.get(init_key, 0.0)
+            # (a start outside a limit is refused; a zero-width limit is a lock: robustness.md)
             if isinstance(init, (int, float)) and not isinstance(init, bool) and \
                     limit.upper > limit.lower and not limit.lower <= init <= limit.upper:
-                # The limit energy grows as the cube of the distance outside the range over
-                # its width: a start far outside is a huge kick at the first step, not a
-                # mechanism anyone meant (the backends fail or fling the body differently).
-                # A zero-width limit is a lock (s|x - l|^3, no width to divide by) that pulls
-                # the joint to its position from wherever it starts: allowed.
                 self.fail(f'{where}.{init_key}', f'{init!r} {unit} is outside the joint\'s limit '
                                                  f'[{limit.lower:g}, {limit.upper:g}] {unit}; start inside it')
         init_value = self.number(f'{where}.{init_key}', d.get(init_key, 0.0), bound=position)
@@ -826,7 +757,5 @@ class _Parser:
         return JointSpec(name=name, parent=d['parent'], child=d['child'], p0=p0, p1=p1,
                          strength_ratio=self.number(f'{where}.strength_ratio', d.get('strength_ratio', 100.0),
                                                     positive=True, bound='strength'),
-                         init_angle=0.0 if sliding else init_value,
-                         external_torque=torque, driving=driving, limit=limit,
-                         damping=damping, type=jtype, init_distance=init_value if sliding else 0.0,
-                         external_force=force)
+                         driving=driving, limit=limit, damping=damping, type=jtype,
+                         **{init_key: init_value, effort_key: effort})

@@ -1,24 +1,11 @@
 """URDF import: a robot description -> a normal :class:`~abd_joint_sim.scene.Scene`.
 
-``Scene.from_urdf(source, **options)`` (and a scene YAML's ``robot:`` block) end here. The
-URDF is read with the standard library's ``xml.etree.ElementTree`` by our own small reader
-(docs/urdf.md says why), lowered to plain scene data (bodies with ``inertial:``
-data, revolute joints with ``p0``/``p1`` on the axis) and validated by the scene parser like
-any scene. Every mapping rule and why: docs/urdf.md.
-
-* Link frame = body frame (``position``/``rpy`` = the link's pose by forward kinematics at
-  ``initial_positions``), so COM, inertia and visuals keep their URDF coordinates.
-* Fixed (and locked) joints merge the child into the parent: masses add, the COM is the
-  mass-weighted mean, inertias add with the parallel-axis theorem
-  ``I = Σ R_k I_k R_kᵀ + m_k (|d_k|² 1 − d_k d_kᵀ)``, ``d_k = c_k − c``.
-* revolute -> UID 18 (+ UID 670 from ``<limit lower upper>``; ``effort`` -> the UID 668
-  effort limit); continuous -> UID 18 without a limit; prismatic -> UID 20 (+ UID 669 from
-  ``<limit lower upper>`` [m]; ``effort`` -> the UID 667 force limit [N]; ``init_distance`` =
-  the initial position [m]; a positive position slides the child along ``<axis>``). ``p0`` = joint origin,
-  ``p1 = p0 + axis`` (world, initial pose): a positive URDF position (right-hand rotation of
-  the child about ``<axis>``) is a positive joint angle, and ``init_angle`` = the initial
-  position so the reported angle reads the URDF joint position.
-* Non-physical inertias are repaired with one :class:`UrdfWarning` per link.
+``Scene.from_urdf(source, **options)`` and a scene YAML's ``robot:`` block end here. The URDF
+is read with ``xml.etree.ElementTree``, lowered to plain scene data (link frame = body frame;
+fixed and locked joints merge the child into its parent; revolute/continuous -> UID 18,
+prismatic -> UID 20, ``<limit>`` -> UID 670/669, ``effort`` -> the UID 668/667 effort limit,
+``p0`` = joint origin, ``p1 = p0 + axis``) and validated by the scene parser like any scene.
+Repairs are warned as :class:`UrdfWarning`. Every mapping rule and why: docs/urdf.md.
 """
 from __future__ import annotations
 
@@ -27,7 +14,6 @@ import os
 from pathlib import Path
 import re
 import stat
-from typing import Any
 import warnings
 import xml.etree.ElementTree as ET
 
@@ -73,6 +59,11 @@ MAX_INERTIA = RANGES['mass'][1] * RANGES['length'][1] ** 2
 """Largest moment of inertia read [kg m^2]: the largest mass at the largest length."""
 
 
+_VISUAL_SIZE = {'box': (('size', 3),), 'sphere': (('radius', 1),),
+                'cylinder': (('radius', 1), ('length', 1)), 'mesh': (('scale', 3),)}
+"""The attributes (and their counts of numbers) that make a visual's size."""
+
+
 def _clip(value: str) -> str:
     """`value` for an error line: at most MAX_ECHO characters, the rest counted."""
     value = str(value)
@@ -84,9 +75,7 @@ class UrdfWarning(UserWarning):
     """A URDF quirk that was repaired or ignored (one line naming file and link/joint)."""
 
 
-# ---------------------------------------------------------------------------------------
-# reading
-# ---------------------------------------------------------------------------------------
+# -- reading --------------------------------------------------------------------------
 class _Link:
     __slots__ = ('name', 'mass', 'com', 'inertia', 'visuals')
 
@@ -109,13 +98,6 @@ class _Joint:
         self.effort = self.velocity = None
         self.mimic = None
         self.damping = self.friction = 0.0     # <dynamics>
-
-
-def _transform(xyz, rpy) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = rpy_matrix(rpy)
-    T[:3, 3] = xyz
-    return T
 
 
 class _Reader:
@@ -145,21 +127,18 @@ class _Reader:
         return float(self.floats(elem, attr, 1, where, None if default is None else [default])[0])
 
     def origin(self, parent, where):
-        o = parent.find('origin')
-        return _transform(self.floats(o, 'xyz', 3, f'{where} <origin>', [0, 0, 0]),
-                          self.floats(o, 'rpy', 3, f'{where} <origin>', [0, 0, 0]))
+        o, T = parent.find('origin'), np.eye(4)
+        T[:3, 3] = self.floats(o, 'xyz', 3, f'{where} <origin>', [0, 0, 0])
+        T[:3, :3] = rpy_matrix(self.floats(o, 'rpy', 3, f'{where} <origin>', [0, 0, 0]))
+        return T
 
     def parse(self, text: str):
-        # No DTD at all: entity declarations are the XML-bomb vector (billion laughs,
-        # external entities), and no URDF needs one.
+        # (docs/urdf.md "Parser safety": no DTD; NUL bytes after the document and white space
+        # before its <?xml ...?> ignored, the error lines kept true)
         if re.search(r'<!\s*(DOCTYPE|ENTITY)', text):
             self.fail('DOCTYPE/ENTITY declarations are not accepted in a URDF (entity '
                       'expansion is refused); remove the <!DOCTYPE ...> block')
-        # Trailing NUL bytes after the document (pybullet_data's humanoid.urdf ends with one)
-        # are ignored by the tinyxml-based parsers of ROS and PyBullet: ignore them too.
         text = text.rstrip('\x00')
-        # So is white space before the XML declaration (pybullet_data's biped2d_pybullet.urdf
-        # starts with blank lines), which expat refuses: dropped, the error lines kept true.
         body = text.lstrip()
         skipped_lines = 0
         if body.startswith('<?xml'):
@@ -246,30 +225,20 @@ class _Reader:
         for vis in el.findall('visual'):
             geom = vis.find('geometry')
             shape = None if geom is None else next(iter(geom), None)
-            if shape is None:
-                continue
-            w = f'{where} <visual><{shape.tag}>'
-            if shape.tag == 'box':
-                kind, size, uri = 'box', tuple(self.floats(shape, 'size', 3, w).tolist()), ''
-            elif shape.tag == 'sphere':
-                kind, size, uri = 'sphere', (self.number(shape, 'radius', w),), ''
-            elif shape.tag == 'cylinder':
-                kind, uri = 'cylinder', ''
-                size = (self.number(shape, 'radius', w), self.number(shape, 'length', w))
-            elif shape.tag == 'mesh':
-                kind, uri = 'mesh', shape.get('filename', '')
-                size = tuple(self.floats(shape, 'scale', 3, w, [1, 1, 1]).tolist())
-            else:
-                continue        # capsule etc.: no effect on the physics, nothing to draw
+            if shape is None or shape.tag not in _VISUAL_SIZE:
+                continue        # (a capsule etc.: no effect on the physics, nothing to draw)
+            kind = shape.tag
+            w = f'{where} <visual><{kind}>'
+            size = tuple(x for attr, n in _VISUAL_SIZE[kind] for x in self.floats(
+                shape, attr, n, w, [1, 1, 1] if kind == 'mesh' else None).tolist())
+            uri = shape.get('filename', '') if kind == 'mesh' else ''
             mat = vis.find('material')
             rgba, mname = None, None if mat is None else mat.get('name')
-            if mname and mname in materials:
-                rgba = materials[mname]     # as urdfdom: a known name wins over an inline colour
+            if mname and mname in materials:        # colours as urdfdom: docs/urdf.md
+                rgba = materials[mname]
             elif mat is not None:
                 rgba = self.material_rgba(mat, materials, f'{where} <material>')
                 if mname and rgba is not None:
-                    # urdfdom (and so RViz, PyBullet) registers a link's named colour for
-                    # the links after it: r2d2 and laikago name one once and reuse it.
                     materials[mname] = rgba
             link.visuals.append((kind, size, uri, self.origin(vis, f'{where} <visual>'), rgba))
         return link
@@ -281,8 +250,7 @@ class _Reader:
         where = f'joint {name!r}'
         if not jtype:
             self.fail(f'{where}: missing type="..."')
-        # Types beyond URDF's (PyBullet's 'spherical', ...) are refused like prismatic ones
-        # when the scene is built, so that `lock` can still hold them rigid.
+        # (other types, e.g. PyBullet's 'spherical', are refused later: `lock` can hold them)
         ends = {}
         for key in ('parent', 'child'):
             e = el.find(key)
@@ -306,8 +274,7 @@ class _Reader:
                           'largest torque (N m) or force (N) magnitude, >= 0 (0 or absent: no effort limit)')
             j.velocity = self.number(lim, 'velocity', f'{where} <limit>', 0.0)
             if jtype in LIMITED and (lim.get('lower') is not None or lim.get('upper') is not None):
-                # Neither bound written: no limit, as PyBullet and MuJoCo load it (urdfdom's
-                # default 0 for both would hold the joint). One written: the other is 0.
+                # neither bound written: no limit (docs/decisions.md); one: the other is 0
                 j.lower = self.number(lim, 'lower', f'{where} <limit>', 0.0)
                 j.upper = self.number(lim, 'upper', f'{where} <limit>', 0.0)
         if el.find('mimic') is not None:
@@ -326,9 +293,7 @@ class _Reader:
         return j
 
 
-# ---------------------------------------------------------------------------------------
-# lowering
-# ---------------------------------------------------------------------------------------
+# -- lowering -------------------------------------------------------------------------
 def _check_inertia(source, link) -> tuple[np.ndarray, str]:
     """(inertia about the COM, '' or what was repaired) of a link with mass > 0.
 
@@ -341,25 +306,20 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
     scale = max(float(np.abs(eig).max()), 1e-300)
     r = (3.0 * link.mass / WATER_DENSITY / (4.0 * math.pi)) ** (1.0 / 3.0)
     sphere = 0.4 * link.mass * r * r
-    if eig[0] <= 1e-12 * scale or eig[0] <= 0.0:
-        return sphere * np.eye(3), (f'principal moments {_fmt(eig)} are not all > 0: replaced '
-                                    f'by a solid sphere of water density ({sphere:.4g} kg m^2 each)')
-    # moments of ~1e-20 kg m^2 on a 0.7 kg link (iCub's ankle in example-robot-data): a point
-    # mass whose moments are rounding error, no affine inertia to speak of
-    if eig[2] < POINT_MASS_RATIO * sphere:
-        return sphere * np.eye(3), (f'principal moments {_fmt(eig)} are negligible for its mass '
-                                    f'(under {POINT_MASS_RATIO:g} of a water-density sphere\'s): '
-                                    f'replaced by a solid sphere of water density ({sphere:.4g} '
-                                    'kg m^2 each)')
+    negative = eig[0] <= 1e-12 * scale or eig[0] <= 0.0
+    if negative or eig[2] < POINT_MASS_RATIO * sphere:         # (or a point mass)
+        why = 'are not all > 0' if negative else (f'are negligible for its mass (under '
+                                                  f'{POINT_MASS_RATIO:g} of a water-density '
+                                                  'sphere\'s)')
+        return sphere * np.eye(3), (f'principal moments {_fmt(eig)} {why}: replaced by a solid '
+                                    f'sphere of water density ({sphere:.4g} kg m^2 each)')
     if eig[0] + eig[1] <= eig[2] * (1.0 + 1e-9):
         mean = float(eig.mean())
         return mean * np.eye(3), (f'principal moments {_fmt(eig)} break the triangle '
                                   f'inequality: set to their mean {mean:.4g} kg m^2 '
                                   '(MuJoCo balanceinertia)')
-    # The body's second moments S_k = ½ tr(I) − I_k (its affine inertia, docs/urdf.md): a
-    # body flat to within FLAT_RATIO (moments on the triangle's edge, I_3 = I_1 + I_2, as
-    # some descriptions give) has an affine mode with next to no inertia, in which Newton
-    # makes no progress. Its smallest S is raised to FLAT_RATIO of the largest.
+    # a flat body (docs/urdf.md): its smallest second moment S_k = ½ tr(I) − I_k raised to
+    # FLAT_RATIO of the largest
     s = 0.5 * eig.sum() - eig
     floor = FLAT_RATIO * float(s.max())
     if s.min() < floor:
@@ -374,6 +334,11 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
     return I, ''
 
 
+def _few(names):
+    """The first 8 of `names` joined, and how many more."""
+    return ', '.join(names[:8]) + (f' and {len(names) - 8} more' if len(names) > 8 else '')
+
+
 def _fmt(v):
     return '[' + ', '.join(f'{x:.4g}' for x in v) + ']'
 
@@ -383,25 +348,16 @@ def _plain_list(v):
 
 
 class _Options:
-    def __init__(self, source, opts, joints, where='robot'):
-        self.source, self.where = source, where
-        unknown = [k for k in opts if k not in ROBOT_OPTIONS]
-        if unknown:
-            self.fail('', f'unknown option(s) {", ".join(map(repr, unknown))}; allowed: '
-                          f'{", ".join(ROBOT_OPTIONS + SCENE_OPTIONS)}')
-        self.fixed_base = opts.get('fixed_base', True)
-        if not isinstance(self.fixed_base, bool):
-            self.fail('fixed_base', f'must be true or false, got {self.fixed_base!r}')
-        self.limits = opts.get('limits', True)
-        if not isinstance(self.limits, bool):
-            self.fail('limits', f'must be true or false, got {self.limits!r}')
-        self.damping = opts.get('damping', True)
-        if not isinstance(self.damping, bool):
-            self.fail('damping', f'must be true (the file\'s <dynamics damping>) or false (none), '
-                                 f'got {self.damping!r}')
-        self.torque_enabled = opts.get('torque_enabled', True)
-        if not isinstance(self.torque_enabled, bool):
-            self.fail('torque_enabled', f'must be true or false, got {self.torque_enabled!r}')
+    def __init__(self, source, opts, joints):
+        self.source = source
+        self.keys('', opts, ROBOT_OPTIONS, 'option', ROBOT_OPTIONS + SCENE_OPTIONS)
+        for key in ('fixed_base', 'limits', 'damping', 'torque_enabled'):
+            value = opts.get(key, True)
+            if not isinstance(value, bool):
+                self.fail(key, 'must be true (the file\'s <dynamics damping>) or false (none), '
+                               f'got {value!r}' if key == 'damping' else
+                               f'must be true or false, got {value!r}')
+            setattr(self, key, value)
         self.kappa = opts.get('kappa')
         self.strength_ratio = opts.get('strength_ratio')
         self.initial = self.mapping('initial_positions', opts.get('initial_positions') or {})
@@ -419,17 +375,11 @@ class _Options:
             self.known('joints', name, joints)       # (a str: a list key is no dict key)
             if not isinstance(over, dict):
                 self.fail(f'joints.{name}', f'must be a mapping of {", ".join(JOINT_OVERRIDES)}')
-            bad = [k for k in over if k not in JOINT_OVERRIDES]
-            if bad:
-                self.fail(f'joints.{name}', f'unknown key(s) {", ".join(map(repr, bad))}; '
-                                            f'allowed: {", ".join(JOINT_OVERRIDES)}')
+            self.keys(f'joints.{name}', over, JOINT_OVERRIDES)
             for key, allowed in OVERRIDE_KEYS.items():
                 sub = over.get(key)
                 if isinstance(sub, dict):
-                    bad = [k for k in sub if k not in allowed]
-                    if bad:
-                        self.fail(f'joints.{name}.{key}', f'unknown key(s) '
-                                  f'{", ".join(map(repr, bad))}; allowed: {", ".join(allowed)}')
+                    self.keys(f'joints.{name}.{key}', sub, allowed)
                 elif key in over and sub is not None and sub is not False:
                     self.fail(f'joints.{name}.{key}', f'must be a mapping (or false to '
                                                       f'remove it), got {sub!r}')
@@ -444,29 +394,26 @@ class _Options:
             if 'strength_ratio' in over:
                 self.positive(f'joints.{name}.strength_ratio', over['strength_ratio'])
             if over.get('damping') not in (None, False):
-                self.nonnegative(f'joints.{name}.damping', over['damping'])
+                self.positive(f'joints.{name}.damping', over['damping'], strict=False)
         for key in ('kappa', 'strength_ratio'):
             if opts.get(key) is not None:
                 self.positive(key, opts[key])
         self.driving = opts.get('driving')
         if self.driving is not None:
-            self.mapping('driving', self.driving)
-            bad = [k for k in self.driving if k not in OVERRIDE_KEYS['driving']]
-            if bad:
-                self.fail('driving', f'unknown key(s) {", ".join(map(repr, bad))}; allowed: '
-                                     f'{", ".join(OVERRIDE_KEYS["driving"])}')
+            self.keys('driving', self.mapping('driving', self.driving), OVERRIDE_KEYS['driving'])
 
     def fail(self, field, msg):
-        where = f'{self.where}.{field}' if field else self.where
-        raise SceneError(f'{self.source}: {where}: {msg}')
+        raise SceneError(f'{self.source}: robot{"." + field if field else ""}: {msg}')
 
-    def positive(self, field, value):
-        if not _finite_number(value) or value <= 0:
-            self.fail(field, f'must be a finite number > 0, got {value!r}')
+    def positive(self, field, value, strict=True):
+        if not _finite_number(value) or value < 0 or strict and value == 0:
+            self.fail(field, f'must be a finite number {">" if strict else ">="} 0, got {value!r}')
 
-    def nonnegative(self, field, value):
-        if not _finite_number(value) or value < 0:
-            self.fail(field, f'must be a finite number >= 0, got {value!r}')
+    def keys(self, field, value, allowed, what='key', listed=None):
+        bad = [k for k in value if k not in allowed]
+        if bad:
+            self.fail(field, f'unknown {what}(s) {", ".join(map(repr, bad))}; allowed: '
+                             f'{", ".join(listed or allowed)}')
 
     def mapping(self, field, value):
         if not isinstance(value, dict):
@@ -495,6 +442,10 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     opt = _Options(source, options, joints)
     notes: list[str] = []
 
+    def warn(msg):
+        notes.append(msg)
+        warnings.warn(msg, UrdfWarning, stacklevel=5)   # the caller of from_urdf
+
     # Tree: one root, every link the child of at most one joint.
     child_of: dict[str, _Joint] = {}
     for j in joints.values():
@@ -509,13 +460,12 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     children: dict[str, list[_Joint]] = {n: [] for n in links}
     for j in joints.values():
         children[j.parent].append(j)
-    reached, stack = {roots[0]}, [roots[0]]
+    order, stack = [], [roots[0]]       # depth first (no link is reached twice)
     while stack:
-        for j in children[stack.pop()]:
-            if j.child not in reached:
-                reached.add(j.child)
-                stack.append(j.child)
-    if len(reached) != len(links):      # a loop beside the tree: name it
+        order.append(stack.pop())
+        stack.extend(j.child for j in reversed(children[order[-1]]))
+    if len(order) != len(links):        # a loop beside the tree: name it
+        reached = set(order)
         start = next(n for n in links if n not in reached)
         path = [start]
         while child_of[path[-1]].parent not in path:
@@ -567,111 +517,82 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
             lim = None if over['limit'] in (None, False) else {**(lim or {}), **over['limit']}
         return (lim['lower'], lim['upper']) if lim and 'lower' in lim and 'upper' in lim else None
 
-    # A limit beyond the angles a scene takes (|x| <= 1e4 rad, ~1600 turns) is how some
-    # descriptions say "no limit" (lower="-1e+16"): such a joint is taken as continuous.
+    # a limit beyond the positions a scene takes is "no limit" (lower="-1e+16"): docs/urdf.md
     for j in joints.values():
         unit, bound = ('m', RANGES['position'][1]) if j.type == 'prismatic' else ('rad', RANGES['angle'][1])
         if j.type in LIMITED and j.lower is not None and moving(j) \
                 and not max(abs(j.lower), abs(j.upper)) <= bound:
-            msg = (f'{source}: joint {j.name!r}: limit [{j.lower:g}, {j.upper:g}] {unit} is beyond '
-                   f'the supported |position| <= {bound:g} {unit}: taken as no limit'
-                   + (' (a continuous joint)' if unit == 'rad' else ''))
-            notes.append(msg)
-            warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+            warn(f'{source}: joint {j.name!r}: limit [{j.lower:g}, {j.upper:g}] {unit} is beyond '
+                 f'the supported |position| <= {bound:g} {unit}: taken as no limit'
+                 + (' (a continuous joint)' if unit == 'rad' else ''))
             j.lower = j.upper = None
 
-    # <limit lower upper> that gives no range. lower > upper is PyBullet's way of writing
-    # "no limit" (MuJoCo ignores it too): no limit. lower == upper is a zero-width limit that
-    # holds the joint at that position, as in a YAML scene and in PyBullet (MuJoCo ignores
-    # it, with a warning). Each said once per file, naming the joints and the way out.
+    # lower > upper is no limit, lower == upper holds the joint (docs/decisions.md): each
+    # said once per file, naming the joints and the way out
     def shown(js):
-        return ', '.join(f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in js[:8]) + (
-            f' and {len(js) - 8} more' if len(js) > 8 else '')
+        return _few([f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in js])
     ranged = [j for j in joints.values() if j.type in LIMITED and moving(j) and opt.limits
               and j.lower is not None and 'limit' not in opt.overrides.get(j.name, {})]
     odd = [j for j in ranged if j.upper < j.lower]
     held = [j for j in ranged if j.upper == j.lower]
     if odd:
-        msg = (f'{source}: <limit> with lower > upper taken as no limit (as PyBullet does) '
-               f'on {len(odd)} joint(s): {shown(odd)}; `joints: {{name: {{limit: {{lower: a, '
-               'upper: b}}}` sets one, `lock: [name]` holds the joint rigid')
-        notes.append(msg)
-        warnings.warn(msg, UrdfWarning, stacklevel=4)
+        warn(f'{source}: <limit> with lower > upper taken as no limit (as PyBullet does) '
+             f'on {len(odd)} joint(s): {shown(odd)}; `joints: {{name: {{limit: {{lower: a, '
+             'upper: b}}}` sets one, `lock: [name]` holds the joint rigid')
         for j in odd:
             j.lower = j.upper = None
     if held:
-        msg = (f'{source}: <limit> with lower == upper holds the joint at that position (a '
-               f'zero-width limit, as in a YAML scene and in PyBullet) on {len(held)} joint(s): '
-               f'{shown(held)}; `joints: {{name: {{limit: false}}}}` frees it, `joints: {{name: '
-               '{limit: {lower: a, upper: b}}}` sets a range')
-        notes.append(msg)
-        warnings.warn(msg, UrdfWarning, stacklevel=4)
+        warn(f'{source}: <limit> with lower == upper holds the joint at that position (a '
+             f'zero-width limit, as in a YAML scene and in PyBullet) on {len(held)} joint(s): '
+             f'{shown(held)}; `joints: {{name: {{limit: false}}}}` frees it, `joints: {{name: '
+             '{limit: {lower: a, upper: b}}}` sets a range')
 
-    # Coulomb friction (a torque of fixed size against the motion, set-valued at rest) is no
-    # term of this simulator: said once per file rather than dropped silently.
-    rubbing = [j.name for j in joints.values() if moving(j) and j.friction > 0.0]
-    if rubbing:
-        shown = ', '.join(rubbing[:8]) + (f' and {len(rubbing) - 8} more' if len(rubbing) > 8 else '')
-        msg = (f'{source}: <dynamics friction> is not simulated (no Coulomb friction term): '
-               f'ignored on {len(rubbing)} joint(s): {shown} (of <dynamics>, only damping is)')
-        notes.append(msg)
-        warnings.warn(msg, UrdfWarning, stacklevel=4)
+    # Coulomb friction and joint speed limits are no terms of this simulator: said once per
+    # file rather than dropped silently.
+    for names, what in (
+            ([j.name for j in joints.values() if moving(j) and j.friction > 0.0],
+             '<dynamics friction> is not simulated (no Coulomb friction term): ignored on {} '
+             'joint(s): {} (of <dynamics>, only damping is)'),
+            ([j.name for j in joints.values() if moving(j) and j.velocity],
+             '<limit velocity> is not enforced (joint speeds are not limited): ignored on {} '
+             'joint(s): {} (of <limit>, lower, upper and effort are)')):
+        if names:
+            warn(f'{source}: ' + what.format(len(names), _few(names)))
 
-    # A joint speed limit is no term of this simulator either (a joint driven hard runs faster).
-    fast = [j.name for j in joints.values() if moving(j) and j.velocity]
-    if fast:
-        shown = ', '.join(fast[:8]) + (f' and {len(fast) - 8} more' if len(fast) > 8 else '')
-        msg = (f'{source}: <limit velocity> is not enforced (joint speeds are not limited): '
-               f'ignored on {len(fast)} joint(s): {shown} (of <limit>, lower, upper and effort '
-               'are)')
-        notes.append(msg)
-        warnings.warn(msg, UrdfWarning, stacklevel=4)
-
-    # Initial positions: as given, else 0 -- or the nearest bound where 0 is outside the
-    # joint's limit (some descriptions have it so; the limit would throw the joint back).
+    # Initial positions: as given, else 0 or the nearest bound of a limit that excludes 0.
     q_init: dict[str, float] = {}
     for j in joints.values():
         q = float(opt.initial.get(j.name, 0.0))
         lim = effective_limit(j) if moving(j) and j.name not in opt.initial else None
         if lim is not None and not lim[0] <= q <= lim[1]:
             q = min(max(q, lim[0]), lim[1])
-            msg = (f'{source}: joint {j.name!r}: position 0 is outside its limit '
-                   f'[{lim[0]:g}, {lim[1]:g}]: it starts at {q:g} {"m" if j.type == "prismatic" else "rad"} (set initial_positions '
-                   'to choose)')
-            notes.append(msg)
-            warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+            warn(f'{source}: joint {j.name!r}: position 0 is outside its limit '
+                 f'[{lim[0]:g}, {lim[1]:g}]: it starts at {q:g} '
+                 f'{"m" if j.type == "prismatic" else "rad"} (set initial_positions to choose)')
         q_init[j.name] = q
 
     # Forward kinematics at the initial positions (world = root link frame).
     world_T: dict[str, np.ndarray] = {roots[0]: np.eye(4)}
     joint_frame: dict[str, np.ndarray] = {}
-    order: list[str] = []
-    stack = [roots[0]]
-    while stack:
-        name = stack.pop()
-        order.append(name)
-        for j in reversed(children[name]):
+    for name in order:
+        for j in children[name]:
             T = world_T[name] @ j.origin
-            joint_frame[j.name] = T
-            q = q_init[j.name]
-            M = np.eye(4)
+            joint_frame[j.name], q, M = T, q_init[j.name], np.eye(4)
             if j.type in TURNING:
                 M[:3, :3] = axis_rotation(j.axis, q)
             elif j.type == 'prismatic':
                 M[:3, 3] = j.axis * q
             world_T[j.child] = T @ M
-            stack.append(j.child)
     for name in opt.initial:
         if joints[name].type == 'fixed':
             raise SceneError(f'{source}: robot.initial_positions.{name}: joint {name!r} is fixed')
 
     # Groups: a link belongs to the body of its nearest ancestor reached by a moving joint.
     group: dict[str, str] = {}
+    members: dict[str, list[str]] = {}
     for name in order:
         j = child_of.get(name)
         group[name] = name if j is None or moving(j) else group[j.parent]
-    members: dict[str, list[str]] = {}
-    for name in order:
         members.setdefault(group[name], []).append(name)
 
     # Each link's inertia checked (and repaired, one warning per link) once.
@@ -680,9 +601,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if links[name].mass > 0.0:
             inertia[name], what = _check_inertia(source, links[name])
             if what:
-                msg = f'{source}: link {name!r}: {what}'
-                notes.append(msg)
-                warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+                warn(f'{source}: link {name!r}: {what}')
 
     # Lumped mass properties per body, in the body (= top link) frame.
     def lumped(top):
@@ -690,14 +609,11 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         R0, p0 = T0[:3, :3], T0[:3, 3]
         parts = []
         for name in members[top]:
-            link = links[name]
-            if link.mass <= 0.0:
-                continue
-            I = inertia[name]
-            T = world_T[name]
-            R = R0.T @ T[:3, :3]
-            c = R0.T @ (T[:3, :3] @ link.com + T[:3, 3] - p0)
-            parts.append((link.mass, c, R @ I @ R.T))
+            link, T = links[name], world_T[name]
+            if link.mass > 0.0:
+                R = R0.T @ T[:3, :3]
+                c = R0.T @ (T[:3, :3] @ link.com + T[:3, 3] - p0)
+                parts.append((link.mass, c, R @ inertia[name] @ R.T))
         m = sum(p[0] for p in parts)
         if m <= 0.0:
             return 0.0, np.zeros(3), np.zeros((3, 3))
@@ -711,19 +627,15 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     # Massless moving bodies: a leaf is held rigid (locked) with a warning, else an error.
     for top in reversed(list(members)):      # leaves first: a chain of them folds up
         j = child_of.get(top)
-        if j is None:
-            continue
-        if lumped(top)[0] > 0.0:
+        if j is None or lumped(top)[0] > 0.0:
             continue
         below = [k.name for n in members[top] for k in children[n] if moving(k)]
         if below:
             raise SceneError(f'{source}: link {top!r} (joint {j.name!r}) has no mass but moves '
                              f'and carries moving joint(s) {below}: an affine body needs mass; '
                              f'give it an <inertial>, or `lock: [{j.name}]`')
-        msg = (f'{source}: link {top!r} has no mass (nor anything fixed to it): joint '
-               f'{j.name!r} is held rigid (merged into {j.parent!r}), it has no dynamics')
-        notes.append(msg)
-        warnings.warn(msg, UrdfWarning, stacklevel=4)   # the caller of from_urdf
+        warn(f'{source}: link {top!r} has no mass (nor anything fixed to it): joint '
+             f'{j.name!r} is held rigid (merged into {j.parent!r}), it has no dynamics')
         opt.lock.append(j.name)
         for name in members.pop(top):
             members[group[j.parent]].append(name)
@@ -766,9 +678,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                 if rgba is not None:
                     v['rgba'] = list(rgba)
                 visuals.append(v)
-        if not visuals and invented:
-            # The markers' fallback for a body without visuals is its box of equal inertia;
-            # this inertia is made up (a massless world frame), so mark the frame instead.
+        if not visuals and invented:        # (a made-up inertia: mark the frame, docs/urdf.md)
             visuals.append({'kind': 'sphere', 'size': [FRAME_MARK_RADIUS]})
         if visuals:
             body['visuals'] = visuals
@@ -812,26 +722,19 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         if opt.damping and j.damping > 0.0:     # N m s/rad, or N s/m on a prismatic joint
             d['damping'] = j.damping
         over = opt.overrides.get(j.name, {})
-        for key in JOINT_OVERRIDES:
-            if key not in over:
-                continue
+        for key in (k for k in JOINT_OVERRIDES if k in over):
             value = over[key]
             if value is False or value is None:
                 d.pop(key, None)
             elif key in ('strength_ratio', 'damping'):
                 d[key] = value
-            elif isinstance(value, dict):
-                base = d.get(key) if isinstance(d.get(key), dict) else {}
-                if key == 'driving' and 'driving' not in d:
-                    base = {aim_key: q0}
-                d[key] = {**base, **value}
-        lim = d.get('limit')
-        if isinstance(lim, dict) and 'lower' in lim and 'upper' in lim \
-                and lim['upper'] > lim['lower'] and not lim['lower'] <= q0 <= lim['upper']:
-            # (a zero-width limit holds the joint from wherever it starts, as in YAML)
+            else:                           # a mapping, merged into the one the file gives
+                d[key] = {**d.get(key, {aim_key: q0} if key == 'driving' else {}), **value}
+        lim = effective_limit(j)        # (a zero-width one holds the joint from anywhere)
+        if lim and lim[1] > lim[0] and not lim[0] <= q0 <= lim[1]:
             raise SceneError(f'{source}: robot.initial_positions.{j.name}: {q0:g} '
                              f'{"m" if sliding else "rad"} is outside '
-                             f'the joint\'s limit [{lim["lower"]:g}, {lim["upper"]:g}]; the limit '
+                             f'the joint\'s limit [{lim[0]:g}, {lim[1]:g}]; the limit '
                              f'would throw it back at once (widen it with joints: {{{j.name}: '
                              '{limit: ...}}, or limits: false)')
         scene_joints.append(d)
@@ -863,35 +766,31 @@ def read_urdf_source(source) -> tuple[str, str]:
     MAX_URDF_BYTES, a regular file, text in the encoding the XML declaration names (UTF-8
     by default). XML text is what starts with '<' (after white space and a byte-order
     mark); anything else is a path, even one with a '<' in it."""
-    name = '<robot_description>'
-    if isinstance(source, (bytes, bytearray)):
+    big = f'URDF larger than {MAX_URDF_BYTES} bytes'
+    irregular = 'not a regular file; a URDF is read from a file'
+    is_bytes = isinstance(source, (bytes, bytearray))
+    if is_bytes or isinstance(source, str) and \
+            source.lstrip().lstrip('\ufeff').lstrip().startswith('<'):
+        name = '<robot_description>'
         if len(source) > MAX_URDF_BYTES:
-            raise SceneError(f'{name}: URDF larger than {MAX_URDF_BYTES} bytes; not read')
-        return _decode(bytes(source), name), name
-    if isinstance(source, str) and source.lstrip().lstrip('\ufeff').lstrip().startswith('<'):
-        if len(source) > MAX_URDF_BYTES:
-            raise SceneError(f'{name}: URDF larger than {MAX_URDF_BYTES} bytes; not read')
-        return source.lstrip('\ufeff'), name
+            raise SceneError(f'{name}: {big}; not read')
+        return (_decode(bytes(source), name) if is_bytes else source.lstrip('\ufeff')), name
     path = Path(os.path.expanduser(str(source)))
+    name = _clip(str(path))
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):     # before open: a FIFO would block
-            raise SceneError(f'{_clip(str(path))}: not a regular file; a URDF is read from '
-                             'a file')
+            raise SceneError(f'{name}: {irregular}')
         with open(path, 'rb') as f:
             st = os.fstat(f.fileno())
             if not stat.S_ISREG(st.st_mode):
-                raise SceneError(f'{_clip(str(path))}: not a regular file; a URDF is read from '
-                                 'a file')
+                raise SceneError(f'{name}: {irregular}')
             if st.st_size > MAX_URDF_BYTES:
-                raise SceneError(f'{_clip(str(path))}: URDF larger than {MAX_URDF_BYTES} '
-                                 f'bytes ({st.st_size}); not read')
+                raise SceneError(f'{name}: {big} ({st.st_size}); not read')
             raw = f.read(MAX_URDF_BYTES + 1)
     except OSError as exc:
-        raise SceneError(f'{_clip(str(path))}: cannot read URDF: {exc.strerror or exc}') \
-            from None
+        raise SceneError(f'{name}: cannot read URDF: {exc.strerror or exc}') from None
     if len(raw) > MAX_URDF_BYTES:
-        raise SceneError(f'{_clip(str(path))}: URDF larger than {MAX_URDF_BYTES} bytes; '
-                         'not read')
+        raise SceneError(f'{name}: {big}; not read')
     return _decode(raw, str(path)), str(path)
 
 
@@ -938,8 +837,8 @@ def scene_data_from_urdf(source, options: dict) -> tuple[dict, str, str, list[st
     gravity = scene_opts.pop('gravity', DEFAULT_GRAVITY)
     # a tuple or an array becomes the scene format's list; anything else goes to its check as it is
     data['gravity'] = list(gravity) if isinstance(gravity, (list, tuple, np.ndarray)) else gravity
-    if scene_opts.get('name'):
-        data['name'] = scene_opts.pop('name')
-    scene_opts.pop('name', None)
+    name_opt = scene_opts.pop('name', None)
+    if name_opt:
+        data['name'] = name_opt
     data.update(scene_opts)
     return data, name, text, notes

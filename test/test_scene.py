@@ -106,6 +106,8 @@ BAD = [
                                            'p0': [0, 0, -0.5], 'p1': [0, 0, 0.5], 'init_angle': -20.0,
                                            'limit': {'lower': -1.0, 'upper': 1.0}},
      'joints[0].init_angle', "outside the joint's limit [-1, 1]"),
+    ('visual_kind_list', ('bodies', 1, 'visuals'), [{'kind': ['box']}], 'bodies[1].visuals[0].kind',
+     "must be one of box, sphere, cylinder, mesh, got ['box']"),
 ]
 
 
