@@ -18,12 +18,9 @@ import numpy as np
 from .errors import SceneError
 from .geometry import rpy_matrix, skew
 from .scene import PRISMATIC, Scene, check_dt
+from .terms import TERMS
 from .terms.revolute import stiffness
 
-#: largest h d / I of a damped joint (I: the lighter body's moment about the axis): beyond it
-#: the damper outweighs the body's inertia by more than double precision resolves in Newton's
-#: matrix (measured: steps fail from ~4e19), and the joint is locked for all purposes
-DAMPING_RATIO_MAX = 1e15
 
 
 def mass_properties(body):
@@ -83,10 +80,12 @@ def joint_basis(t):
 
 @dataclass(frozen=True, eq=False)
 class Model:
-    """Compiled scene. Shapes: B bodies, J joints; per-term index arrays select joints.
+    """Compiled scene. Shapes: B bodies, J joints.
 
-    Attributes ending in ``_joints`` are indices into the joint arrays of the joints that
-    carry that term (empty when the scene has none, and then the term is not built).
+    The fields below are the bodies and joints. Each term adds its own, built from the scene
+    by its module's `from_scene` (terms/, in terms.TERMS' order): those ending in ``_joints``
+    are indices of the joints that carry the term (empty when the scene has none, and then
+    the term is not built), e.g. ``torque_joints``, ``drive_joints``, ``limit_lower``.
     """
 
     dt: float                       #: [s] step size
@@ -114,40 +113,7 @@ class Model:
     joint_nbar: np.ndarray          #: (J,2,3) n̄ in parent, child frames
     joint_bbar: np.ndarray          #: (J,2,3) b̄ in parent, child frames
     joint_init_angle: np.ndarray    #: [rad | m] (J,) init_angle (revolute) or init_distance (prismatic)
-    torque_joints: np.ndarray       #: (T,) joints with UID 668
-    torque_value0: np.ndarray       #: [N m] (T,)
-    torque_enabled0: np.ndarray     #: (T,) bool
-    torque_effort_limit: np.ndarray  #: [N m] (T,) inf = none
-    drive_joints: np.ndarray        #: (D,) joints with UID 19
-    drive_K: np.ndarray             #: [kg] (D,) UID 19 stiffness gamma (m_i + m_j)
-    drive_aim0: np.ndarray          #: [rad] (D,)
-    drive_passive0: np.ndarray      #: (D,) bool
-    drive_enabled0: np.ndarray      #: (D,) bool
-    limit_joints: np.ndarray        #: (L,) joints with UID 670
-    limit_lower: np.ndarray         #: [rad] (L,)
-    limit_upper: np.ndarray         #: [rad] (L,)
-    limit_strength: np.ndarray      #: (L,)
-    damping_joints: np.ndarray      #: (P,) joints with viscous damping (terms/damping.py)
-    damping_coeff: np.ndarray       #: [N m s/rad] (P,) their damping coefficients d > 0
     joint_slides: np.ndarray        #: (J,) bool: a prismatic joint (UID 20), else revolute (UID 18)
-    revolute_joints: np.ndarray     #: (R,) the revolute joints (UID 18)
-    prismatic_joints: np.ndarray    #: (S,) the prismatic joints (UID 20)
-    prismatic_K: np.ndarray         #: [kg] (S,) UID 20 stiffness gamma (m_i + m_j)
-    prismatic_force_joints: np.ndarray      #: (F,) joints with UID 667
-    prismatic_force_value0: np.ndarray      #: [N] (F,)
-    prismatic_force_enabled0: np.ndarray    #: (F,) bool
-    prismatic_force_effort_limit: np.ndarray  #: [N] (F,) inf = none
-    prismatic_drive_joints: np.ndarray      #: (Ds,) joints with UID 21
-    prismatic_drive_K: np.ndarray           #: [kg] (Ds,) UID 21 stiffness gamma (m_i + m_j)
-    prismatic_drive_aim0: np.ndarray        #: [m] (Ds,) absolute aim distance
-    prismatic_drive_passive0: np.ndarray    #: (Ds,) bool
-    prismatic_drive_enabled0: np.ndarray    #: (Ds,) bool
-    prismatic_limit_joints: np.ndarray      #: (Ls,) joints with UID 669
-    prismatic_limit_lower: np.ndarray       #: [m] (Ls,)
-    prismatic_limit_upper: np.ndarray       #: [m] (Ls,)
-    prismatic_limit_strength: np.ndarray    #: (Ls,)
-    prismatic_damping_joints: np.ndarray    #: (Ps,) prismatic joints with viscous damping
-    prismatic_damping_coeff: np.ndarray     #: [N s/m] (Ps,) their damping coefficients c > 0
 
     @property
     def body_count(self) -> int:
@@ -199,22 +165,6 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
             nbar[k, side], bbar[k, side] = R.T @ n, R.T @ bvec
         K[k] = stiffness(j.strength_ratio, mass[parent[k]], mass[child[k]])
 
-    def sel(pred, kind='revolute'):
-        return np.array([k for k, j in enumerate(scene.joints) if j.type == kind and pred(j)], dtype=np.int64)
-
-    tj = sel(lambda j: j.external_torque is not None)
-    dj = sel(lambda j: j.driving is not None)
-    lj = sel(lambda j: j.limit is not None)
-    pj = sel(lambda j: j.damping > 0.0)
-    sj = sel(lambda j: True, PRISMATIC)
-    sf = sel(lambda j: j.external_force is not None, PRISMATIC)
-    sd = sel(lambda j: j.driving is not None, PRISMATIC)
-    sl = sel(lambda j: j.limit is not None, PRISMATIC)
-    sp = sel(lambda j: j.damping > 0.0, PRISMATIC)
-    jf, jsd, jsl = ([scene.joints[k] for k in ks] for ks in (sf, sd, sl))
-    jt = [scene.joints[k] for k in tj]
-    jd = [scene.joints[k] for k in dj]
-    jl = [scene.joints[k] for k in lj]
     model = Model(
         dt=scene.dt if dt is None else check_dt(dt, 'dt argument'), gravity=np.array(scene.gravity, float),
         integrator=scene.integrator, newton=scene.newton,
@@ -227,76 +177,13 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
         joint_anchor0=anchor0, joint_anchor1=anchor1, joint_K=K,
         joint_nbar=nbar, joint_bbar=bbar,
         joint_init_angle=np.array([j.init_position for j in scene.joints], float),
-        torque_joints=tj, torque_value0=np.array([j.external_torque.torque for j in jt], float),
-        torque_enabled0=np.array([j.external_torque.enabled for j in jt], bool),
-        torque_effort_limit=np.array([j.external_torque.effort_limit for j in jt], float),
-        drive_joints=dj,
-        drive_K=np.array([stiffness(j.driving.strength_ratio, mass[index[j.parent]], mass[index[j.child]])
-                          for j in jd], float),
-        drive_aim0=np.array([j.driving.aim_angle for j in jd], float),
-        drive_passive0=np.array([j.driving.passive for j in jd], bool),
-        drive_enabled0=np.array([j.driving.enabled for j in jd], bool),
-        limit_joints=lj, limit_lower=np.array([j.limit.lower for j in jl], float),
-        limit_upper=np.array([j.limit.upper for j in jl], float),
-        limit_strength=np.array([j.limit.strength for j in jl], float),
-        damping_joints=pj, damping_coeff=np.array([scene.joints[k].damping for k in pj], float),
         joint_slides=np.array([j.type == PRISMATIC for j in scene.joints], bool),
-        revolute_joints=sel(lambda j: True), prismatic_joints=sj,
-        prismatic_K=np.array([K[k] for k in sj], float),
-        prismatic_force_joints=sf,
-        prismatic_force_value0=np.array([j.external_force.force for j in jf], float),
-        prismatic_force_enabled0=np.array([j.external_force.enabled for j in jf], bool),
-        prismatic_force_effort_limit=np.array([j.external_force.effort_limit for j in jf], float),
-        prismatic_drive_joints=sd,
-        prismatic_drive_K=np.array([stiffness(j.driving.strength_ratio, mass[index[j.parent]],
-                                              mass[index[j.child]]) for j in jsd], float),
-        prismatic_drive_aim0=np.array([j.driving.aim_distance for j in jsd], float),
-        prismatic_drive_passive0=np.array([j.driving.passive for j in jsd], bool),
-        prismatic_drive_enabled0=np.array([j.driving.enabled for j in jsd], bool),
-        prismatic_limit_joints=sl, prismatic_limit_lower=np.array([j.limit.lower for j in jsl], float),
-        prismatic_limit_upper=np.array([j.limit.upper for j in jsl], float),
-        prismatic_limit_strength=np.array([j.limit.strength for j in jsl], float),
-        prismatic_damping_joints=sp,
-        prismatic_damping_coeff=np.array([scene.joints[k].damping for k in sp], float),
     )
+    for term in TERMS:                  # each term's own fields, from the scene
+        for name, value in term.from_scene(scene, model).items():
+            object.__setattr__(model, name, value)
     for value in model.__dict__.values():
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
-    for k, j in enumerate(model.damping_joints):
-        d, inertia = model.damping_coeff[k], axis_inertia(model, j)
-        if model.dt * d > DAMPING_RATIO_MAX * inertia:
-            raise SceneError(
-                f'{scene.source}: joint {model.joint_names[j]!r}: damping {d:g} N m s/rad is '
-                f'{model.dt * d / inertia:.1e} times the moment of its lighter body about the axis '
-                f'({inertia:.2e} kg m^2) per step of {model.dt:g} s (dt d / I), beyond the '
-                f'{DAMPING_RATIO_MAX:g} a step can resolve: a joint damped this hard does not '
-                'move; lock it, or lower the damping')
-    for k, j in enumerate(model.prismatic_damping_joints):
-        c = model.prismatic_damping_coeff[k]
-        free = [float(model.body_mass[b]) for b in (model.joint_parent[j], model.joint_child[j])
-                if not model.body_fixed[b]]
-        mass = min(free) if free else math.inf
-        if model.dt * c > DAMPING_RATIO_MAX * mass:
-            raise SceneError(
-                f'{scene.source}: joint {model.joint_names[j]!r}: damping {c:g} N s/m is '
-                f'{model.dt * c / mass:.1e} times the mass of its lighter body ({mass:.2e} kg) per '
-                f'step of {model.dt:g} s (dt c / m), beyond the {DAMPING_RATIO_MAX:g} a step can '
-                'resolve: a joint damped this hard does not move; lock it, or lower the damping')
     return model
 
-
-def axis_inertia(model: Model, j: int) -> float:
-    """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's axis
-    (inf for a fixed body): ½ q̇ᵀ M q̇ = ½ I for a unit turn about the axis, q̇ =
-    (−a × x̄0, [a]ₓ) in the body's rest frame (x = t + A x̄, A's rows in q). The same on any
-    pose: the axis turns with the body."""
-    m = model
-    out = math.inf
-    for side, b in enumerate((int(m.joint_parent[j]), int(m.joint_child[j]))):
-        if m.body_fixed[b]:
-            continue
-        x0, x1 = m.joint_anchor0[j, side], m.joint_anchor1[j, side]
-        a = (x1 - x0) / np.linalg.norm(x1 - x0)
-        qdot = np.concatenate([-np.cross(a, x0), skew(a).ravel()])
-        out = min(out, float(qdot @ m.body_M[b] @ qdot))
-    return out
