@@ -17,24 +17,10 @@ import numpy as np
 
 from .errors import SceneError
 from .geometry import rpy_matrix, skew
-from .scene import PRISMATIC, REVOLUTE, Scene, check_dt
+from .scene import PRISMATIC, Scene, check_dt
+from .terms import TERMS
 from .terms.revolute import stiffness
 
-#: largest h d / I of a damped joint (I: the lighter body's moment about the axis): beyond it
-#: the damper outweighs the body's inertia by more than double precision resolves in Newton's
-#: matrix (measured: steps fail from ~4e19), and the joint is locked for all purposes
-DAMPING_RATIO_MAX = 1e15
-#: a Model's per-term arrays: (field prefix, joint type, JointSpec attribute, the spec's
-#: attributes, their field suffixes); bool arrays for `enabled`/`passive`, else float
-_EFFORT, _DRIVE = ('value0', 'enabled0', 'effort_limit'), ('aim0', 'passive0', 'enabled0')
-_LIMIT = ('lower', 'upper', 'strength')
-_TERMS = (('torque', REVOLUTE, 'external_torque', ('torque', 'enabled', 'effort_limit'), _EFFORT),
-          ('drive', REVOLUTE, 'driving', ('aim_angle', 'passive', 'enabled'), _DRIVE),
-          ('limit', REVOLUTE, 'limit', _LIMIT, _LIMIT),
-          ('prismatic_force', PRISMATIC, 'external_force', ('force', 'enabled', 'effort_limit'),
-           _EFFORT),
-          ('prismatic_drive', PRISMATIC, 'driving', ('aim_distance', 'passive', 'enabled'), _DRIVE),
-          ('prismatic_limit', PRISMATIC, 'limit', _LIMIT, _LIMIT))
 
 
 def mass_properties(body):
@@ -94,10 +80,12 @@ def joint_basis(t):
 
 @dataclass(frozen=True, eq=False)
 class Model:
-    """Compiled scene. Shapes: B bodies, J joints; per-term index arrays select joints.
+    """Compiled scene. Shapes: B bodies, J joints.
 
-    Attributes ending in ``_joints`` are indices into the joint arrays of the joints that
-    carry that term (empty when the scene has none, and then the term is not built).
+    The fields below are the bodies and joints. Each term adds its own, built from the scene
+    by its module's `from_scene` (terms/, in terms.TERMS' order): those ending in ``_joints``
+    are indices of the joints that carry the term (empty when the scene has none, and then
+    the term is not built), e.g. ``torque_joints``, ``drive_joints``, ``limit_lower``.
     """
 
     dt: float                       #: [s] step size
@@ -125,40 +113,7 @@ class Model:
     joint_nbar: np.ndarray          #: (J,2,3) n̄ in parent, child frames
     joint_bbar: np.ndarray          #: (J,2,3) b̄ in parent, child frames
     joint_init_angle: np.ndarray    #: [rad | m] (J,) init_angle (revolute) or init_distance (prismatic)
-    torque_joints: np.ndarray       #: (T,) joints with UID 668
-    torque_value0: np.ndarray       #: [N m] (T,)
-    torque_enabled0: np.ndarray     #: (T,) bool
-    torque_effort_limit: np.ndarray  #: [N m] (T,) inf = none
-    drive_joints: np.ndarray        #: (D,) joints with UID 19
-    drive_K: np.ndarray             #: [kg] (D,) UID 19 stiffness gamma (m_i + m_j)
-    drive_aim0: np.ndarray          #: [rad] (D,)
-    drive_passive0: np.ndarray      #: (D,) bool
-    drive_enabled0: np.ndarray      #: (D,) bool
-    limit_joints: np.ndarray        #: (L,) joints with UID 670
-    limit_lower: np.ndarray         #: [rad] (L,)
-    limit_upper: np.ndarray         #: [rad] (L,)
-    limit_strength: np.ndarray      #: (L,)
-    damping_joints: np.ndarray      #: (P,) joints with viscous damping (terms/damping.py)
-    damping_coeff: np.ndarray       #: [N m s/rad] (P,) their damping coefficients d > 0
     joint_slides: np.ndarray        #: (J,) bool: a prismatic joint (UID 20), else revolute (UID 18)
-    revolute_joints: np.ndarray     #: (R,) the revolute joints (UID 18)
-    prismatic_joints: np.ndarray    #: (S,) the prismatic joints (UID 20)
-    prismatic_K: np.ndarray         #: [kg] (S,) UID 20 stiffness gamma (m_i + m_j)
-    prismatic_force_joints: np.ndarray      #: (F,) joints with UID 667
-    prismatic_force_value0: np.ndarray      #: [N] (F,)
-    prismatic_force_enabled0: np.ndarray    #: (F,) bool
-    prismatic_force_effort_limit: np.ndarray  #: [N] (F,) inf = none
-    prismatic_drive_joints: np.ndarray      #: (Ds,) joints with UID 21
-    prismatic_drive_K: np.ndarray           #: [kg] (Ds,) UID 21 stiffness gamma (m_i + m_j)
-    prismatic_drive_aim0: np.ndarray        #: [m] (Ds,) absolute aim distance
-    prismatic_drive_passive0: np.ndarray    #: (Ds,) bool
-    prismatic_drive_enabled0: np.ndarray    #: (Ds,) bool
-    prismatic_limit_joints: np.ndarray      #: (Ls,) joints with UID 669
-    prismatic_limit_lower: np.ndarray       #: [m] (Ls,)
-    prismatic_limit_upper: np.ndarray       #: [m] (Ls,)
-    prismatic_limit_strength: np.ndarray    #: (Ls,)
-    prismatic_damping_joints: np.ndarray    #: (Ps,) prismatic joints with viscous damping
-    prismatic_damping_coeff: np.ndarray     #: [N s/m] (Ps,) their damping coefficients c > 0
 
     @property
     def body_count(self) -> int:
@@ -210,25 +165,6 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
             nbar[k, side], bbar[k, side] = R.T @ n, R.T @ bvec
         K[k] = stiffness(j.strength_ratio, mass[parent[k]], mass[child[k]])
 
-    def sel(kind, pred=lambda j: True):
-        return np.array([k for k, j in enumerate(scene.joints) if j.type == kind and pred(j)],
-                        dtype=np.int64)
-
-    terms = {}
-    for prefix, kind, spec, attrs, suffixes in _TERMS:
-        ks = terms[f'{prefix}_joints'] = sel(kind, lambda j: getattr(j, spec) is not None)
-        js = [getattr(scene.joints[k], spec) for k in ks]
-        for attr, suffix in zip(attrs, suffixes):
-            dtype = bool if attr in ('enabled', 'passive') else float
-            terms[f'{prefix}_{suffix}'] = np.array([getattr(x, attr) for x in js], dtype)
-        if spec == 'driving':
-            terms[f'{prefix}_K'] = np.array([stiffness(scene.joints[k].driving.strength_ratio,
-                                                       mass[parent[k]], mass[child[k]])
-                                             for k in ks], float)
-    for prefix, kind in (('damping', REVOLUTE), ('prismatic_damping', PRISMATIC)):
-        ks = terms[f'{prefix}_joints'] = sel(kind, lambda j: j.damping > 0.0)
-        terms[f'{prefix}_coeff'] = np.array([scene.joints[k].damping for k in ks], float)
-    sj = sel(PRISMATIC)
     model = Model(
         dt=scene.dt if dt is None else check_dt(dt, 'dt argument'), gravity=np.array(scene.gravity, float),
         integrator=scene.integrator, newton=scene.newton,
@@ -242,44 +178,12 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
         joint_nbar=nbar, joint_bbar=bbar,
         joint_init_angle=np.array([j.init_position for j in scene.joints], float),
         joint_slides=np.array([j.type == PRISMATIC for j in scene.joints], bool),
-        revolute_joints=sel(REVOLUTE), prismatic_joints=sj,
-        prismatic_K=np.array([K[k] for k in sj], float), **terms)
+    )
+    for term in TERMS:                  # each term's own fields, from the scene
+        for name, value in term.from_scene(scene, model).items():
+            object.__setattr__(model, name, value)
     for value in model.__dict__.values():
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
-    def lighter_mass(m, j):
-        return min([float(m.body_mass[b]) for b in (m.joint_parent[j], m.joint_child[j])
-                    if not m.body_fixed[b]], default=math.inf)
-
-    for joints, coeff, of, unit, what, xunit, formula in (
-            (model.damping_joints, model.damping_coeff, axis_inertia, 'N m s/rad',
-             'moment of its lighter body about the axis', 'kg m^2', 'dt d / I'),
-            (model.prismatic_damping_joints, model.prismatic_damping_coeff, lighter_mass, 'N s/m',
-             'mass of its lighter body', 'kg', 'dt c / m')):
-        for j, c in zip(joints, coeff):
-            x = of(model, j)
-            if model.dt * c > DAMPING_RATIO_MAX * x:
-                raise SceneError(
-                    f'{scene.source}: joint {model.joint_names[j]!r}: damping {c:g} {unit} is '
-                    f'{model.dt * c / x:.1e} times the {what} ({x:.2e} {xunit}) per step of '
-                    f'{model.dt:g} s ({formula}), beyond the {DAMPING_RATIO_MAX:g} a step can '
-                    'resolve: a joint damped this hard does not move; lock it, or lower the '
-                    'damping')
     return model
 
-
-def axis_inertia(model: Model, j: int) -> float:
-    """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's axis
-    (inf for a fixed body): ½ q̇ᵀ M q̇ = ½ I for a unit turn about the axis, q̇ =
-    (−a × x̄0, [a]ₓ) in the body's rest frame (x = t + A x̄, A's rows in q). The same on any
-    pose: the axis turns with the body."""
-    m = model
-    out = math.inf
-    for side, b in enumerate((int(m.joint_parent[j]), int(m.joint_child[j]))):
-        if m.body_fixed[b]:
-            continue
-        x0, x1 = m.joint_anchor0[j, side], m.joint_anchor1[j, side]
-        a = (x1 - x0) / np.linalg.norm(x1 - x0)
-        qdot = np.concatenate([-np.cross(a, x0), skew(a).ravel()])
-        out = min(out, float(qdot @ m.body_M[b] @ qdot))
-    return out

@@ -11,7 +11,8 @@ import pytest
 
 from abd_joint_sim import Scene, SceneError, World, compile_scene
 from abd_joint_sim.geometry import rpy_matrix
-from abd_joint_sim.model import DAMPING_RATIO_MAX, mass_properties
+from abd_joint_sim.model import mass_properties
+from abd_joint_sim.terms.damping import DAMPING_RATIO_MAX
 
 from physics_helpers import SCENES, box, hinge_dict, scene_dict
 

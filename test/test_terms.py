@@ -19,19 +19,15 @@ TERMS = {'inertia': inertia, 'ortho': ortho, 'revolute': revolute, 'driving': dr
          'damping': damping}
 
 
-def _model():
-    d = dict(dt=0.01, bodies=[box('a', (0, 0, 0)), box('b', (0.5, 0.1, 0.0)), box('c', (1.0, 0, 0), fixed=True)],
-             joints=[dict(name='j0', parent='a', child='b', p0=[0.25, 0, -0.2], p1=[0.25, 0.1, 0.3],
-                          init_angle=0.3,
-                          driving=dict(aim_angle=1.2, enabled=True, strength_ratio=50.0),
-                          limit=dict(lower=-0.2, upper=0.4, strength=3.0),
-                          external_torque=dict(torque=1.0), damping=40.0),
-                     dict(name='j1', parent='c', child='b', p0=[0.8, 0, 0], p1=[0.8, 0, 1],
-                          limit=dict(lower=0.1, upper=0.1), external_torque=dict(torque=1.0))])
-    return compile_scene(Scene.from_dict(d))
-
-
-MODEL = _model()
+MODEL_SCENE = dict(dt=0.01, bodies=[box('a', (0, 0, 0)), box('b', (0.5, 0.1, 0.0)), box('c', (1.0, 0, 0), fixed=True)],
+                   joints=[dict(name='j0', parent='a', child='b', p0=[0.25, 0, -0.2], p1=[0.25, 0.1, 0.3],
+                                init_angle=0.3,
+                                driving=dict(aim_angle=1.2, enabled=True, strength_ratio=50.0),
+                                limit=dict(lower=-0.2, upper=0.4, strength=3.0),
+                                external_torque=dict(torque=1.0), damping=40.0),
+                           dict(name='j1', parent='c', child='b', p0=[0.8, 0, 0], p1=[0.8, 0, 1],
+                                limit=dict(lower=0.1, upper=0.1), external_torque=dict(torque=1.0))])
+MODEL = compile_scene(Scene.from_dict(MODEL_SCENE))
 DATA = model_data.build(MODEL)
 
 
@@ -1010,6 +1006,22 @@ def test_the_list_check_can_fail():
     for broken in (dropped, swapped, unguarded):
         assert broken != source
         assert _list_disagreements(broken) != []
+
+
+def test_each_term_builds_its_model_fields_from_the_scene():
+    """A Model's fields are its declared bodies and joints plus what each term's `from_scene`
+    returns: model.py declares no term's field and no two terms build the same one."""
+    import dataclasses
+    from abd_joint_sim.model import Model
+    from abd_joint_sim.terms import TERMS
+    base, seen = {f.name for f in dataclasses.fields(Model)}, set()
+    scene = Scene.from_dict(MODEL_SCENE)
+    for term in TERMS:
+        own = set(term.from_scene(scene, MODEL))
+        assert not own & base and not own & seen, term.__name__
+        seen |= own
+    assert set(MODEL.__dict__) == base | seen
+    assert {'torque_joints', 'drive_K', 'limit_lower', 'damping_coeff'} <= seen
 
 
 def test_the_compiled_model_is_its_terms_fields():

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SimulationError
-from ..model import axis_inertia
 from ..state import Control, State
 from ..terms import TERMS, angle, damping, limit
+from ..terms.damping import axis_inertia
 from ..terms.context import StepContext
 from ..terms import prismatic, prismatic_damping
 from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
@@ -309,7 +309,7 @@ class Solver:
 
     def axis_inertia(self, j: int) -> float:
         """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's
-        axis (model.axis_inertia)."""
+        axis (terms/damping.py axis_inertia)."""
         return axis_inertia(self.model, j)
 
     def _torque_hint(self, control) -> str:

@@ -31,11 +31,20 @@ again at the answer and Newton goes on from there (`linearisation_holds`, solver
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ..errors import SceneError
+from ..geometry import skew
 from ..jit import flat, kernel
-from . import angle
+from . import angle, select
 
+#: largest h d / I of a damped joint (I: the lighter body's moment about the axis; for a
+#: prismatic joint h c / m): beyond it the damper outweighs the body's inertia by more than
+#: double precision resolves in Newton's matrix (measured: steps fail from ~4e19), and the
+#: joint is locked for all purposes
+DAMPING_RATIO_MAX = 1e15
 NAME = 'joint_damping'      #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
@@ -48,6 +57,41 @@ FIELDS = (
 
 def used(model) -> bool:
     return len(model.damping_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: damping_joints (P,), the revolute joints with viscous
+    damping, and damping_coeff [N m s/rad] (P,). SceneError for a damper a step cannot
+    resolve: h d above DAMPING_RATIO_MAX times the lighter body's moment about the axis."""
+    pj = select.joints(scene, model, False, lambda j: j.damping > 0.0)
+    coeff = np.array([scene.joints[k].damping for k in pj], float)
+    for j, d in zip(pj, coeff):
+        inertia = axis_inertia(model, j)
+        if model.dt * d > DAMPING_RATIO_MAX * inertia:
+            raise SceneError(
+                f'{scene.source}: joint {model.joint_names[j]!r}: damping {d:g} N m s/rad is '
+                f'{model.dt * d / inertia:.1e} times the moment of its lighter body about the axis '
+                f'({inertia:.2e} kg m^2) per step of {model.dt:g} s (dt d / I), beyond the '
+                f'{DAMPING_RATIO_MAX:g} a step can resolve: a joint damped this hard does not '
+                'move; lock it, or lower the damping')
+    return dict(damping_joints=pj, damping_coeff=coeff)
+
+
+def axis_inertia(model, j: int) -> float:
+    """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's axis
+    (inf for a fixed body): ½ q̇ᵀ M q̇ = ½ I for a unit turn about the axis, q̇ =
+    (−a × x̄0, [a]ₓ) in the body's rest frame (x = t + A x̄, A's rows in q). The same on any
+    pose: the axis turns with the body."""
+    m = model
+    out = math.inf
+    for side, b in enumerate((int(m.joint_parent[j]), int(m.joint_child[j]))):
+        if m.body_fixed[b]:
+            continue
+        x0, x1 = m.joint_anchor0[j, side], m.joint_anchor1[j, side]
+        a = (x1 - x0) / np.linalg.norm(x1 - x0)
+        qdot = np.concatenate([-np.cross(a, x0), skew(a).ravel()])
+        out = min(out, float(qdot @ m.body_M[b] @ qdot))
+    return out
 
 
 def build(model, data) -> dict:

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import flat, kernel
-from . import angle
+from . import angle, select
+from .revolute import stiffness
 
 NAME = 'driving'            #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
@@ -28,6 +29,20 @@ FIELDS = (
 
 def used(model) -> bool:
     return len(model.drive_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: drive_joints (n,), the joints with UID 19;
+    drive_K [kg] (γ (m_i + m_j)), drive_aim0 [rad], _passive0 and _enabled0, (n,)."""
+    ks = select.joints(scene, model, False, lambda j: j.driving is not None)
+    spec = [scene.joints[k].driving for k in ks]
+    mass, parent, child = model.body_mass, model.joint_parent, model.joint_child
+    return dict(drive_joints=ks,
+                drive_K=np.array([stiffness(s.strength_ratio, mass[parent[k]], mass[child[k]])
+                                     for s, k in zip(spec, ks)], float),
+                drive_aim0=np.array([s.aim_angle for s in spec], float),
+                drive_passive0=np.array([s.passive for s in spec], bool),
+                drive_enabled0=np.array([s.enabled for s in spec], bool))
 
 
 def build(model, data) -> dict:

@@ -19,6 +19,11 @@ def used(model) -> bool:
     return model.has_gravity
 
 
+def from_scene(scene, model) -> dict:
+    """No Model fields of its own: it reads the scene's gravity (Model.gravity)."""
+    return {}
+
+
 def build(model, data) -> dict:
     """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(gravity=flat.array(model.gravity, np.float64), has_gravity=bool(model.has_gravity))

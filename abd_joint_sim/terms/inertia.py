@@ -33,6 +33,11 @@ def used(model) -> bool:
     return True
 
 
+def from_scene(scene, model) -> dict:
+    """No Model fields of its own: it reads the bodies'."""
+    return {}
+
+
 def min_eigenvalue(Mbar):
     """(B,) μ_min(M̄) per body: the least the inertia term s M gives any direction of a body
     in Newton's matrix (per unit s), which the unprojected Hessians may draw on."""

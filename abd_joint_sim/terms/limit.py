@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ..jit import flat, kernel
-from . import angle
+from . import angle, select
 
 NAME = 'limit'              #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
@@ -35,6 +35,16 @@ FIELDS = (
 
 def used(model) -> bool:
     return len(model.limit_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: limit_joints (n,), the joints with UID 670;
+    limit_lower and _upper [rad] (absolute), limit_strength, (n,)."""
+    ks = select.joints(scene, model, False, lambda j: j.limit is not None)
+    spec = [scene.joints[k].limit for k in ks]
+    return dict(limit_joints=ks, limit_lower=np.array([s.lower for s in spec], float),
+                limit_upper=np.array([s.upper for s in spec], float),
+                limit_strength=np.array([s.strength for s in spec], float))
 
 
 def build(model, data) -> dict:

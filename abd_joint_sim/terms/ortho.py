@@ -45,6 +45,11 @@ def used(model) -> bool:
     return model.body_count > int(model.body_fixed.sum())
 
 
+def from_scene(scene, model) -> dict:
+    """No Model fields of its own: it reads the bodies'."""
+    return {}
+
+
 def exact_bound(Mbar, weight):
     """(B,) ORTHO_EXACT_SHARE μ_min(M̄) / (4 κv̄) per body (inf without a shape term): where
     h² ‖AAᵀ − I‖_F is below s times it, the unprojected shape Hessian, whose eigenvalues are

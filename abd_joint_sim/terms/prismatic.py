@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from ..jit import flat, kernel
+from . import select
 
 NAME = 'prismatic_joint'    #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
@@ -59,6 +60,13 @@ FIELDS = (
 
 def used(model) -> bool:
     return len(model.prismatic_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: prismatic_joints (S,), the prismatic joints, and
+    prismatic_K [kg] (S,), their UID 20 stiffness (the joint's K, model.joint_K)."""
+    sj = select.joints(scene, model, True)
+    return dict(prismatic_joints=sj, prismatic_K=np.array([model.joint_K[k] for k in sj], float))
 
 
 def rest_frames(model) -> np.ndarray:

@@ -18,10 +18,14 @@ Requirement: a prismatic joint (UID 20).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ..errors import SceneError
 from ..jit import flat, kernel
-from . import prismatic
+from . import prismatic, select
+from .damping import DAMPING_RATIO_MAX
 
 NAME = 'prismatic_damping'  #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
@@ -36,6 +40,25 @@ BDF2_RATE = 2.0 / 3.0       # c_I of BDF2: ḋ = (3d − 4dⁿ + dⁿ⁻¹)/(2h)
 
 def used(model) -> bool:
     return len(model.prismatic_damping_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: prismatic_damping_joints (Ps,), the prismatic joints
+    with viscous damping, and prismatic_damping_coeff [N s/m] (Ps,). SceneError for a damper a
+    step cannot resolve: h c above damping.DAMPING_RATIO_MAX times the lighter body's mass."""
+    sp = select.joints(scene, model, True, lambda j: j.damping > 0.0)
+    coeff = np.array([scene.joints[k].damping for k in sp], float)
+    for j, c in zip(sp, coeff):
+        free = [float(model.body_mass[b]) for b in (model.joint_parent[j], model.joint_child[j])
+                if not model.body_fixed[b]]
+        mass = min(free) if free else math.inf
+        if model.dt * c > DAMPING_RATIO_MAX * mass:
+            raise SceneError(
+                f'{scene.source}: joint {model.joint_names[j]!r}: damping {c:g} N s/m is '
+                f'{model.dt * c / mass:.1e} times the mass of its lighter body ({mass:.2e} kg) per '
+                f'step of {model.dt:g} s (dt c / m), beyond the {DAMPING_RATIO_MAX:g} a step can '
+                'resolve: a joint damped this hard does not move; lock it, or lower the damping')
+    return dict(prismatic_damping_joints=sp, prismatic_damping_coeff=coeff)
 
 
 def build(model, data) -> dict:

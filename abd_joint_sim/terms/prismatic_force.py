@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from ..jit import flat, kernel
+from . import select
 
 NAME = 'external_force'     #: in Solver.terms
 #: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
@@ -33,6 +34,17 @@ AXIS_EPS = 1e-12
 
 def used(model) -> bool:
     return len(model.prismatic_force_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: prismatic_force_joints (F,), the prismatic joints with
+    UID 667; prismatic_force_value0 [N], _enabled0 and _effort_limit [N] (inf: none), (F,)."""
+    sf = select.joints(scene, model, True, lambda j: j.external_force is not None)
+    spec = [scene.joints[k].external_force for k in sf]
+    return dict(prismatic_force_joints=sf,
+                prismatic_force_value0=np.array([s.force for s in spec], float),
+                prismatic_force_enabled0=np.array([s.enabled for s in spec], bool),
+                prismatic_force_effort_limit=np.array([s.effort_limit for s in spec], float))
 
 
 def build(model, data) -> dict:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import flat, kernel
-from . import limit, prismatic
+from . import limit, prismatic, select
 
 NAME = 'prismatic_limit'    #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
@@ -30,6 +30,16 @@ FIELDS = (
 
 def used(model) -> bool:
     return len(model.prismatic_limit_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: prismatic_limit_joints (n,), the joints with UID 669;
+    prismatic_limit_lower and _upper [m] (absolute), prismatic_limit_strength, (n,)."""
+    ks = select.joints(scene, model, True, lambda j: j.limit is not None)
+    spec = [scene.joints[k].limit for k in ks]
+    return dict(prismatic_limit_joints=ks, prismatic_limit_lower=np.array([s.lower for s in spec], float),
+                prismatic_limit_upper=np.array([s.upper for s in spec], float),
+                prismatic_limit_strength=np.array([s.strength for s in spec], float))
 
 
 def build(model, data) -> dict:

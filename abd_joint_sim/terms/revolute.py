@@ -18,6 +18,7 @@ import numpy as np
 
 from ..geometry import point_jacobian
 from ..jit import flat, kernel
+from . import select
 
 NAME = 'revolute_joint'     #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
@@ -41,6 +42,11 @@ FIELDS = (
 
 def used(model) -> bool:
     return len(model.revolute_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: revolute_joints (R,), the revolute joints."""
+    return dict(revolute_joints=select.joints(scene, model, False))
 
 
 def stiffness(strength_ratio, mass_i, mass_j):

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..jit import flat, kernel
 from ..smallmat import adjugate3
+from . import select
 
 NAME = 'external_torque'    #: in Solver.terms
 #: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
@@ -35,6 +36,16 @@ AXIS_EPS = 1e-12
 
 def used(model) -> bool:
     return len(model.torque_joints) > 0
+
+
+def from_scene(scene, model) -> dict:
+    """The Model's fields of this term: torque_joints (T,), the revolute joints with UID 668;
+    torque_value0 [N m], torque_enabled0 and torque_effort_limit [N m] (inf: none), (T,)."""
+    tj = select.joints(scene, model, False, lambda j: j.external_torque is not None)
+    spec = [scene.joints[k].external_torque for k in tj]
+    return dict(torque_joints=tj, torque_value0=np.array([s.torque for s in spec], float),
+                torque_enabled0=np.array([s.enabled for s in spec], bool),
+                torque_effort_limit=np.array([s.effort_limit for s in spec], float))
 
 
 def incidence(torque_joints, parent, child):
