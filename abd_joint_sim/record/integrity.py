@@ -1,22 +1,13 @@
 """Check an MCAP file's framing and every CRC before anything of it is trusted.
 
-A flipped byte inside a compressed chunk still decompresses into *some* messages, and a
-file cut inside its summary still has a readable data section: without a check the tools
-would compare, plot or replay wrong data. :func:`scan` walks the file record by record
-(no summary needed) and checks
-
-* the leading and trailing magic and that every record fits in the file;
-* each chunk: its records decompress, come out ``uncompressed_size`` long, match
-  ``uncompressed_crc`` and frame exactly into records;
-* each attachment's CRC;
-* the data-section CRC in DataEnd (a CRC-32 of every byte from the leading magic up to
-  DataEnd) and the summary CRC in the Footer.
-
-A stored CRC of 0 means "not computed" in MCAP and is not checked (our writer computes
-every one: docs/bag-format.md, "Integrity"). :func:`check` raises :class:`BagDamageError`
-naming the file, the record (chunk number) and its byte offset, and the command that keeps
-the intact chunks (``bag_recover``). The result is cached per file identity (inode, size,
-mtime), so the readers of one run do not scan a file twice.
+:func:`scan` walks the file record by record (no summary needed) and checks the magic at
+both ends, that every record fits in the file, each chunk (it decompresses to
+``uncompressed_size`` bytes matching ``uncompressed_crc`` that frame exactly into records),
+each attachment's CRC, the data-section CRC in DataEnd and the summary CRC in the Footer. A
+stored CRC of 0 ("not computed") is not checked. :func:`check` raises
+:class:`BagDamageError` naming the file, the first damaged record, its byte offset and the
+``bag_recover`` command; its result is cached per file identity (docs/bag-format.md,
+"Damage: what our readers check").
 """
 
 from __future__ import annotations
@@ -152,7 +143,10 @@ def scan(file: str | os.PathLike[str]) -> ScanResult:
     return _scan(memoryview(data), len(data))
 
 
-def _scan(buf, size: int) -> ScanResult:
+def _scan(buf, size: int, visit=None) -> ScanResult:
+    """:func:`scan` of the bytes `buf`; ``visit(pos, opcode, end, damage)`` (if given) is
+    called for each record that fits in the file, up to the Footer (`damage`: the chunk's or
+    attachment's :class:`Damage`, else None)."""
     result = ScanResult(size)
     damage = result.damage
     if size < len(MAGIC) or bytes(buf[:len(MAGIC)]) != MAGIC:
@@ -184,16 +178,19 @@ def _scan(buf, size: int) -> ScanResult:
                                      f'{stored:#010x} stored in DataEnd at byte {pos}'))
         elif in_data:
             data_crc = zlib.crc32(buf[pos:end], data_crc)
+        hurt = None
         if op == OP_CHUNK:
             why = check_chunk(content)
-            if why:
-                damage.append(Damage(f'chunk {chunk_no}', pos, why))
+            hurt = Damage(f'chunk {chunk_no}', pos, why) if why else None
             chunk_no += 1
         elif op == OP_ATTACHMENT:
             name, why = _check_attachment(content)
-            if why:
-                damage.append(Damage(f'attachment {name!r}', pos, why))
-        elif op == OP_FOOTER:
+            hurt = Damage(f'attachment {name!r}', pos, why) if why else None
+        if hurt:
+            damage.append(hurt)
+        if visit is not None:
+            visit(pos, op, end, hurt)
+        if op == OP_FOOTER:
             if length < 20:
                 damage.append(Damage('footer', pos, f'{length} bytes long, 20 expected'))
                 break

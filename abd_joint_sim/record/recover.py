@@ -101,32 +101,22 @@ class _Found:
     dropped_records: list = field(default_factory=list)
     data_end: bool = False                           # DataEnd reached: the data is whole
     chunks: int = 0
-    good_end: int = 0
+    good_end: int = len(integrity.MAGIC)
     stopped: str = 'end of file'
     record_custom: Optional[dict] = None
     header: Optional[Header] = None
 
 
-def _collect(data: memoryview, size: int) -> _Found:
+def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
+    """What the file holds, and whether it is intact (:func:`integrity.scan` in one pass)."""
     found = _Found()
-    pos = len(integrity.MAGIC)
-    if size < pos or bytes(data[:pos]) != integrity.MAGIC:
-        return found
-    found.good_end = pos
-    chunk_no = 0
     pending: Optional[list] = None      # the dropped chunk whose message indexes follow
     in_data = True
-    while pos < size:
-        if pos + 9 > size:
-            found.stopped = f'a record cut at byte {pos}'
-            break
-        op = data[pos]
-        (length,) = struct.unpack_from('<Q', data, pos + 1)
-        end = pos + 9 + length
-        if end > size:
-            found.stopped = (f'the record at byte {pos} runs past the end of the file '
-                             '(truncated, or its length is damaged)')
-            break
+
+    def visit(pos: int, op: int, end: int, damage: Optional[integrity.Damage]) -> None:
+        nonlocal pending, in_data
+        if found.stopped != 'end of file':
+            return
         content = data[pos + 9:end]
         if op == integrity.OP_MESSAGE_INDEX and pending is not None:
             try:
@@ -136,41 +126,37 @@ def _collect(data: memoryview, size: int) -> _Found:
         else:
             pending = None
         if op == integrity.OP_CHUNK:
-            why = integrity.check_chunk(content)
-            if why:
-                pending = [chunk_no, pos, why, None]
+            if damage:
+                pending = [len(found.dropped) + found.chunks, pos, damage.why, None]
                 found.dropped.append(pending)
             else:
                 for sub in breakup_chunk(_parse(bytes(data[pos:end])), validate_crc=True):
                     _keep(found, sub, in_data)
                 found.chunks += 1
-            chunk_no += 1
         elif op == integrity.OP_DATA_END:
             in_data = False
             found.data_end = True
         elif op == integrity.OP_FOOTER:
-            found.good_end = end
             found.stopped = 'end of data'
-            break
         elif op != integrity.OP_MESSAGE_INDEX:
             try:
                 record = _parse(bytes(data[pos:end]))
             except Exception as exc:  # noqa: BLE001 - a damaged record of any kind
                 found.stopped = f'the record at byte {pos} is unreadable ({exc})'
-                break
+                return
             if isinstance(record, Header):
                 found.header = record
-            elif isinstance(record, Attachment):
-                name, why = integrity._check_attachment(content)
-                if why:                 # damaged: not copied
-                    found.dropped_records.append(f'attachment {name!r} at byte {pos}: {why}')
-                    record = None
-            if record is not None:
+            if isinstance(record, Attachment) and damage:
+                found.dropped_records.append(str(damage))
+            else:
                 _keep(found, record, in_data)
         found.good_end = end
-        pos = end
+
+    result = integrity._scan(data, size, visit)
+    if found.stopped == 'end of file' and found.good_end < size and result.damage:
+        found.stopped = str(result.damage[-1])      # the record that does not fit
     found.dropped = [tuple(d) for d in found.dropped]
-    return found
+    return found, result.ok
 
 
 def _keep(found: _Found, record: Any, in_data: bool) -> None:
@@ -314,8 +300,7 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
         raw = file.read_bytes()
     except OSError as exc:
         raise BagError(f"bag file '{file}': {exc.strerror or exc}") from None
-    intact = integrity.scan(file).ok if raw else False
-    found = _collect(memoryview(raw), len(raw))
+    found, intact = _collect(memoryview(raw), len(raw))
     if found.header is None:
         raise BagError(f"bag file '{file}' has no readable MCAP header; nothing to recover")
     if not info.get('custom_data') and found.record_custom:
