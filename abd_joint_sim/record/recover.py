@@ -1,15 +1,9 @@
 """Recover a damaged bag: a recorder that died (SIGKILL, power cut, disk full) before
 ``close()``, a flipped bit in a chunk, a copy cut inside its summary.
 
-Such an MCAP file ends in the middle of a record or has a chunk whose CRC fails, so
-indexed readers (rosbag2, rosbags, ``mcap.reader.make_reader``) and our readers refuse it.
-The python ``mcap`` package has no recovery function (the Go ``mcap recover`` CLI does the
-MCAP half of this job), so ``recover()`` walks the file record by record
-(:mod:`.integrity`), keeps every intact chunk, skips each damaged one (counting the
-messages its message indexes list), and writes a complete MCAP plus a complete
-metadata.yaml. Nothing is overwritten without a copy: the damaged file is kept as
-``<name>_0.mcap.orig`` (``.orig.1``, ``.orig.2``, ... when that exists), a metadata.yaml
-that changes as ``metadata.yaml.orig`` (numbered the same way).
+``recover()`` walks the file record by record (:mod:`.integrity`), keeps every intact chunk,
+skips each damaged one and writes a complete MCAP and metadata.yaml, keeping a copy of each
+file it replaces (docs/bag-format.md, "Recovery").
 """
 
 from __future__ import annotations
@@ -18,6 +12,7 @@ from dataclasses import dataclass, field
 import io
 import os
 from pathlib import Path
+import shutil
 import struct
 from typing import Any, Optional
 
@@ -84,15 +79,9 @@ def _parse(raw: bytes) -> Any:
     return next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
 
 
-def _index_count(content) -> int:
-    """Messages listed by one MessageIndex record (channel id, then 16-byte entries)."""
-    (n,) = struct.unpack_from('<I', content, 2)
-    return n // 16
-
-
 @dataclass
 class _Found:
-    """Pass one: what the file holds, in file order, and what is damaged."""
+    """What the file holds, in file order, and what is damaged."""
 
     records: list = field(default_factory=list)      # mcap records to copy, in order
     schemas: dict = field(default_factory=dict)      # id -> Schema
@@ -119,8 +108,8 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
             return
         content = data[pos + 9:end]
         if op == integrity.OP_MESSAGE_INDEX and pending is not None:
-            try:
-                pending[3] = (pending[3] or 0) + _index_count(content)
+            try:        # a MessageIndex: channel id, then 16 bytes per message
+                pending[3] = (pending[3] or 0) + struct.unpack_from('<I', content, 2)[0] // 16
             except struct.error:
                 pass
         else:
@@ -155,7 +144,6 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
     result = integrity._scan(data, size, visit)
     if found.stopped == 'end of file' and found.good_end < size and result.damage:
         found.stopped = str(result.damage[-1])      # the record that does not fit
-    found.dropped = [tuple(d) for d in found.dropped]
     return found, result.ok
 
 
@@ -216,9 +204,7 @@ def _write(fd: int, found: _Found, summary: md.BagSummary,
            custom_data: dict[str, str]) -> None:
     writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
                     enable_crcs=True, enable_data_crcs=True)
-    header = found.header
-    writer.start(profile=(header.profile if header else '') or PROFILE,
-                 library=f'{LIBRARY} (recovered)')
+    writer.start(profile=found.header.profile or PROFILE, library=f'{LIBRARY} (recovered)')
     schema_ids: dict[int, int] = {}
     for sid, schema in sorted(found.schemas.items()):
         schema_ids[sid] = writer.register_schema(name=schema.name, encoding=schema.encoding,
@@ -273,8 +259,7 @@ def backup(path: Path) -> Path:
             except FileExistsError:
                 continue
             with os.fdopen(fd, 'wb') as out, open(path, 'rb') as src:
-                while block := src.read(1 << 20):
-                    out.write(block)
+                shutil.copyfileobj(src, out)
                 out.flush()
                 os.fsync(out.fileno())
             return name
@@ -339,13 +324,9 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
         tmp.unlink(missing_ok=True)
         raise BagError(f"bag '{bag_dir}': recovery could not replace its files: {exc}") \
             from None
-    dropped = tuple(DroppedChunk(*d) for d in found.dropped)
-    return RecoveryReport(messages=summary.message_count, chunks=found.chunks,
-                          bytes_dropped=0 if intact or found.data_end
-                          else max(0, len(raw) - found.good_end),
-                          was_complete=intact,
-                          stopped_because='end of data' if intact else found.stopped,
-                          dropped_chunks=dropped,
-                          dropped_records=tuple(found.dropped_records),
-                          rebuilt_channels=tuple(rebuilt),
-                          backups=tuple(backups))
+    return RecoveryReport(
+        summary.message_count, found.chunks,
+        0 if intact or found.data_end else max(0, len(raw) - found.good_end), intact,
+        'end of data' if intact else found.stopped,
+        tuple(DroppedChunk(*d) for d in found.dropped), tuple(found.dropped_records),
+        tuple(rebuilt), tuple(backups))
