@@ -141,10 +141,10 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
                 _keep(found, record, in_data)
         found.good_end = end
 
-    result = integrity._scan(data, size, visit)
-    if found.stopped == 'end of file' and found.good_end < size and result.damage:
-        found.stopped = str(result.damage[-1])      # the record that does not fit
-    return found, result.ok
+    damage = integrity._scan(data, size, visit)
+    if found.stopped == 'end of file' and found.good_end < size and damage:
+        found.stopped = str(damage[-1])      # the record that does not fit
+    return found, not damage
 
 
 def _keep(found: _Found, record: Any, in_data: bool) -> None:
