@@ -42,11 +42,8 @@ _MEDIA_TYPES = {'.yaml': 'application/yaml', '.yml': 'application/yaml',
 
 
 class BagError(RuntimeError):
-    """A bag could not be created, written, read or recovered.
-
-    The message names the bag path (and topic) and what happened. Raised instead of
-    ``OSError`` so a recorder can stop recording and keep the simulation running.
-    """
+    """A bag could not be created, written, read or recovered; the message names the bag path
+    (and topic) and what happened (never an ``OSError``: a recorder stops, the run goes on)."""
 
 
 class _FdSink:
@@ -83,13 +80,10 @@ class _FastMessages:
     uses it only if :func:`fast_messages_work` (docs/decisions.md, "Node")."""
 
     def __init__(self, writer: Writer) -> None:
-        self._writer = writer
         self._stats = writer._Writer__statistics                  # noqa: SLF001
         self._chunk = writer._Writer__chunk_builder               # noqa: SLF001
         self._chunk_size = writer._Writer__chunk_size             # noqa: SLF001
         self._finalize = writer._Writer__finalize_chunk           # noqa: SLF001
-        if self._chunk is None:
-            raise TypeError('the writer does not use chunks')
 
     def add_many(self, channel_id: int, stamps, datas) -> None:
         """``writer.add_message(channel_id, t, data, publish_time=t, sequence=0)`` for each

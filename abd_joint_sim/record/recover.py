@@ -300,10 +300,10 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
         _write(fd, found, summary, custom_data)
         os.fsync(fd)
     except OSError as exc:
-        os.close(fd)
         tmp.unlink(missing_ok=True)
         raise BagError(f"bag '{bag_dir}': recovery failed: {exc}") from None
-    os.close(fd)
+    finally:
+        os.close(fd)
     backups = []
     try:
         if intact:
