@@ -20,20 +20,17 @@ INFINITE = {'sec': 9223372036, 'nsec': 854775807}
 """``RMW_DURATION_INFINITE`` as rosbag2 serialises it."""
 
 RELIABILITIES = ('reliable', 'best_effort')
-DURABILITIES = ('volatile', 'transient_local')
 
 
-def qos_profile(reliability: str = 'reliable', depth: int = 10,
-                durability: str = 'volatile') -> dict[str, Any]:
-    """Return one offered QoS profile in rosbag2's version-9 form (a keep-last publisher)."""
+def qos_profile(reliability: str = 'reliable', depth: int = 10) -> dict[str, Any]:
+    """Return one offered QoS profile in rosbag2's version-9 form (a keep-last, volatile
+    publisher)."""
     if reliability not in RELIABILITIES:
         raise ValueError(f"reliability '{reliability}' is not one of {RELIABILITIES}")
-    if durability not in DURABILITIES:
-        raise ValueError(f"durability '{durability}' is not one of {DURABILITIES}")
     if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
         raise ValueError(f'QoS depth {depth!r} is not an int >= 1')
     return {'history': 'keep_last', 'depth': depth, 'reliability': reliability,
-            'durability': durability, 'deadline': dict(INFINITE), 'lifespan': dict(INFINITE),
+            'durability': 'volatile', 'deadline': dict(INFINITE), 'lifespan': dict(INFINITE),
             'liveliness': 'automatic', 'liveliness_lease_duration': dict(INFINITE),
             'avoid_ros_namespace_conventions': False}
 

@@ -205,10 +205,8 @@ def _write(fd: int, found: _Found, summary: md.BagSummary,
     writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
                     enable_crcs=True, enable_data_crcs=True)
     writer.start(profile=found.header.profile or PROFILE, library=f'{LIBRARY} (recovered)')
-    schema_ids: dict[int, int] = {}
-    for sid, schema in sorted(found.schemas.items()):
-        schema_ids[sid] = writer.register_schema(name=schema.name, encoding=schema.encoding,
-                                                 data=schema.data)
+    schema_ids = {sid: writer.register_schema(name=s.name, encoding=s.encoding, data=s.data)
+                  for sid, s in sorted(found.schemas.items())}
     channel_ids: dict[int, int] = {}
     topics: dict[int, md.TopicRecord] = {}
     for cid, channel in sorted(found.channels.items()):
