@@ -272,10 +272,7 @@ class BagWriter:
 
     def close(self) -> None:
         """Finish the MCAP (summary, statistics, indexes) and write the final metadata.yaml.
-
-        Idempotent. After a failed write it only releases the file: the bag keeps the chunks
-        written before the failure and its provisional metadata.yaml (use ``recover()``).
-        """
+        Idempotent; after a failed write it only releases the file (use ``recover()``)."""
         if self._state != 'open':
             self._release()
             self._state = 'closed'
@@ -350,10 +347,8 @@ class BagWriter:
 
     def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
         """Record ``msg`` on ``topic`` at simulation time ``stamp_ns`` (log = publish time
-        = ``stamp_ns``, plus the time recorded before the last :meth:`restart_time`).
-
-        Raises BagError (and stops the recording) if the bytes cannot be written.
-        """
+        = ``stamp_ns`` + the time recorded before the last :meth:`restart_time`); a BagError
+        if the bytes cannot be written stops the recording."""
         entry = self._entry(topic)
         if type(msg) is not entry.cls:
             raise BagError(f"bag '{self.path}': topic '{topic}' records "

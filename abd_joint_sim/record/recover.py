@@ -100,10 +100,9 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
     """What the file holds, and whether it is intact (:func:`integrity.scan` in one pass)."""
     found = _Found()
     pending: Optional[list] = None      # the dropped chunk whose message indexes follow
-    in_data = True
 
     def visit(pos: int, op: int, end: int, damage: Optional[integrity.Damage]) -> None:
-        nonlocal pending, in_data
+        nonlocal pending
         if found.stopped != 'end of file':
             return
         content = data[pos + 9:end]
@@ -120,10 +119,9 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
                 found.dropped.append(pending)
             else:
                 for sub in breakup_chunk(_parse(bytes(data[pos:end])), validate_crc=True):
-                    _keep(found, sub, in_data)
+                    _keep(found, sub)
                 found.chunks += 1
         elif op == integrity.OP_DATA_END:
-            in_data = False
             found.data_end = True
         elif op == integrity.OP_FOOTER:
             found.stopped = 'end of data'
@@ -138,7 +136,7 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
             if isinstance(record, Attachment) and damage:
                 found.dropped_records.append(str(damage))
             else:
-                _keep(found, record, in_data)
+                _keep(found, record)
         found.good_end = end
 
     damage = integrity._scan(data, size, visit)
@@ -147,7 +145,7 @@ def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
     return found, not damage
 
 
-def _keep(found: _Found, record: Any, in_data: bool) -> None:
+def _keep(found: _Found, record: Any) -> None:
     if isinstance(record, Schema):
         found.schemas.setdefault(record.id, record)
     elif isinstance(record, Channel):
@@ -159,7 +157,7 @@ def _keep(found: _Found, record: Any, in_data: bool) -> None:
                 found.record_custom = dict((stored or {}).get('custom_data') or {})
             except (yaml.YAMLError, AttributeError, TypeError, ValueError):
                 pass
-    elif in_data and isinstance(record, (Message, Attachment, Metadata)):
+    elif not found.data_end and isinstance(record, (Message, Attachment, Metadata)):
         found.records.append(record)
 
 
