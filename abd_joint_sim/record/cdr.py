@@ -35,11 +35,6 @@ def _align(pos: int, n: int) -> int:
     return pos + (-pos) % n
 
 
-def _class_of(t) -> type:
-    module = importlib.import_module('.'.join(t.namespaces))
-    return getattr(module, t.name)
-
-
 def _plan(cls: type) -> list:
     """[(attribute, kind, element size, nested class, counted), ...] of a message class,
     compiled once from its rosidl types (counted: a sequence, with its uint32 count)."""
@@ -47,13 +42,14 @@ def _plan(cls: type) -> list:
     if plan is not None:
         return plan
     from rosidl_parser import definition as d
+
     def kind(t) -> tuple[int, int, Any]:
         if isinstance(t, d.BasicType):
             return _PRIM, _PRIMITIVE[t.typename], None
         if isinstance(t, (d.UnboundedString, d.BoundedString)):
             return _STR, 4, None
         if isinstance(t, d.NamespacedType):
-            return _MSG, 0, _class_of(t)
+            return _MSG, 0, getattr(importlib.import_module('.'.join(t.namespaces)), t.name)
         raise TypeError(f'no CDR size rule for {t!r}')
     plan = []
     for attr, t in zip(cls.__slots__, cls.SLOT_TYPES):
