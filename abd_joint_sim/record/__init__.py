@@ -1,8 +1,7 @@
 """Recording: rosbag2 bags (Jazzy, MCAP storage) that ros2 bag, Foxglove and rosbags read.
 
 ``BagWriter`` writes, ``read_messages``/``read_custom_data``/``read_attachments`` read our
-bags back as rclpy messages, ``recover`` repairs a bag whose recorder was killed or whose bytes are damaged.
-Format and crash behaviour: docs/bag-format.md.
+bags back, ``recover`` repairs a damaged bag. Format and crash behaviour: docs/bag-format.md.
 """
 
 from .bag import BagError, BagWriter, DEFAULT_CHUNK_SIZE

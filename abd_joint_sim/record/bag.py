@@ -1,20 +1,9 @@
 """BagWriter: record rclpy messages into a rosbag2 bag (Jazzy, MCAP storage).
 
 A bag is a directory ``<path>/`` with ``metadata.yaml`` and ``<name>_0.mcap`` (``name`` =
-basename of ``path``), exactly what ``ros2 bag record -s mcap`` leaves, so ``ros2 bag
-info/play``, Foxglove, ``rosbags`` and ``mcap_ros2`` read it. Message bytes come from
-``rclpy.serialization.serialize_message``: the same CDR that travels on DDS.
-
-Crash behaviour: ``metadata.yaml`` is written (provisionally) at ``open()`` and again on each
-``add_topic()``, and rewritten complete on ``close()``. MCAP data is written in chunks of about
-``chunk_size`` bytes straight to the file descriptor (no user-space buffer), so a process
-killed with SIGKILL loses at most the chunk being filled; ``recover()`` turns such a bag
-into a complete one. See docs/bag-format.md.
-
-Integrity: every CRC MCAP defines is written (chunk, attachment, summary and the data-section
-CRC in DataEnd, a CRC-32 of every byte from the leading magic up to DataEnd), so a reader can
-tell a damaged bag from a good one; the tests check each bag with the official ``@mcap/core``
-reader (test/mcap_validator/).
+basename of ``path``), what ``ros2 bag record -s mcap`` leaves, with every CRC MCAP defines.
+Chunks go straight to the file descriptor, so a SIGKILL loses at most the open chunk and
+``recover()`` completes the bag. Format, crash behaviour, integrity: docs/bag-format.md.
 """
 
 from __future__ import annotations
@@ -53,25 +42,13 @@ _MEDIA_TYPES = {'.yaml': 'application/yaml', '.yml': 'application/yaml',
 
 
 class BagError(RuntimeError):
-    """A bag could not be created, written, read or recovered.
-
-    The message names the bag path (and topic) and what happened. Raised instead of
-    ``OSError`` so a recorder can stop recording and keep the simulation running.
-    """
-
-
-def media_type(name: str) -> str:
-    """Guess an attachment's media type from its name (``application/octet-stream`` else)."""
-    return _MEDIA_TYPES.get(Path(name).suffix.lower(), 'application/octet-stream')
+    """A bag could not be created, written, read or recovered; the message names the bag path
+    (and topic) and what happened (never an ``OSError``: a recorder stops, the run goes on)."""
 
 
 class _FdSink:
-    """Unbuffered file sink for ``mcap.Writer``: every record reaches the kernel at once.
-
-    ``mcap.Writer`` wraps raw files in a ``BufferedWriter``; bytes left in that buffer die
-    with the process. Writing through ``os.write`` means a SIGKILL loses only what the
-    writer still holds in memory (the open chunk).
-    """
+    """Unbuffered file sink for ``mcap.Writer`` (which would wrap a file in a
+    ``BufferedWriter``): every record reaches the kernel at once."""
 
     def __init__(self, fd: int) -> None:
         self.fd = fd
@@ -98,36 +75,19 @@ _MESSAGE_FIELDS = 22                          # record bytes before the data
 
 
 class _FastMessages:
-    """``mcap.Writer.add_message`` for a chunked writer, with less Python per message.
-
-    sim_node records a /clock message after every step; the writer's own path builds a
-    ``Message`` record object and writes it field by field (several calls per field). This
-    does exactly what that path does to the writer's state — statistics, the open chunk's
-    time range and message index, the record bytes, closing a full chunk — with one
-    ``struct`` pack per message (and one per chunk for its message index). It reaches into
-    ``mcap.Writer``'s private state (the pinned ``mcap`` version), so
-    :func:`fast_messages_work` checks, once per process, that a file written through it is
-    byte for byte the file ``add_message`` writes; if not (another mcap version), BagWriter
-    uses ``add_message``.
-    """
+    """``mcap.Writer.add_message`` for a chunked writer with one ``struct`` pack per message:
+    the same writer state and bytes, through ``mcap.Writer``'s private state, so BagWriter
+    uses it only if :func:`fast_messages_work` (docs/decisions.md, "Node")."""
 
     def __init__(self, writer: Writer) -> None:
-        self._writer = writer
         self._stats = writer._Writer__statistics                  # noqa: SLF001
         self._chunk = writer._Writer__chunk_builder               # noqa: SLF001
         self._chunk_size = writer._Writer__chunk_size             # noqa: SLF001
         self._finalize = writer._Writer__finalize_chunk           # noqa: SLF001
-        if self._chunk is None:
-            raise TypeError('the writer does not use chunks')
 
-    def add(self, channel_id: int, log_time: int, data) -> None:
-        """``writer.add_message(channel_id, log_time, data, publish_time=log_time,
-        sequence=0)``."""
-        self.add_many(channel_id, (log_time,), (data,))
-
-    def add_many(self, channel_id: int, stamps: list, datas: list) -> None:
-        """``add(channel_id, t, data)`` for each pair in order (the same bytes and state), with
-        the statistics updated once and no call per message."""
+    def add_many(self, channel_id: int, stamps, datas) -> None:
+        """``writer.add_message(channel_id, t, data, publish_time=t, sequence=0)`` for each
+        pair in order, with the statistics updated once."""
         if not stamps:
             return
         st = self._stats
@@ -159,8 +119,7 @@ class _FastMessages:
 
 
 class _FastMessageIndex(MessageIndex):
-    """A chunk's message index written with one ``struct`` pack for all its entries (mcap
-    packs each time and offset separately: two calls per message of the chunk)."""
+    """A chunk's message index written with one ``struct`` pack for all its entries."""
 
     def write(self, stream) -> None:
         records = self.records
@@ -191,22 +150,17 @@ def fast_messages_work() -> bool:
                 sid = w.register_schema(name='s', encoding='ros2msg', data=b'int32 a')
                 ch = [w.register_channel(topic=f'/t{k}', message_encoding='cdr',
                                          schema_id=sid) for k in range(2)]
+                runs = [(ch[k % 2], (t,), (bytes(range(k % 3 + 10)),)) for k, t in
+                        enumerate((5, 3, 9, 9, 1, 20, 7, 30, 2, 40, 41, 42))]
+                stamps = [50, 49, 60, 61, 62, 63, 70, 71, 72]   # one run across chunks
+                runs.append((ch[1], stamps, [bytes(range(k % 4 + 8)) for k in range(9)]))
                 adder = _FastMessages(w) if fast else None
-                for k, t in enumerate((5, 3, 9, 9, 1, 20, 7, 30, 2, 40, 41, 42)):
-                    data = bytes(range(k % 3 + 10))
+                for channel, stamps, datas in runs:
                     if adder:
-                        adder.add(ch[k % 2], t, data)
-                    else:
-                        w.add_message(channel_id=ch[k % 2], log_time=t, data=data,
-                                      publish_time=t, sequence=0)
-                # a run on one channel, across several chunks (add_many)
-                stamps = [50, 49, 60, 61, 62, 63, 70, 71, 72]
-                datas = [bytes(range(k % 4 + 8)) for k in range(len(stamps))]
-                if adder:
-                    adder.add_many(ch[1], stamps, datas)
-                else:
+                        adder.add_many(channel, stamps, datas)
+                        continue
                     for t, data in zip(stamps, datas):
-                        w.add_message(channel_id=ch[1], log_time=t, data=data,
+                        w.add_message(channel_id=channel, log_time=t, data=data,
                                       publish_time=t, sequence=0)
                 w.finish()
                 files.append(out.getvalue())
@@ -230,14 +184,12 @@ class BagWriter:
 
     :param path: bag directory to create; must not exist.
     :param custom_data: strings stored in ``metadata.yaml`` ``custom_data`` and in the MCAP
-        ``rosbag2`` metadata record (we keep the scene YAML and effective parameters here).
+        ``rosbag2`` metadata record.
     :param attachments: files stored as MCAP attachments at open, e.g. ``{'scene.yaml': b...}``.
     :param attachment_time_ns: the attachments' MCAP ``create_time`` [ns]; None = the wall
-        clock at open. A fixed value makes a bag's bytes a function of its content alone
-        (the sweeps' bags are bit-identical whichever worker writes them, and when).
+        clock at open (a fixed value makes a bag's bytes a function of its content alone).
     :param chunk_size: uncompressed bytes per MCAP chunk; the most a SIGKILL can lose.
-    :param compression: chunk compression, ``'zstd'`` (default), ``'lz4'`` or ``'none'``;
-        all three are read by rosbag2's MCAP plugin, Foxglove, rosbags and mcap_ros2.
+    :param compression: chunk compression, ``'zstd'`` (default), ``'lz4'`` or ``'none'``.
     """
 
     def __init__(self, path: str | os.PathLike[str], *,
@@ -251,10 +203,9 @@ class BagWriter:
             raise BagError(f"bag path '{path}' has no usable basename to name the bag file")
         self.mcap_path = self.path / f'{self.path.name}_0.mcap'
         self.metadata_path = self.path / 'metadata.yaml'
-        self._custom_data: dict[str, str] = {}
         for key, value in (custom_data or {}).items():
             self._check_custom(key, value)
-            self._custom_data[key] = value
+        self._custom_data: dict[str, str] = dict(custom_data or {})
         self._attachments = dict(attachments or {})
         self._attachment_time_ns = attachment_time_ns
         for name, data in self._attachments.items():
@@ -278,8 +229,6 @@ class BagWriter:
         self._log_offset = 0  # added to every stamp: log times never decrease (restart_time)
         self.error: str | None = None
         """Why recording stopped, once a write has failed; ``None`` while healthy."""
-
-    # -- lifecycle ---------------------------------------------------------------------------
 
     def open(self) -> None:
         """Create the bag directory, the MCAP file (header, attachments) and metadata.yaml."""
@@ -305,8 +254,9 @@ class BagWriter:
                 else int(self._attachment_time_ns)
             # log_time 0: the attachment belongs before the first simulated instant.
             for name, data in self._attachments.items():
-                writer.add_attachment(create_time=now, log_time=0, name=name,
-                                      media_type=media_type(name), data=bytes(data))
+                writer.add_attachment(create_time=now, log_time=0, name=name, data=bytes(data),
+                                      media_type=_MEDIA_TYPES.get(Path(name).suffix.lower(),
+                                                                  'application/octet-stream'))
         except OSError as exc:
             self._release()
             self._state = 'failed'
@@ -322,18 +272,11 @@ class BagWriter:
 
     def close(self) -> None:
         """Finish the MCAP (summary, statistics, indexes) and write the final metadata.yaml.
-
-        Idempotent. After a failed write it only releases the file: the bag keeps the chunks
-        written before the failure and its provisional metadata.yaml (use ``recover()``).
-        """
-        if self._state in ('new', 'closed'):
-            self._state = 'closed'
-            return
-        if self._state == 'failed':
+        Idempotent; after a failed write it only releases the file (use ``recover()``)."""
+        if self._state != 'open':
             self._release()
             self._state = 'closed'
             return
-        assert self._writer is not None and self._fd is not None
         try:
             self._writer.add_metadata(
                 'rosbag2', {'serialized_metadata': md.dump_yaml(
@@ -342,11 +285,10 @@ class BagWriter:
             os.fsync(self._fd)
         except OSError as exc:
             self._fail(f'finishing {self.mcap_path.name} failed: {exc}')
+            raise BagError(f"bag '{self.path}': {self.error}") from None
+        finally:
             self._release()
             self._state = 'closed'
-            raise BagError(f"bag '{self.path}': {self.error}") from None
-        self._release()
-        self._state = 'closed'
         self._write_metadata_yaml()
 
     def __enter__(self) -> BagWriter:
@@ -356,8 +298,6 @@ class BagWriter:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
-
-    # -- recording ---------------------------------------------------------------------------
 
     def add_topic(self, topic: str, msg_type: str, qos: str = 'reliable',
                   depth: int = 10) -> None:
@@ -383,7 +323,6 @@ class BagWriter:
             raise BagError(f"bag '{self.path}': topic '{topic}': {exc}") from None
         type_hash = type_description_hash(full_type)
         record = md.TopicRecord(topic, full_type, [profile], type_hash)
-        assert self._writer is not None
         channel_meta = {'offered_qos_profiles': md.dump_qos_profiles(record.qos_profiles),
                         'topic_type_hash': type_hash}
         try:
@@ -400,20 +339,16 @@ class BagWriter:
         self._write_metadata_yaml()
 
     def restart_time(self) -> None:
-        """The simulation's time restarts (sim_node's ``~/reset``): from now on a message's
-        log (= publish) time is its stamp plus the latest log time written so far, so log
-        times never decrease within the bag and run on as simulated time since the
-        recording began. Stamps inside the messages are the caller's (the simulation's own
-        time, restarting at 0). Without a restart, log time = stamp."""
+        """The simulation's time restarts (``~/reset``): from now on a message's log (=
+        publish) time is its stamp plus the latest log time written so far, so log times never
+        decrease (docs/bag-format.md, "Resets"). Without a restart, log time = stamp."""
         self._require_open()
         self._log_offset = self._summary.end_ns or 0
 
     def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
         """Record ``msg`` on ``topic`` at simulation time ``stamp_ns`` (log = publish time
-        = ``stamp_ns``, plus the time recorded before the last :meth:`restart_time`).
-
-        Raises BagError (and stops the recording) if the bytes cannot be written.
-        """
+        = ``stamp_ns`` + the time recorded before the last :meth:`restart_time`); a BagError
+        if the bytes cannot be written stops the recording."""
         entry = self._entry(topic)
         if type(msg) is not entry.cls:
             raise BagError(f"bag '{self.path}': topic '{topic}' records "
@@ -429,9 +364,7 @@ class BagWriter:
     def write_serialized(self, topic: str, stamp_ns: int, data: bytes) -> None:
         """Record CDR bytes already serialised for ``topic``'s type (what a publisher sent,
         e.g. sim_node's /clock, convert.ClockEncoder). Same checks and errors as write()."""
-        entry = self._topics.get(topic) if self._state == 'open' else None
-        if entry is None:
-            entry = self._entry(topic)      # raises the error that says why
+        entry = self._entry(topic)
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise BagError(f"bag '{self.path}': topic '{topic}': serialized data must be bytes, "
                            f'got {type(data).__name__}')
@@ -440,9 +373,7 @@ class BagWriter:
     def write_serialized_many(self, topic: str, stamps: list, datas: list) -> None:
         """``write_serialized(topic, t, data)`` for each pair in order, in one call: the same
         bytes in the bag (sim_node's /clock of a batch of steps, `ros.recording.Recording`)."""
-        entry = self._topics.get(topic) if self._state == 'open' else None
-        if entry is None:
-            entry = self._entry(topic)      # raises the error that says why
+        entry = self._entry(topic)
         if len(stamps) != len(datas):
             raise BagError(f"bag '{self.path}': topic '{topic}': {len(stamps)} stamps for "
                            f'{len(datas)} messages')
@@ -462,10 +393,10 @@ class BagWriter:
             self._summary.add_stamp(min(stamps))
             self._summary.add_stamp(max(stamps))
 
-    def _entry(self, topic: str):
-        self._require_open(topic)
-        entry = self._topics.get(topic)
+    def _entry(self, topic: str) -> _Topic:
+        entry = self._topics.get(topic) if self._state == 'open' else None
         if entry is None:
+            self._require_open(topic)
             raise BagError(f"bag '{self.path}': topic '{topic}' was not added (add_topic)")
         return entry
 
@@ -474,11 +405,10 @@ class BagWriter:
                                            or not isinstance(stamp_ns, int))) or stamp_ns < 0:
             raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
                            'an int >= 0 (nanoseconds)')
-        assert self._writer is not None
         stamp_ns += self._log_offset
         try:
             if self._fast is not None:
-                self._fast.add(entry.channel_id, stamp_ns, data)
+                self._fast.add_many(entry.channel_id, (stamp_ns,), (data,))
             else:
                 self._writer.add_message(channel_id=entry.channel_id, log_time=stamp_ns,
                                          data=data, publish_time=stamp_ns, sequence=0)
@@ -490,7 +420,6 @@ class BagWriter:
     def flush(self) -> None:
         """Close the open chunk and hand it to the kernel (e.g. when the simulation pauses)."""
         self._require_open()
-        assert self._writer is not None
         try:
             self._writer.flush()
         except OSError as exc:
@@ -509,8 +438,6 @@ class BagWriter:
     def message_count(self) -> int:
         """Messages written so far."""
         return self._summary.message_count
-
-    # -- helpers -----------------------------------------------------------------------------
 
     def _check_custom(self, key: Any, value: Any) -> None:
         if not isinstance(key, str) or not isinstance(value, str):

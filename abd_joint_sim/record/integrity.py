@@ -1,27 +1,18 @@
 """Check an MCAP file's framing and every CRC before anything of it is trusted.
 
-A flipped byte inside a compressed chunk still decompresses into *some* messages, and a
-file cut inside its summary still has a readable data section: without a check the tools
-would compare, plot or replay wrong data. :func:`scan` walks the file record by record
-(no summary needed) and checks
-
-* the leading and trailing magic and that every record fits in the file;
-* each chunk: its records decompress, come out ``uncompressed_size`` long, match
-  ``uncompressed_crc`` and frame exactly into records;
-* each attachment's CRC;
-* the data-section CRC in DataEnd (a CRC-32 of every byte from the leading magic up to
-  DataEnd) and the summary CRC in the Footer.
-
-A stored CRC of 0 means "not computed" in MCAP and is not checked (our writer computes
-every one: docs/bag-format.md, "Integrity"). :func:`check` raises :class:`BagDamageError`
-naming the file, the record (chunk number) and its byte offset, and the command that keeps
-the intact chunks (``bag_recover``). The result is cached per file identity (inode, size,
-mtime), so the readers of one run do not scan a file twice.
+:func:`scan` walks the file record by record (no summary needed) and checks the magic at
+both ends, that every record fits in the file, each chunk (it decompresses to
+``uncompressed_size`` bytes matching ``uncompressed_crc`` that frame exactly into records),
+each attachment's CRC, the data-section CRC in DataEnd and the summary CRC in the Footer. A
+stored CRC of 0 ("not computed") is not checked. :func:`check` raises
+:class:`BagDamageError` naming the file, the first damaged record, its byte offset and the
+``bag_recover`` command; its result is cached per file identity (docs/bag-format.md,
+"Damage: what our readers check").
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import os
 from pathlib import Path
 import stat
@@ -59,21 +50,6 @@ class Damage:
         return f'{self.what} at byte {self.offset}: {self.why}'
 
 
-@dataclass
-class ScanResult:
-    """What :func:`scan` found."""
-
-    size: int
-    damage: list[Damage] = field(default_factory=list)
-    chunks: int = 0
-    complete: bool = False
-    """DataEnd, the summary, the Footer and the closing magic are all there."""
-
-    @property
-    def ok(self) -> bool:
-        return not self.damage
-
-
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
     if compression == '':
         return data
@@ -84,6 +60,12 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
         import lz4.frame
         return lz4.frame.decompress(data)
     raise ValueError(f'unknown compression {compression!r}')
+
+
+def _mismatch(actual: int, stored: int, where: str = '') -> str:
+    """'' if the CRC `stored` is 0 ("not computed") or `actual`, else the mismatch."""
+    return '' if stored in (0, actual) else \
+        f'CRC {actual:#010x} computed, {stored:#010x} stored{where}'
 
 
 def _string(buf, pos: int) -> tuple[str, int]:
@@ -105,10 +87,8 @@ def check_chunk(content) -> str:
         return f'does not decompress ({type(exc).__name__}: {exc})'.replace(' ()', '')
     if len(data) != size:
         return f'decompresses to {len(data)} bytes, {size} stated'
-    if crc != 0:
-        actual = zlib.crc32(data)
-        if actual != crc:
-            return f'CRC {actual:#010x} computed, {crc:#010x} stored'
+    if why := _mismatch(zlib.crc32(data) if crc else 0, crc):
+        return why
     pos = 0
     while pos < len(data):
         if pos + 9 > len(data):
@@ -131,37 +111,34 @@ def _check_attachment(content) -> tuple[str, str]:
         (crc,) = struct.unpack_from('<I', content, pos)
     except struct.error:
         return '?', 'its fields run past the record'
-    if crc != 0:
-        actual = zlib.crc32(content[:pos])
-        if actual != crc:
-            return name, f'CRC {actual:#010x} computed, {crc:#010x} stored'
-    return name, ''
+    return name, _mismatch(zlib.crc32(content[:pos]) if crc else 0, crc)
 
 
-def scan(file: str | os.PathLike[str]) -> ScanResult:
-    """Walk `file` record by record and check framing and CRCs (see the module doc)."""
+def scan(file: str | os.PathLike[str]) -> list[Damage]:
+    """Walk `file` record by record and check framing and CRCs (see the module doc); returns
+    the damage found, in file order (none: the file is intact and complete)."""
     path = Path(file)
     try:
         with open(path, 'rb') as handle:
             size = os.fstat(handle.fileno()).st_size
             if size == 0:
-                return ScanResult(0, [Damage('file', 0, 'it is empty (0 bytes)')])
+                return [Damage('file', 0, 'it is empty (0 bytes)')]
             data = handle.read()
     except OSError as exc:
         raise BagError(f"bag file '{path}': {exc.strerror or exc}") from None
     return _scan(memoryview(data), len(data))
 
 
-def _scan(buf, size: int) -> ScanResult:
-    result = ScanResult(size)
-    damage = result.damage
+def _scan(buf, size: int, visit=None) -> list[Damage]:
+    """:func:`scan` of the bytes `buf`; ``visit(pos, opcode, end, damage)`` (if given) is
+    called for each record that fits in the file, up to the Footer (`damage`: the chunk's or
+    attachment's :class:`Damage`, else None)."""
     if size < len(MAGIC) or bytes(buf[:len(MAGIC)]) != MAGIC:
-        damage.append(Damage('file', 0, 'it does not start with the MCAP magic'))
-        return result
-    pos = len(MAGIC)
-    chunk_no = 0
-    data_crc = zlib.crc32(buf[:pos])
+        return [Damage('file', 0, 'it does not start with the MCAP magic')]
+    damage: list[Damage] = []
+    chunk_no, pos, data_crc = 0, len(MAGIC), zlib.crc32(buf[:len(MAGIC)])
     in_data = True
+    complete = False
     while pos < size:
         if pos + 9 > size:
             damage.append(Damage('record', pos, f'cut: {size - pos} byte(s) left of its '
@@ -179,21 +156,24 @@ def _scan(buf, size: int) -> ScanResult:
         if op == OP_DATA_END:
             in_data = False
             (stored,) = struct.unpack_from('<I', content, 0) if length >= 4 else (0,)
-            if stored != 0 and stored != data_crc and not damage:
-                damage.append(Damage('data section', 0, f'CRC {data_crc:#010x} computed, '
-                                     f'{stored:#010x} stored in DataEnd at byte {pos}'))
+            why = _mismatch(data_crc, stored, f' in DataEnd at byte {pos}')
+            if why and not damage:
+                damage.append(Damage('data section', 0, why))
         elif in_data:
             data_crc = zlib.crc32(buf[pos:end], data_crc)
+        hurt = None
         if op == OP_CHUNK:
             why = check_chunk(content)
-            if why:
-                damage.append(Damage(f'chunk {chunk_no}', pos, why))
+            hurt = Damage(f'chunk {chunk_no}', pos, why) if why else None
             chunk_no += 1
         elif op == OP_ATTACHMENT:
             name, why = _check_attachment(content)
-            if why:
-                damage.append(Damage(f'attachment {name!r}', pos, why))
-        elif op == OP_FOOTER:
+            hurt = Damage(f'attachment {name!r}', pos, why) if why else None
+        if hurt:
+            damage.append(hurt)
+        if visit is not None:
+            visit(pos, op, end, hurt)
+        if op == OP_FOOTER:
             if length < 20:
                 damage.append(Damage('footer', pos, f'{length} bytes long, 20 expected'))
                 break
@@ -203,27 +183,24 @@ def _scan(buf, size: int) -> ScanResult:
                                      'after the footer'))
             elif crc != 0:
                 begin = summary_start or pos
-                actual = zlib.crc32(buf[begin:pos + 9 + 16])
-                if actual != crc:
-                    damage.append(Damage('summary', begin, f'CRC {actual:#010x} computed, '
-                                         f'{crc:#010x} stored in the footer'))
+                if why := _mismatch(zlib.crc32(buf[begin:pos + 9 + 16]), crc, ' in the footer'):
+                    damage.append(Damage('summary', begin, why))
             pos = end
             if size - pos != len(MAGIC) or bytes(buf[pos:]) != MAGIC:
                 damage.append(Damage('file end', pos, 'the closing MCAP magic is missing or '
                                      'followed by other bytes'))
             else:
-                result.complete = not in_data
+                complete = not in_data
             break
         pos = end
     else:
         damage.append(Damage('file end', size, 'no footer (the file is truncated)'))
-    result.chunks = chunk_no
-    if not result.complete and not damage:
+    if not complete and not damage:
         damage.append(Damage('file end', size, 'incomplete'))
-    return result
+    return damage
 
 
-_checked: dict[tuple, ScanResult] = {}
+_checked: dict[tuple, list[Damage]] = {}
 
 
 def check(file: str | os.PathLike[str], bag: str | os.PathLike[str] | None = None) -> None:
@@ -237,19 +214,18 @@ def check(file: str | os.PathLike[str], bag: str | os.PathLike[str] | None = Non
     if not stat.S_ISREG(st.st_mode):
         raise BagError(f"bag file '{path}' is not a regular file")
     key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
-    result = _checked.get(key)
-    if result is None:
-        result = scan(path)
+    damage = _checked.get(key)
+    if damage is None:
+        damage = scan(path)
         if len(_checked) > 64:
             _checked.clear()
-        _checked[key] = result
-    if result.ok:
+        _checked[key] = damage
+    if not damage:
         return
     bag = Path(bag) if bag is not None else path
     if bag.is_file():           # bag_recover takes the bag's directory
         bag = bag.parent
-    first = result.damage[0]
-    more = len(result.damage) - 1
+    more = len(damage) - 1
     also = f' (and {more} more damaged record{"s" if more != 1 else ""})' if more else ''
-    raise BagDamageError(f"bag file '{path}' is damaged: {first}{also}; "
-                         + RECOVER_HINT.format(bag=bag), list(result.damage))
+    raise BagDamageError(f"bag file '{path}' is damaged: {damage[0]}{also}; "
+                         + RECOVER_HINT.format(bag=bag), list(damage))

@@ -1,16 +1,6 @@
-"""rosbag2 Jazzy metadata: ``metadata.yaml`` (version 9) and the QoS strings of the channels.
-
-Field names, order and forms follow rosbag2_storage's ``yaml.hpp``/``qos.cpp`` on Jazzy:
-
-* ``metadata.yaml`` holds ``offered_qos_profiles`` as a YAML *list* from version 9 on
-  (rosbag2 PR #1476; a version-9 reader rejects the older string form), while the MCAP
-  channel metadata holds the same list dumped to a YAML *string*
-  (``serialize_rclcpp_qos_vector``).
-* Policies are written by name (``keep_last``, ``reliable``, ``volatile``, ``automatic``);
-  durations as ``{sec, nsec}`` with ``RMW_DURATION_INFINITE`` = 9223372036 s 854775807 ns
-  for "not set", which is what rosbag2 records for publishers that set no deadline,
-  lifespan or lease.
-"""
+"""rosbag2 Jazzy metadata: ``metadata.yaml`` (version 9) and the QoS strings of the channels,
+field names, order and forms as rosbag2_storage's ``yaml.hpp``/``qos.cpp`` write them
+(docs/bag-format.md, "QoS strings" and "metadata.yaml")."""
 
 from __future__ import annotations
 
@@ -30,29 +20,19 @@ INFINITE = {'sec': 9223372036, 'nsec': 854775807}
 """``RMW_DURATION_INFINITE`` as rosbag2 serialises it."""
 
 RELIABILITIES = ('reliable', 'best_effort')
-DURABILITIES = ('volatile', 'transient_local')
 
 
-def qos_profile(reliability: str = 'reliable', depth: int = 10,
-                durability: str = 'volatile') -> dict[str, Any]:
-    """Return one offered QoS profile in rosbag2's version-9 form (a keep-last publisher)."""
+def qos_profile(reliability: str = 'reliable', depth: int = 10) -> dict[str, Any]:
+    """Return one offered QoS profile in rosbag2's version-9 form (a keep-last, volatile
+    publisher)."""
     if reliability not in RELIABILITIES:
         raise ValueError(f"reliability '{reliability}' is not one of {RELIABILITIES}")
-    if durability not in DURABILITIES:
-        raise ValueError(f"durability '{durability}' is not one of {DURABILITIES}")
     if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
         raise ValueError(f'QoS depth {depth!r} is not an int >= 1')
-    return {
-        'history': 'keep_last',
-        'depth': depth,
-        'reliability': reliability,
-        'durability': durability,
-        'deadline': dict(INFINITE),
-        'lifespan': dict(INFINITE),
-        'liveliness': 'automatic',
-        'liveliness_lease_duration': dict(INFINITE),
-        'avoid_ros_namespace_conventions': False,
-    }
+    return {'history': 'keep_last', 'depth': depth, 'reliability': reliability,
+            'durability': 'volatile', 'deadline': dict(INFINITE), 'lifespan': dict(INFINITE),
+            'liveliness': 'automatic', 'liveliness_lease_duration': dict(INFINITE),
+            'avoid_ros_namespace_conventions': False}
 
 
 class _Dumper(yaml.SafeDumper):
@@ -128,27 +108,18 @@ def bag_information(summary: BagSummary, custom_data: dict[str, str]) -> dict[st
         'starting_time': {'nanoseconds_since_epoch': start},
         'message_count': count,
         'topics_with_message_count': [
-            {
-                'topic_metadata': {
-                    'name': t.name,
-                    'type': t.msg_type,
-                    'serialization_format': SERIALIZATION_FORMAT,
-                    'offered_qos_profiles': t.qos_profiles,
-                    'type_description_hash': t.type_hash,
-                },
-                'message_count': t.message_count,
-            }
-            for t in summary.topics
-        ],
+            {'topic_metadata': {'name': t.name, 'type': t.msg_type,
+                                'serialization_format': SERIALIZATION_FORMAT,
+                                'offered_qos_profiles': t.qos_profiles,
+                                'type_description_hash': t.type_hash},
+             'message_count': t.message_count}
+            for t in summary.topics],
         'compression_format': '',
         'compression_mode': '',
         'relative_file_paths': [summary.file_name],
-        'files': [{
-            'path': summary.file_name,
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'duration': {'nanoseconds': duration},
-            'message_count': count,
-        }],
+        'files': [{'path': summary.file_name,
+                   'starting_time': {'nanoseconds_since_epoch': start},
+                   'duration': {'nanoseconds': duration}, 'message_count': count}],
         'custom_data': dict(custom_data),
         'ros_distro': ROS_DISTRO,
     }

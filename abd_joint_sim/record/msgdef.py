@@ -1,15 +1,6 @@
-"""Message definitions, type hashes and classes, looked up the way rosbag2 Jazzy does.
-
-rosbag2's ``LocalMessageDefinitionSource`` stores, as the MCAP schema of a topic, the
-installed ``.msg`` text of the type followed by every message type it depends on
-(recursively, each once, in sorted order per level), each introduced by a line of 80 ``=``
-and ``MSG: pkg/Type``. Readers without the message packages installed (Foxglove,
-``mcap_ros2``, ``rosbags``) decode the bag from that text alone, so it must be the real,
-installed definition: we read it from the package share directory, never from a copy.
-
-The type hash (``RIHS01_...``) is the one ``rosidl_generator_type_description`` computed at
-build time and installed beside the ``.msg`` as ``<Type>.json``; rcl uses the same value.
-"""
+"""Message definitions, type hashes and classes, looked up the way rosbag2 Jazzy does: from
+the installed ``.msg`` and ``<Type>.json`` files of the package share directories, never from
+a copy (docs/bag-format.md, "The MCAP file")."""
 
 from __future__ import annotations
 
@@ -45,8 +36,7 @@ def split_type(msg_type: str) -> tuple[str, str]:
     """Return ``(package, Type)`` for ``pkg/msg/Type`` or ``pkg/Type``."""
     match = _TYPE_NAME.match(msg_type)
     if match is None:
-        raise MessageTypeError(
-            f"message type '{msg_type}' is not of the form 'pkg/msg/Type'")
+        raise MessageTypeError(f"message type '{msg_type}' is not of the form 'pkg/msg/Type'")
     return match.group(1), match.group(3)
 
 
@@ -76,39 +66,30 @@ def msg_text(msg_type: str) -> str:
 
 
 def msg_dependencies(text: str, package: str) -> list[str]:
-    """Return the message types a ``.msg`` text uses, sorted, as written (``pkg/Type``).
-
-    Unqualified names are resolved in ``package``, as in ``rosidl_adapter``. ROS 2 ``.msg``
-    files have no implicit ``Header``; a bare ``Header`` would mean ``<package>/Header``.
-    """
+    """Return the message types a ``.msg`` text uses, sorted, as written (``pkg/Type``);
+    unqualified names are resolved in ``package``, as in ``rosidl_adapter``."""
     deps: set[str] = set()
     for line in text.splitlines():
         line = line.split('#', 1)[0]
         match = _FIELD_TYPE.match(line)
-        if match is None or not line[match.end():].strip():
-            continue  # blank, comment-only, or not a 'type name' line
-        base = match.group(1)
-        if base in PRIMITIVE_TYPES:
-            continue
-        deps.add(base if '/' in base else f'{package}/{base}')
+        if match is None or not line[match.end():].strip() or match[1] in PRIMITIVE_TYPES:
+            continue  # blank, comment-only, not a 'type name' line, or a builtin type
+        deps.add(match[1] if '/' in match[1] else f'{package}/{match[1]}')
     return sorted(deps)
 
 
 @functools.cache
 def message_definition(msg_type: str) -> str:
-    """Return the ``ros2msg`` schema text rosbag2 Jazzy writes for ``msg_type``.
-
-    Same algorithm as rosbag2_cpp's ``LocalMessageDefinitionSource::get_full_text``: the
-    root text, then depth first for each dependency not seen yet: ``\\n``, the 80 ``=``
-    line, ``MSG: pkg/Type`` and that type's text with its own unseen dependencies.
-    """
+    """Return the ``ros2msg`` schema text rosbag2 Jazzy writes for ``msg_type``
+    (rosbag2_cpp's ``LocalMessageDefinitionSource::get_full_text``): the root text, then
+    depth first for each dependency not seen yet: ``\\n``, the 80 ``=`` line,
+    ``MSG: pkg/Type`` and that type's text with its own unseen dependencies."""
     seen: set[str] = set()
 
     def expand(name: str, depth: int) -> str:
         if depth <= 0:
             raise MessageTypeError(f"message type '{msg_type}': dependency cycle at '{name}'")
-        text = msg_text(name)
-        out = text
+        out = text = msg_text(name)
         for dep in msg_dependencies(text, split_type(name)[0]):
             if dep not in seen:
                 seen.add(dep)
@@ -120,22 +101,16 @@ def message_definition(msg_type: str) -> str:
 
 @functools.cache
 def type_description_hash(msg_type: str) -> str:
-    """Return the ``RIHS01_<sha256>`` type hash installed with ``msg_type``, or ``''``.
-
-    ``''`` is what rosbag2 stores when it does not know a hash (and what older message
-    packages without ``<Type>.json`` give).
-    """
-    package, name = split_type(msg_type)
+    """Return the ``RIHS01_<sha256>`` type hash installed with ``msg_type``, or ``''`` (what
+    rosbag2 stores when it does not know a hash)."""
+    full_name = full_type_name(msg_type)
     try:
         path = _share_file(msg_type, '.json')
         hashes = json.loads(path.read_text(encoding='utf-8'))['type_hashes']
     except (MessageTypeError, OSError, ValueError, KeyError):
         return ''
-    full_name = f'{package}/msg/{name}'
-    for entry in hashes:
-        if entry.get('type_name') == full_name:
-            return str(entry.get('hash_string', ''))
-    return ''
+    return next((str(e.get('hash_string', '')) for e in hashes
+                 if e.get('type_name') == full_name), '')
 
 
 def full_type_name(msg_type: str) -> str:
@@ -147,18 +122,16 @@ def full_type_name(msg_type: str) -> str:
 @functools.cache
 def message_class(msg_type: str) -> Any:
     """Return the rclpy message class of ``msg_type`` (e.g. ``sensor_msgs.msg.JointState``)."""
-    try:  # rosidl_runtime_py is not shipped with the PyPI wheels; use it where installed.
-        from rosidl_runtime_py.utilities import get_message  # type: ignore[import-not-found]
-    except ImportError:
-        get_message = None
-    if get_message is not None:
-        try:
-            return get_message(full_type_name(msg_type))
-        except (AttributeError, ModuleNotFoundError, ValueError) as exc:
-            raise MessageTypeError(f"message type '{msg_type}': {exc}") from None
-    package, name = split_type(msg_type)
     try:
-        return getattr(importlib.import_module(f'{package}.msg'), name)
-    except (ImportError, AttributeError) as exc:
-        raise MessageTypeError(
-            f"message type '{msg_type}': no Python class ({exc})") from None
+        from rosidl_runtime_py.utilities import get_message  # type: ignore[import-not-found]
+    except ImportError:     # not in the PyPI wheels: import the class directly
+        package, name = split_type(msg_type)
+        try:
+            return getattr(importlib.import_module(f'{package}.msg'), name)
+        except (ImportError, AttributeError) as exc:
+            raise MessageTypeError(f"message type '{msg_type}': no Python class ({exc})") \
+                from None
+    try:
+        return get_message(full_type_name(msg_type))
+    except (AttributeError, ModuleNotFoundError, ValueError) as exc:
+        raise MessageTypeError(f"message type '{msg_type}': {exc}") from None

@@ -1,12 +1,11 @@
-"""Read our bags back as rclpy messages, for replay tools and tests.
-
-Uses the MCAP summary (chunk indexes) to yield messages in log-time order, i.e. in
-simulation step order. A bag whose writer was killed has no summary: ``recover()`` it first.
-"""
+"""Read our bags back as rclpy messages, through the MCAP summary (chunk indexes), after
+checking every CRC (:mod:`.integrity`). A bag whose writer was killed has no summary:
+``recover()`` it first."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 import os
 from pathlib import Path
 from typing import Any
@@ -50,18 +49,30 @@ def _metadata(bag_dir: Path) -> dict[str, Any] | None:
         raise BagError(f"bag '{bag_dir}': metadata.yaml is unreadable: {exc}") from None
 
 
-def _open_indexed(file: Path, handle: Any) -> Any:
-    check(file)     # framing and every CRC: damage is named, never read as data
+@contextmanager
+def _indexed(file: Path, failed: str) -> Iterator[Any]:
+    """The indexed reader of `file` once :func:`.integrity.check` passed; an error while it
+    is open is a BagError naming `file` (``'<failed> failed: ...'`` if no BagError)."""
     try:
-        reader = make_reader(handle)
-        summary = reader.get_summary()
-    except Exception as exc:  # truncated file: the footer bytes are garbage of any kind
-        raise BagError(f"bag file '{file}' has no valid summary ({type(exc).__name__}: {exc}); "
-                       'was the recorder killed? run abd_joint_sim.record.recover() on the '
-                       'bag') from None
-    if summary is None:
-        raise BagError(f"bag file '{file}' has no summary; run recover() on the bag")
-    return reader
+        with open(file, 'rb') as handle:
+            check(file)     # framing and every CRC: damage is named, never read as data
+            try:
+                reader = make_reader(handle)
+                summary = reader.get_summary()
+            except Exception as exc:  # truncated file: the footer bytes are garbage of any kind
+                raise BagError(f"bag file '{file}' has no valid summary ({type(exc).__name__}: "
+                               f'{exc}); was the recorder killed? run '
+                               'abd_joint_sim.record.recover() on the bag') from None
+            if summary is None:
+                raise BagError(f"bag file '{file}' has no summary; run recover() on the bag")
+            yield reader
+    except BagError:
+        raise
+    except MessageTypeError as exc:
+        raise BagError(f"bag file '{file}': {exc}") from None
+    except Exception as exc:  # mcap raises McapError, struct.error, EndOfFile, ...
+        raise BagError(f"bag file '{file}': {failed} failed: {type(exc).__name__}: {exc}") \
+            from None
 
 
 def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None,
@@ -74,62 +85,36 @@ def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
     """
     file = mcap_file(path)
     wanted = None if topics is None else list(topics)
-    try:
-        handle = open(file, 'rb')
-    except OSError as exc:
-        raise BagError(f"bag file '{file}': {exc}") from None
-    with handle:
-        reader = _open_indexed(file, handle)
-        classes: dict[str, Any] = {}
-        try:
-            for schema, channel, message in reader.iter_messages(
-                    topics=wanted, log_time_order=log_time_order):
-                if schema is None:
-                    raise BagError(f"bag file '{file}': topic '{channel.topic}' has no schema")
-                cls = classes.get(schema.name)
-                if cls is None:
-                    cls = classes[schema.name] = message_class(schema.name)
-                yield (channel.topic, schema.name, message.log_time,
-                       deserialize_message(message.data, cls))
-        except BagError:
-            raise
-        except MessageTypeError as exc:
-            raise BagError(f"bag file '{file}': {exc}") from None
-        except Exception as exc:  # mcap raises McapError, struct.error, EndOfFile, ...
-            raise BagError(f"bag file '{file}': reading failed: {type(exc).__name__}: {exc}") \
-                from None
+    classes: dict[str, Any] = {}
+    with _indexed(file, 'reading') as reader:
+        for schema, channel, message in reader.iter_messages(topics=wanted,
+                                                             log_time_order=log_time_order):
+            if schema is None:
+                raise BagError(f"bag file '{file}': topic '{channel.topic}' has no schema")
+            cls = classes.get(schema.name)
+            if cls is None:
+                cls = classes[schema.name] = message_class(schema.name)
+            yield (channel.topic, schema.name, message.log_time,
+                   deserialize_message(message.data, cls))
 
 
 def read_custom_data(path: str | os.PathLike[str]) -> dict[str, str]:
     """Return ``custom_data`` from metadata.yaml (or, for a bare ``.mcap``, its rosbag2 record)."""
     path = Path(path)
-    if path.is_dir():
-        info = _metadata(path)
-        if info is not None:
-            return dict(info.get('custom_data') or {})
+    info = _metadata(path) if path.is_dir() else None
+    if info is not None:
+        return dict(info.get('custom_data') or {})
     file = mcap_file(path)
-    try:
-        with open(file, 'rb') as handle:
-            reader = _open_indexed(file, handle)
-            for record in reader.iter_metadata():
-                if record.name == 'rosbag2':
-                    info = yaml.safe_load(record.metadata.get('serialized_metadata', '')) or {}
-                    return dict(info.get('custom_data') or {})
-    except BagError:
-        raise
-    except Exception as exc:
-        raise BagError(f"bag file '{file}': reading metadata failed: {exc}") from None
+    with _indexed(file, 'reading metadata') as reader:
+        for record in reader.iter_metadata():
+            if record.name == 'rosbag2':
+                info = yaml.safe_load(record.metadata.get('serialized_metadata', '')) or {}
+                return dict(info.get('custom_data') or {})
     return {}
 
 
 def read_attachments(path: str | os.PathLike[str]) -> dict[str, bytes]:
     """Return the MCAP attachments by name (e.g. ``{'scene.yaml': b'...'}``)."""
     file = mcap_file(path)
-    try:
-        with open(file, 'rb') as handle:
-            reader = _open_indexed(file, handle)
-            return {a.name: bytes(a.data) for a in reader.iter_attachments()}
-    except BagError:
-        raise
-    except Exception as exc:
-        raise BagError(f"bag file '{file}': reading attachments failed: {exc}") from None
+    with _indexed(file, 'reading attachments') as reader:
+        return {a.name: bytes(a.data) for a in reader.iter_attachments()}

@@ -1,15 +1,9 @@
 """Recover a damaged bag: a recorder that died (SIGKILL, power cut, disk full) before
 ``close()``, a flipped bit in a chunk, a copy cut inside its summary.
 
-Such an MCAP file ends in the middle of a record or has a chunk whose CRC fails, so
-indexed readers (rosbag2, rosbags, ``mcap.reader.make_reader``) and our readers refuse it.
-The python ``mcap`` package has no recovery function (the Go ``mcap recover`` CLI does the
-MCAP half of this job), so ``recover()`` walks the file record by record
-(:mod:`.integrity`), keeps every intact chunk, skips each damaged one (counting the
-messages its message indexes list), and writes a complete MCAP plus a complete
-metadata.yaml. Nothing is overwritten without a copy: the damaged file is kept as
-``<name>_0.mcap.orig`` (``.orig.1``, ``.orig.2``, ... when that exists), a metadata.yaml
-that changes as ``metadata.yaml.orig`` (numbered the same way).
+``recover()`` walks the file record by record (:mod:`.integrity`), keeps every intact chunk,
+skips each damaged one and writes a complete MCAP and metadata.yaml, keeping a copy of each
+file it replaces (docs/bag-format.md, "Recovery").
 """
 
 from __future__ import annotations
@@ -18,6 +12,7 @@ from dataclasses import dataclass, field
 import io
 import os
 from pathlib import Path
+import shutil
 import struct
 from typing import Any, Optional
 
@@ -84,15 +79,9 @@ def _parse(raw: bytes) -> Any:
     return next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
 
 
-def _index_count(content) -> int:
-    """Messages listed by one MessageIndex record (channel id, then 16-byte entries)."""
-    (n,) = struct.unpack_from('<I', content, 2)
-    return n // 16
-
-
 @dataclass
 class _Found:
-    """Pass one: what the file holds, in file order, and what is damaged."""
+    """What the file holds, in file order, and what is damaged."""
 
     records: list = field(default_factory=list)      # mcap records to copy, in order
     schemas: dict = field(default_factory=dict)      # id -> Schema
@@ -101,79 +90,62 @@ class _Found:
     dropped_records: list = field(default_factory=list)
     data_end: bool = False                           # DataEnd reached: the data is whole
     chunks: int = 0
-    good_end: int = 0
+    good_end: int = len(integrity.MAGIC)
     stopped: str = 'end of file'
     record_custom: Optional[dict] = None
     header: Optional[Header] = None
 
 
-def _collect(data: memoryview, size: int) -> _Found:
+def _collect(data: memoryview, size: int) -> tuple[_Found, bool]:
+    """What the file holds, and whether it is intact (:func:`integrity.scan` in one pass)."""
     found = _Found()
-    pos = len(integrity.MAGIC)
-    if size < pos or bytes(data[:pos]) != integrity.MAGIC:
-        return found
-    found.good_end = pos
-    chunk_no = 0
     pending: Optional[list] = None      # the dropped chunk whose message indexes follow
-    in_data = True
-    while pos < size:
-        if pos + 9 > size:
-            found.stopped = f'a record cut at byte {pos}'
-            break
-        op = data[pos]
-        (length,) = struct.unpack_from('<Q', data, pos + 1)
-        end = pos + 9 + length
-        if end > size:
-            found.stopped = (f'the record at byte {pos} runs past the end of the file '
-                             '(truncated, or its length is damaged)')
-            break
+
+    def visit(pos: int, op: int, end: int, damage: Optional[integrity.Damage]) -> None:
+        nonlocal pending
+        if found.stopped != 'end of file':
+            return
         content = data[pos + 9:end]
         if op == integrity.OP_MESSAGE_INDEX and pending is not None:
-            try:
-                pending[3] = (pending[3] or 0) + _index_count(content)
+            try:        # a MessageIndex: channel id, then 16 bytes per message
+                pending[3] = (pending[3] or 0) + struct.unpack_from('<I', content, 2)[0] // 16
             except struct.error:
                 pass
         else:
             pending = None
         if op == integrity.OP_CHUNK:
-            why = integrity.check_chunk(content)
-            if why:
-                pending = [chunk_no, pos, why, None]
+            if damage:
+                pending = [len(found.dropped) + found.chunks, pos, damage.why, None]
                 found.dropped.append(pending)
             else:
                 for sub in breakup_chunk(_parse(bytes(data[pos:end])), validate_crc=True):
-                    _keep(found, sub, in_data)
+                    _keep(found, sub)
                 found.chunks += 1
-            chunk_no += 1
         elif op == integrity.OP_DATA_END:
-            in_data = False
             found.data_end = True
         elif op == integrity.OP_FOOTER:
-            found.good_end = end
             found.stopped = 'end of data'
-            break
         elif op != integrity.OP_MESSAGE_INDEX:
             try:
                 record = _parse(bytes(data[pos:end]))
             except Exception as exc:  # noqa: BLE001 - a damaged record of any kind
                 found.stopped = f'the record at byte {pos} is unreadable ({exc})'
-                break
+                return
             if isinstance(record, Header):
                 found.header = record
-            elif isinstance(record, Attachment):
-                name, why = integrity._check_attachment(content)
-                if why:                 # damaged: not copied
-                    found.dropped_records.append(f'attachment {name!r} at byte {pos}: {why}')
-                    record = None
-            if record is not None:
-                _keep(found, record, in_data)
+            if isinstance(record, Attachment) and damage:
+                found.dropped_records.append(str(damage))
+            else:
+                _keep(found, record)
         found.good_end = end
-        pos = end
-    found.dropped = [tuple(d) for d in found.dropped]
-    return found
+
+    damage = integrity._scan(data, size, visit)
+    if found.stopped == 'end of file' and found.good_end < size and damage:
+        found.stopped = str(damage[-1])      # the record that does not fit
+    return found, not damage
 
 
-def _keep(found: _Found, record: Any, in_data: bool) -> None:
+def _keep(found: _Found, record: Any) -> None:
     if isinstance(record, Schema):
         found.schemas.setdefault(record.id, record)
     elif isinstance(record, Channel):
@@ -185,7 +157,7 @@ def _keep(found: _Found, record: Any, in_data: bool) -> None:
                 found.record_custom = dict((stored or {}).get('custom_data') or {})
             except (yaml.YAMLError, AttributeError, TypeError, ValueError):
                 pass
-    elif in_data and isinstance(record, (Message, Attachment, Metadata)):
+    elif not found.data_end and isinstance(record, (Message, Attachment, Metadata)):
         found.records.append(record)
 
 
@@ -230,13 +202,9 @@ def _write(fd: int, found: _Found, summary: md.BagSummary,
            custom_data: dict[str, str]) -> None:
     writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
                     enable_crcs=True, enable_data_crcs=True)
-    header = found.header
-    writer.start(profile=(header.profile if header else '') or PROFILE,
-                 library=f'{LIBRARY} (recovered)')
-    schema_ids: dict[int, int] = {}
-    for sid, schema in sorted(found.schemas.items()):
-        schema_ids[sid] = writer.register_schema(name=schema.name, encoding=schema.encoding,
-                                                 data=schema.data)
+    writer.start(profile=found.header.profile or PROFILE, library=f'{LIBRARY} (recovered)')
+    schema_ids = {sid: writer.register_schema(name=s.name, encoding=s.encoding, data=s.data)
+                  for sid, s in sorted(found.schemas.items())}
     channel_ids: dict[int, int] = {}
     topics: dict[int, md.TopicRecord] = {}
     for cid, channel in sorted(found.channels.items()):
@@ -287,8 +255,7 @@ def backup(path: Path) -> Path:
             except FileExistsError:
                 continue
             with os.fdopen(fd, 'wb') as out, open(path, 'rb') as src:
-                while block := src.read(1 << 20):
-                    out.write(block)
+                shutil.copyfileobj(src, out)
                 out.flush()
                 os.fsync(out.fileno())
             return name
@@ -314,8 +281,7 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
         raw = file.read_bytes()
     except OSError as exc:
         raise BagError(f"bag file '{file}': {exc.strerror or exc}") from None
-    intact = integrity.scan(file).ok if raw else False
-    found = _collect(memoryview(raw), len(raw))
+    found, intact = _collect(memoryview(raw), len(raw))
     if found.header is None:
         raise BagError(f"bag file '{file}' has no readable MCAP header; nothing to recover")
     if not info.get('custom_data') and found.record_custom:
@@ -330,10 +296,10 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
         _write(fd, found, summary, custom_data)
         os.fsync(fd)
     except OSError as exc:
-        os.close(fd)
         tmp.unlink(missing_ok=True)
         raise BagError(f"bag '{bag_dir}': recovery failed: {exc}") from None
-    os.close(fd)
+    finally:
+        os.close(fd)
     backups = []
     try:
         if intact:
@@ -354,13 +320,9 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
         tmp.unlink(missing_ok=True)
         raise BagError(f"bag '{bag_dir}': recovery could not replace its files: {exc}") \
             from None
-    dropped = tuple(DroppedChunk(*d) for d in found.dropped)
-    return RecoveryReport(messages=summary.message_count, chunks=found.chunks,
-                          bytes_dropped=0 if intact or found.data_end
-                          else max(0, len(raw) - found.good_end),
-                          was_complete=intact,
-                          stopped_because='end of data' if intact else found.stopped,
-                          dropped_chunks=dropped,
-                          dropped_records=tuple(found.dropped_records),
-                          rebuilt_channels=tuple(rebuilt),
-                          backups=tuple(backups))
+    return RecoveryReport(
+        summary.message_count, found.chunks,
+        0 if intact or found.data_end else max(0, len(raw) - found.good_end), intact,
+        'end of data' if intact else found.stopped,
+        tuple(DroppedChunk(*d) for d in found.dropped), tuple(found.dropped_records),
+        tuple(rebuilt), tuple(backups))

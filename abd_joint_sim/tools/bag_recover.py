@@ -1,23 +1,12 @@
-"""bag_recover: repair a bag whose recorder was killed (SIGKILL, power cut, full disk) or
-whose file is damaged (a flipped bit, a copy cut short).
+"""bag_recover: repair a bag whose recorder was killed or whose file is damaged.
 
     python -m abd_joint_sim.tools.bag_recover BAG [BAG ...]
     ros2 run abd_joint_sim bag_recover BAG
 
-sim_node closes its current MCAP chunk every second and on pause, so a killed node's bag
-holds everything up to the last second or so; but without the MCAP summary (written on a
-clean stop) indexed readers (``ros2 bag``, rosbags, Foxglove) refuse it, and our tools
-refuse any bag whose CRCs fail. This command runs :func:`abd_joint_sim.record.recover` on
-each bag: it keeps every intact chunk, skips each damaged one, rewrites the MCAP with a
-summary and a complete metadata.yaml, and keeps what it replaces (``<bag>_0.mcap.orig``,
-``metadata.yaml.orig``, numbered ``.orig.1``, ``.orig.2``, ... if those exist). A bag that
-is intact and complete keeps its MCAP (only its metadata.yaml is rewritten).
-
-Each bag gets a line saying what was kept, then one line per thing dropped (a damaged
-chunk and its message count, the partial record at the end of a killed recording).
-
-Exit status: 0 every bag usable and nothing dropped; 1 every bag usable, something was
-dropped (listed); 2 a bag could not be recovered (one line on stderr).
+Runs :func:`abd_joint_sim.record.recover` on each bag and prints what was kept, then one line
+per thing dropped (docs/bag-format.md, "Recovery"). Exit status: 0 every bag usable and
+nothing dropped; 1 every bag usable, something was dropped (listed); 2 a bag could not be
+recovered (one line on stderr).
 """
 from __future__ import annotations
 
@@ -41,15 +30,13 @@ def describe(bag: str, report) -> list[str]:
         count = f'{c.messages} message(s)' if c.messages is not None else \
             'an unknown number of messages'
         lines.append(f'  dropped chunk {c.index} at byte {c.offset} ({count}): {c.why}')
-    for what in report.dropped_records:
-        lines.append(f'  dropped {what}')
+    lines += [f'  dropped {what}' for what in report.dropped_records]
     if report.bytes_dropped:
         lines.append(f'  dropped the last {report.bytes_dropped} byte(s): '
                      f'{report.stopped_because} (the chunk being written when the recorder '
                      'stopped, or damage that breaks the record framing)')
-    for topic in report.rebuilt_channels:
-        lines.append(f'  topic {topic}: channel record lost with a damaged chunk, rebuilt '
-                     'from metadata.yaml')
+    lines += [f'  topic {topic}: channel record lost with a damaged chunk, rebuilt from '
+              'metadata.yaml' for topic in report.rebuilt_channels]
     if report.lost:
         lines.append(f'{PROG}: {bag}: {report.messages_dropped} message(s) of the damaged '
                      'chunks dropped' + (' (and the partial tail)' if report.bytes_dropped
@@ -75,8 +62,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             status = 2
             continue
         print('\n'.join(describe(bag, report)))
-        if report.lost:
-            status = max(status, 1)
+        status = max(status, int(report.lost))
     return status
 
 
