@@ -19,7 +19,6 @@ from . import angle
 NAME = 'driving'            #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('drive_joints', '(D,) joints with UID 19'),
     ('drive_K', '(D,) UID 19 stiffness γ (m_i + m_j)'),
@@ -31,7 +30,6 @@ def used(model) -> bool:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(drive_joints=flat.array(model.drive_joints, np.int64),
                 drive_K=flat.array(model.drive_K, np.float64))
 

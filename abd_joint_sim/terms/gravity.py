@@ -8,7 +8,6 @@ import numpy as np
 from ..jit import flat, kernel
 
 NAME = 'gravity'            #: in Solver.terms
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('gravity', '[m/s²] (3,)'),
     ('has_gravity', 'bool'),
@@ -20,9 +19,7 @@ def used(model) -> bool:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(gravity=flat.array(model.gravity, np.float64), has_gravity=bool(model.has_gravity))
-
 
 
 @kernel

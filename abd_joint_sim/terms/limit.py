@@ -7,10 +7,8 @@
 E' and E'' follow; gradient and Hessian via angle.accumulate_angle_joint (PSD-projected, or
 exact where the bodies' inertia keeps Newton's matrix positive definite).
 
-Most limits are inside their range most of the time, where they contribute nothing: `inside`
-shows that without atan2 (the angle's cosine against the step's start), and only the others
-compute the angle. The same results, bit for bit: it answers "inside" only where the angle
-is at least INSIDE_SAFETY from both bounds.
+`inside` shows a limit inside its range (contributing nothing) without atan2, only where the
+angle is at least INSIDE_SAFETY from both bounds: the same bits.
 """
 from __future__ import annotations
 
@@ -24,7 +22,6 @@ from . import angle
 NAME = 'limit'              #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('limit_joints', '(L,) joints with UID 670'),
     ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),
@@ -37,13 +34,15 @@ def used(model) -> bool:
     return len(model.limit_joints) > 0
 
 
-def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
-    lj, init = model.limit_joints, model.joint_init_angle
-    return dict(limit_joints=flat.array(lj, np.int64),
-                limit_lower=flat.array(model.limit_lower - init[lj], np.float64),
-                limit_upper=flat.array(model.limit_upper - init[lj], np.float64),
-                limit_strength=flat.array(model.limit_strength, np.float64))
+def build(model, data, prefix='limit_') -> dict:
+    """FIELDS' values (prismatic_limit's with its `prefix`), bounds relative to the init value."""
+    lj, lower, upper, strength = (getattr(model, prefix + n)
+                                  for n in ('joints', 'lower', 'upper', 'strength'))
+    init = model.joint_init_angle[lj]
+    return {prefix + 'joints': flat.array(lj, np.int64),
+            prefix + 'lower': flat.array(lower - init, np.float64),
+            prefix + 'upper': flat.array(upper - init, np.float64),
+            prefix + 'strength': flat.array(strength, np.float64)}
 
 
 @kernel

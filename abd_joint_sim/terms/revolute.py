@@ -28,7 +28,6 @@ CONSTANT_HESSIAN = True     #: Newton adds only the gradient (accumulate_gradien
 # UID 18 is stiff enough to make that a valid state, so the step fails.
 SEPARATION_WARN = 0.01
 SEPARATION_FAULT = 1e3
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('revolute_joints', '(R,) the revolute joints (UID 18; the others are prismatic, UID 20)'),
     ('joint_x_bar', '[m] (J,2,2,3) anchors x̄: [joint, side (i, j), anchor (P0, P1), xyz]'),
@@ -61,7 +60,6 @@ def constant_hessian(K, anchor0, anchor1) -> np.ndarray:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     m = model
     J = m.joint_count
     size, parent, child = m.body_size, m.joint_parent, m.joint_child
@@ -76,12 +74,10 @@ def build(model, data) -> dict:
         joint_fault_separation=flat.array(SEPARATION_FAULT * np.maximum(size[parent], size[child]), np.float64))
 
 
-
 @kernel
 def separation(q, i_body, j_body, x_bar, j, a):
-    """x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body, as a
-    tuple (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor; a tuple,
-    not a work array: an array costs an allocation and atomic reference counts). [m]"""
+    """x_i − x_j of anchor a (0: P0, 1: P1) of joint j as a tuple (no work array: an array
+    costs an allocation and reference counts). [m]"""
     return (_gap(q, i_body, j_body, x_bar, j, a, 0), _gap(q, i_body, j_body, x_bar, j, a, 1),
             _gap(q, i_body, j_body, x_bar, j, a, 2))
 
@@ -185,9 +181,7 @@ def add_constant_hessian(parent, child, H, diag, pair):
 
 @kernel
 def accumulate_gradient(q, m, ctx, grad):
-    """∇E only: Newton's assembly starts from the constant Hessian blocks
-    (model_data.constant_blocks), so the step adds just this. Returns E (the bits of
-    `energy`)."""
+    """∇E only (the Hessian is in model_data.constant_blocks); returns E (`energy`'s bits)."""
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     joints = m.revolute_joints
     if joints.size == 0:

@@ -22,7 +22,6 @@ from ..jit import flat, kernel
 from ..smallmat import adjugate3
 
 NAME = 'external_torque'    #: in Solver.terms
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('torque_joints', '(T,) joints with UID 668'),
     ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
@@ -51,7 +50,6 @@ def incidence(torque_joints, parent, child):
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     bodies, ptr, entries = incidence(model.torque_joints, model.joint_parent, model.joint_child)
     return dict(torque_joints=flat.array(model.torque_joints, np.int64),
                 torque_bodies=flat.array(bodies, np.int64), torque_body_ptr=flat.array(ptr, np.int64),
@@ -98,10 +96,8 @@ def clamp_command(value, effort_limit):
 
 @kernel
 def clamp_commands(values, effort_limit, out):
-    """out[k] = values[k] clamped to [−effort_limit[k], effort_limit[k]], the torques a
-    controller commands (World.set_torques: one compiled call costs a fifth of numpy's checks
-    and clamps on a few values). A non-finite value changes nothing: returns its index,
-    else −1."""
+    """out[k] = values[k] clamped to ±effort_limit[k] (World.set_torques: a fifth of numpy's
+    cost); a non-finite value changes nothing and its index is returned, else −1."""
     for k in range(values.size):
         if not math.isfinite(values[k]):
             return k
@@ -209,11 +205,9 @@ def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled,
 
 @kernel
 def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
-    """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
-    only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
-    (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product.
-    A fixed body (a robot's base) gets none: its acceleration is never read (bdf.predict
-    keeps it where it is). e (T+2,3): work array for the axes (Workspace.torque_axes)."""
+    """acc += M⁻¹F of the UID 668 torques on the free bodies; returns the number of skipped
+    bodies. F_b is nonzero only in A's rows, so (M⁻¹F)_r is a 3-term sum (m.body_Minv_bar),
+    in the dense product's order. e (T+2,3): work for the axes (Workspace.torque_axes)."""
     if not _any_active(torque_value, torque_enabled, m.torque_joints.size):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
