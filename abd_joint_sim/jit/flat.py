@@ -1,12 +1,9 @@
 """Whole-array copies and fills as one flat loop.
 
-numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through its n-d
-iterator, one index computation per element; a loop over the flat array is what the compiler
-turns into vector moves. Measured in a compiled loop (2-core VM, loaded): thirteen 12x12 blocks
-(a 13-body robot's Newton matrix) copy in 0.17 µs against 0.67, the (1000,12) q of a 1000-link
-chain in 1.8 µs against 4.5. Same values, bit for bit: a copy is a copy. `a.flat[i]` rather
-than a reshaped view: numba's reshape calls a C helper, ~20 ns a time, as much as copying a
-small robot's q. `array` makes the copies the kernels are compiled for.
+numba compiles `dst[:] = src` on a 2-d or 3-d array through its n-d iterator; a flat loop
+becomes vector moves (2-core VM, loaded: thirteen 12x12 blocks copy in 0.17 µs against 0.67,
+a 1000-link chain's q in 1.8 µs against 4.5). `a.flat[i]`, not a reshape (a C helper call,
+~20 ns). `array` makes the copies the kernels are compiled for.
 
 In the step (`python bench/profiler.py devices`, two runs, ratio of the µs per step with
 numba's assignments to with these loops): one link 1.09 and 1.11 in `World.step(n)`, 1.02 and
