@@ -31,25 +31,26 @@ class Structure:
     between_free: np.ndarray    #: (J,) bool: both bodies free
 
 
+def find_root(root, a):
+    """The root of node a in the union-find forest `root` (a list of parents), halving paths."""
+    while root[a] != a:
+        root[a] = root[root[a]]
+        a = root[a]
+    return a
+
+
 def _forest(nf, sp, sc):
     """(order, parent) of a children-first elimination over the free-body graph with edges
     (sp, sc) (slots; parallel joints are one edge), or None if it has a cycle. Leaves are
     peeled off in rounds, so each tree's root is its centre."""
     adj = [set() for _ in range(nf)]
     root = list(range(nf))
-
-    def find(a):
-        while root[a] != a:
-            root[a] = root[root[a]]
-            a = root[a]
-        return a
-
     for a, b in zip(sp.tolist(), sc.tolist()):
         if b in adj[a]:
             continue
         if a == b:
             return None
-        ra, rb = find(a), find(b)
+        ra, rb = find_root(root, a), find_root(root, b)
         if ra == rb:
             return None
         root[ra] = rb
@@ -77,9 +78,8 @@ def _forest(nf, sp, sc):
 
 
 def structure(model, force_dense: bool = False) -> Structure:
-    """How Newton's system of this model is solved; ValueError for a closed loop of more
-    than DENSE_MAX_DOF / 12 free bodies. `force_dense`: the dense solve whatever the
-    structure (the tests compare the tree solve with it)."""
+    """How Newton's system of this model is solved (`force_dense`: densely, for the tests);
+    ValueError for a closed loop of more than DENSE_MAX_DOF / 12 free bodies."""
     fixed = model.body_fixed
     free_idx = np.flatnonzero(~fixed)
     nf = len(free_idx)
@@ -199,9 +199,8 @@ def factor_block(blocks, b, inv_ds, slot):
 
 @kernel
 def forward_block(L, inv_d, X, ncol):
-    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor), all columns at once: the
-    loop form of forward_vector12 and forward_block12, which the tree solve calls (the
-    tests compare them with it bit for bit)."""
+    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor): the loop form the tests
+    compare forward_vector12 and forward_block12 with, bit for bit."""
     for i in range(12):
         for k in range(i):
             lik = L[i, k]

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..jit import kernel
 from ..smallmat import adjugate3, product3
+from .linsolve import find_root
 
 SCREW_STRAIN = 1e-2   # max |A Aᵀ − I| up to which a body's step is applied as a screw
 # [rad] below: Taylor series of the screw coefficients to θ⁶ (truncation < 1e-21 relative);
@@ -30,16 +31,9 @@ def floating_groups(model):
     else -1 (a fixed body takes up any momentum)."""
     B = model.body_count
     root = list(range(B))
-
-    def find(i):
-        while root[i] != i:
-            root[i] = root[root[i]]
-            i = root[i]
-        return i
-
     for a, b in zip(model.joint_parent, model.joint_child):
-        root[find(int(a))] = find(int(b))
-    roots = np.array([find(i) for i in range(B)])
+        root[find_root(root, int(a))] = find_root(root, int(b))
+    roots = np.array([find_root(root, i) for i in range(B)])
     anchored = set(roots[model.body_fixed].tolist())
     labels = {r: k for k, r in enumerate(sorted(set(roots.tolist()) - anchored))}
     return np.array([labels.get(r, -1) for r in roots.tolist()], dtype=np.int64)
