@@ -230,10 +230,8 @@ def product3(a, b):
 @kernel
 def eigh_ql(S, w, V):
     """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
-    Householder reduction to tridiagonal form, then implicit QL with Wilkinson shifts
-    (EISPACK tred2/tql2, as in Numerical Recipes' tred2/tqli). ~n³ flops against cyclic
-    Jacobi's ~6 sweeps of 3n³. Falls back to jacobi_eigh (on a copy) if QL does not
-    converge in 30 iterations per eigenvalue (non-finite input); returns False then."""
+    EISPACK tred2/tql2 (~n³ flops against Jacobi's ~6 sweeps of 3n³); False, after
+    jacobi_eigh on a copy, if QL does not converge in 30 iterations per eigenvalue."""
     return eigh_ql_in(S, w, V, np.empty(S.shape[0]))
 
 

@@ -115,9 +115,8 @@ KEEP = 4
 
 
 def prune() -> None:
-    """Remove all but the KEEP most recently compiled source versions' directories, and
-    anything else there (an unfinished compile, the layout before per-version directories)
-    untouched for a day. Best effort."""
+    """Remove all but the KEEP most recently compiled versions' directories, and anything
+    else there untouched for a day (an unfinished compile). Best effort."""
     import shutil
     import time
     here = directory()

@@ -2,15 +2,12 @@
 
     1. forces: a = g_q + M⁻¹F at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2)     terms/gravity, torque, prismatic_force
     2. prediction q̃ (bdf.predict); may_split: refuse a step whose linearised joint rotation
-       ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (BDF1 saturates the solved rotation below
-       any limit, so only the prediction can see a too-large step)
-    3. Newton minimises Π from q̃ + c h² w (c = 1 BDF1, β BDF2), w = 3 warm_start −
-       3 warm_start_prev + warm_start_prev2 (the last three corrections extrapolated to this
-       step; 2 warm_start − warm_start_prev when two are known), or from q̃ + c h² warm_start
-       or q̃ where Π is lower                                                 newton.minimize
-    4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), unwrapped joint angles and
-       θ̇ = ∇θ·v (prismatic joints: their distance d and ḋ = ∇d·v), the largest joint
-       rotation of the step, joint separations.
+       ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (only the prediction can see it)
+    3. Newton minimises Π from q̃ + c h² w (c = 1 BDF1, β BDF2), w the last three
+       corrections extrapolated (3 w_n − 3 w_(n−1) + w_(n−2), or linearly), or from
+       q̃ + c h² warm_start or q̃ where Π is lower                          newton.minimize
+    4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), joint angles and θ̇ = ∇θ·v
+       (prismatic: d, ḋ = ∇d·v), the step's largest joint rotation, joint separations.
 
 `one_step` writes the new state into the caller's arrays and what happened into an `outcome`
 row (columns below; solver.py makes a StepReport). Entries called from Python: `steps`

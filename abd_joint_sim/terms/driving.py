@@ -52,9 +52,8 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the enabled drives (E', E'' and
-    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
-    Returns E (the bits of `energy`)."""
+    """∇E and the (projected) Hessian of the enabled drives via angle.accumulate_angle_joint
+    (in ctx.angle_work); returns E (`energy`'s bits)."""
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar

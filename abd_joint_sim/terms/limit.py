@@ -139,9 +139,8 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the active limits (E', E'' from `phi` and
-    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
-    Returns E (the bits of `energy`)."""
+    """∇E and the (projected) Hessian of the active limits via `phi` and
+    angle.accumulate_angle_joint (in ctx.angle_work); returns E (`energy`'s bits)."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget

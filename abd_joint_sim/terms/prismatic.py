@@ -41,8 +41,7 @@ def used(model) -> bool:
 
 
 def rest_frames(model) -> np.ndarray:
-    """(S,2,4,3) c̄, t̄, n̄, b̄ per prismatic joint and side, from the Model's anchors (the
-    initial poses are rigid: A⁻¹ = Aᵀ keeps t̄ a unit vector)."""
+    """(S,2,4,3) c̄, t̄, n̄, b̄ per prismatic joint and side, from the Model's anchors."""
     S = model.prismatic_joints
     out = np.zeros((len(S), 2, 4, 3))
     for k, j in enumerate(S):
@@ -63,8 +62,8 @@ OUTER_ROWS = ('c̃_i c̃_iᵀ', 'c̃_i t̃_iᵀ', 't̃_i t̃_iᵀ', 'ñ_i ñ_i�
 
 
 def outer_products(frames) -> np.ndarray:
-    """(S,12,4,4) the outer products OUTER_ROWS of each joint's rest vectors (frames: (S,2,4,3)
-    from `rest_frames`): the constant factors of UID 20's Hessian blocks (`accumulate`)."""
+    """(S,12,4,4) the outer products OUTER_ROWS of each joint's rest vectors (`rest_frames`):
+    the constant factors of UID 20's Hessian blocks (`accumulate`)."""
     S = len(frames)
     y = np.zeros((S, 2, 4, 4))
     y[:, :, :, 1:] = frames
@@ -145,8 +144,7 @@ def axis_and_offset(q, i_body, j_body, fr, k):
 
 @kernel
 def frames(q, i_body, j_body, fr, k, W):
-    """W (≥ 8, 3) rows c_i, c_j, t_i, t_j, n_i, n_j, b_i, b_j of prismatic joint k (fr =
-    m.prismatic_frame) in world axes."""
+    """W (≥ 8, 3) rows c_i, c_j, t_i, t_j, n_i, n_j, b_i, b_j of prismatic joint k in world axes."""
     for side in range(2):
         b = i_body if side == 0 else j_body
         for r in range(3):
@@ -284,8 +282,7 @@ def joint_separation(q, m, j):
 
 @kernel
 def check_separations(q, m):
-    """(largest separation, whether one exceeds its warning, the first joint beyond its fault
-    separation or -1) over the prismatic joints, as revolute.check_separations. [m]"""
+    """revolute.check_separations over the prismatic joints. [m]"""
     joints, parent, child, fr = m.prismatic_joints, m.joint_parent, m.joint_child, m.prismatic_frame
     warn, fault = m.prismatic_warn_separation, m.prismatic_fault_separation
     largest = 0.0

@@ -43,14 +43,12 @@ def used(model) -> bool:
 
 
 def stiffness(strength_ratio, mass_i, mass_j):
-    """K = γ (m_i + m_j) [kg] of a joint between bodies of masses m_i, m_j (UID 18; UID 19's
-    drive stiffness is the same formula with its own γ)."""
+    """K = γ (m_i + m_j) [kg] of a joint between bodies of masses m_i, m_j (UID 18, UID 19)."""
     return strength_ratio * (mass_i + mass_j)
 
 
 def constant_hessian(K, anchor0, anchor1) -> np.ndarray:
-    """(J,24,24) K Σ_a D_aᵀD_a per joint, D_a = [J(x̄_i^a), −J(x̄_j^a)] (anchors (J,2,3):
-    parent side, child side)."""
+    """(J,24,24) K Σ_a D_aᵀD_a per joint, D_a = [J(x̄_i^a), −J(x̄_j^a)] (anchors (J,2,3))."""
     H = np.zeros((len(K), 24, 24))
     for k in range(len(K)):
         D = [np.hstack([point_jacobian(anchors[0]), -point_jacobian(anchors[1])])   # (3,24)
@@ -125,8 +123,8 @@ def max_separation(q, m):
 
 @kernel
 def check_separations(q, m):
-    """(largest separation, whether a joint exceeds m.joint_warn_separation, the first joint
-    beyond m.joint_fault_separation or -1), over the revolute joints. [m]"""
+    """(largest separation [m], whether one exceeds its warning, the first joint beyond its
+    fault separation or -1) over the revolute joints."""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
     warn, fault = m.joint_warn_separation, m.joint_fault_separation
     largest = 0.0
@@ -168,8 +166,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
 
 @kernel
 def add_constant_hessian(parent, child, H, diag, pair):
-    """The joints' constant Hessians H (J,24,24) added into the blocks diag and pair (a
-    prismatic joint's are 0)."""
+    """The joints' constant Hessians H (J,24,24) added into diag and pair (0 if prismatic)."""
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         for r in range(12):

@@ -89,8 +89,7 @@ def axis_at(q, parent, child, x_bar, j, e, es):
 
 @kernel
 def clamp_command(value, effort_limit):
-    """A commanded torque clamped to [−effort_limit, effort_limit] (World.set_torque; the one
-    place of this rule)."""
+    """A commanded torque clamped to [−effort_limit, effort_limit] (the one place of this rule)."""
     return min(max(value, -effort_limit), effort_limit)
 
 
@@ -123,9 +122,8 @@ def _any_active(torque_value, torque_enabled, T):
 
 @kernel
 def _inverse_if_regular(q, b):
-    """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.adjugate3 / det, on scalars (it runs
-    per body); regular is False (no torque on the body) if |det A| ≤ SINGULAR_RATIO
-    |a1||a2||a3|."""
+    """(regular, A_b⁻¹ row-major as 9 scalars): regular False (no torque on the body) if
+    |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
     a00, a01, a02 = q[b, 3], q[b, 4], q[b, 5]
     a10, a11, a12 = q[b, 6], q[b, 7], q[b, 8]
     a20, a21, a22 = q[b, 9], q[b, 10], q[b, 11]
@@ -176,8 +174,7 @@ def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
 
 @kernel
 def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled, e):
-    """e[:T] = ê of the active torque joints (rows of the others unset), e (T+2,3): its last
-    two rows are scratch."""
+    """e[:T] = ê of the active torque joints (others unset); e (T+2,3), the last two scratch."""
     T = torque_joints.size
     es = e[T:]
     for k in range(T):
