@@ -1,9 +1,8 @@
 """Small dense matrices inside compiled code: 3x3 SVD, symmetric eigen-decomposition,
 Cholesky and triangular solves, 3x3 inverse.
 
-Written as scalar loops for numba: a LAPACK call on a 3x3 or 12x12 matrix costs more in
-call overhead than the arithmetic, and these compile quickly. All functions work in place
-on caller-owned arrays and allocate nothing but small scratch.
+Scalar loops (a LAPACK call on a 3x3 or 12x12 costs more than the arithmetic), in place on
+caller-owned arrays, allocating nothing but small scratch.
 """
 from __future__ import annotations
 
@@ -13,11 +12,8 @@ import numpy as np
 
 from .jit import kernel
 
-# Jacobi sweeps stop once Σ off-diagonal² ≤ JACOBI_TOL · Σ diagonal². The rotations leave
-# each off-diagonal entry at ~eps·|S| (eps² ≈ 5e-32), so a bound of 1e-32 is often never
-# met: every call would run to its sweep cap (12 for the 3x3 SVD, 50 for the 12x12
-# eigenproblem, 36 µs per 12x12 call instead of ~5). 1e-30 is above that rounding floor for
-# n ≤ 12 and still means off-diagonals ≤ ~1e-15 relative: the results change by rounding.
+# Jacobi sweeps stop once Σ off-diagonal² ≤ JACOBI_TOL · Σ diagonal²: above the rounding
+# floor (~eps² ≈ 5e-32, where 1e-32 ran every 12x12 call to its cap: 36 µs instead of ~5)
 JACOBI_TOL = 1e-30
 
 
@@ -207,11 +203,9 @@ def upper_solve(L, x, n):
 
 @kernel(inline='always')
 def adjugate3(a):
-    """(adj a, det a) of a 3x3 matrix held as a row-major 9-tuple of scalars: adj a = A⁻¹ det A
-    as a 9-tuple, entry (i, j) the cofactor a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1]
-    (indices mod 3), and det a = a00 adj00 + a01 adj10 + a02 adj20. Scalars in, scalars out:
-    the compiler keeps them in registers (the retraction's and the torque's A⁻¹,
-    docs/speed.md)."""
+    """(adj a, det a) of a 3x3 row-major 9-tuple: adj a = A⁻¹ det A, entry (i, j) the cofactor
+    a[j+1][i+1] a[j+2][i+2] − a[j+1][i+2] a[j+2][i+1] (mod 3), det a = a00 adj00 + a01 adj10 +
+    a02 adj20; scalars, kept in registers (docs/speed.md)."""
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
     adj = (a11 * a22 - a12 * a21, a21 * a02 - a22 * a01, a01 * a12 - a02 * a11,
            a12 * a20 - a10 * a22, a22 * a00 - a20 * a02, a02 * a10 - a00 * a12,
@@ -236,10 +230,8 @@ def product3(a, b):
 @kernel
 def eigh_ql(S, w, V):
     """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
-    Householder reduction to tridiagonal form, then implicit QL with Wilkinson shifts
-    (EISPACK tred2/tql2, as in Numerical Recipes' tred2/tqli). ~n³ flops against cyclic
-    Jacobi's ~6 sweeps of 3n³. Falls back to jacobi_eigh (on a copy) if QL does not
-    converge in 30 iterations per eigenvalue (non-finite input); returns False then."""
+    EISPACK tred2/tql2 (~n³ flops against Jacobi's ~6 sweeps of 3n³); False, after
+    jacobi_eigh on a copy, if QL does not converge in 30 iterations per eigenvalue."""
     return eigh_ql_in(S, w, V, np.empty(S.shape[0]))
 
 

@@ -23,17 +23,12 @@ class State:
     joint_velocity: np.ndarray  #: [rad/s | m/s] (J,)
     step_count: int = 0
     history_dt: float = 0.0     #: [s] step size q_prev/v_prev belong to; 0 = no history (BDF2 restarts)
-    #: (B,12) Newton's last correction (q − q̃)/(c h²), c = 1 (BDF1) or 4/9 (BDF2): the next
-    #: step starts Newton from q̃ + c h² (3 warm_start − 3 warm_start_prev + warm_start_prev2),
-    #: the correction extrapolated quadratically in time over the last three steps (MuJoCo's
-    #: qacc_warmstart, to second order), linearly (2 warm_start − warm_start_prev) when only
-    #: two are known. None = zeros.
+    #: (B,12) Newton's last correction (q − q̃)/(c h²), c = 1 (BDF1) or 4/9 (BDF2), which the
+    #: next step extrapolates over the last three steps (solver/step.py). None = zeros.
     warm_start: np.ndarray | None = None
-    #: (B,12) the warm start one step (of history_dt) before; the same array as warm_start
-    #: when unknown or that step was of another size (then no extrapolation). None = that.
+    #: (B,12) the warm starts one and two steps (of history_dt) before; an unknown one is the
+    #: same array as the newer one (None = that)
     warm_start_prev: np.ndarray | None = None
-    #: (B,12) the warm start two steps (of history_dt each) before; the same array as
-    #: warm_start_prev when unknown (then at most the linear extrapolation). None = that.
     warm_start_prev2: np.ndarray | None = None
 
     def __post_init__(self):
@@ -45,16 +40,13 @@ class State:
             self.warm_start_prev2 = self.warm_start_prev
 
     def known_history(self) -> int:
-        """How many past warm starts are known (0, 1 or 2), at spacing history_dt. Unknown
-        ones are marked by identity (the same array as the newer one)."""
+        """How many past warm starts are known (0, 1 or 2; unknown ones by identity)."""
         if self.warm_start_prev is self.warm_start:
             return 0
         return 1 if self.warm_start_prev2 is self.warm_start_prev else 2
 
     def extrapolation_order(self, h: float) -> int:
-        """How many past warm starts a step of size h from this state extrapolates over:
-        0 (none known at that spacing: Newton starts from warm_start), 1 (linear) or 2
-        (quadratic)."""
+        """Past warm starts a step of size h extrapolates over: 0, 1 (linear), 2 (quadratic)."""
         return self.known_history() if self.history_dt == h else 0
 
     @classmethod
@@ -71,8 +63,7 @@ class State:
 
 
 def _copy_history(s: State):
-    """Copies of (warm_start, warm_start_prev, warm_start_prev2) that keep which of them
-    are the same array (the unknown ones)."""
+    """Copies of the three warm starts that keep which of them are the same array."""
     w = s.warm_start.copy()
     p1 = w if s.warm_start_prev is s.warm_start else s.warm_start_prev.copy()
     p2 = p1 if s.warm_start_prev2 is s.warm_start_prev else s.warm_start_prev2.copy()

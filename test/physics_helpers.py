@@ -12,7 +12,7 @@ from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
 from abd_joint_sim.scene import load_yaml
 from abd_joint_sim.smallmat import nearest_rotation_in, quaternion_in
-from abd_joint_sim.terms import angle, torque
+from abd_joint_sim.terms import angle, prismatic_force, torque
 
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
 
@@ -139,6 +139,24 @@ def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
     if not any_skipped:
         return 0
     return torque._list_skipped(q, tj, parent, child, torque_value, torque_enabled, skipped)
+
+
+@njit
+def prismatic_generalized_force(q, m, effort_value, effort_enabled, F):
+    """Adds F_k of every enabled UID 667 joint to F (B,12), from prismatic_force's pieces."""
+    T = m.torque_joints.size
+    joints, parent, child, fr, slot = (m.prismatic_force_joints, m.joint_parent, m.joint_child,
+                                       m.prismatic_frame, m.prismatic_slot)
+    for k in range(joints.size):
+        f = effort_value[T + k] if effort_enabled[T + k] else 0.0
+        if f == 0.0:
+            continue
+        j = joints[k]
+        e = prismatic_force.axis(q, m, j)
+        for side in range(2):
+            b = parent[j] if side == 0 else child[j]
+            for c in range(12):
+                F[b, c] += prismatic_force._body_force(f, e, fr, slot[j], side, c)
 
 
 @njit

@@ -14,11 +14,11 @@ from abd_joint_sim import Scene, World, compile_scene
 from abd_joint_sim.errors import SceneError
 from abd_joint_sim.solver import model_data
 from abd_joint_sim.terms import angle as angles
-from abd_joint_sim.terms import (damping, prismatic, prismatic_damping, prismatic_driving, prismatic_force,
+from abd_joint_sim.terms import (damping, prismatic, prismatic_damping, prismatic_driving,
                                  prismatic_limit)
 from abd_joint_sim.terms.context import StepContext
 
-from physics_helpers import box, random_rotation
+from physics_helpers import box, prismatic_generalized_force, random_rotation
 from test_terms import check_term, dense
 
 TERMS = {'prismatic': prismatic, 'prismatic_driving': prismatic_driving, 'prismatic_limit': prismatic_limit,
@@ -181,13 +181,13 @@ def test_force_matches_the_oracle_and_is_antisymmetric():
         q = _state(seed)
         values, on = np.array([2.5]), np.ones(1, bool)
         F = np.zeros((MODEL.body_count, 12))
-        prismatic_force.generalized_force(q, DATA, np.r_[np.zeros(T), values], np.r_[np.zeros(T, bool), on], F)
+        prismatic_generalized_force(q, DATA, np.r_[np.zeros(T), values], np.r_[np.zeros(T, bool), on], F)
         np.testing.assert_allclose(F, oracle.prismatic_force(MODEL, q, values), rtol=1e-12, atol=1e-14)
         a, b = MODEL.joint_parent[1], MODEL.joint_child[1]
         assert np.array_equal(F[a, :3], -F[b, :3]) and F[b, :3].any()       # exactly antisymmetric
     # disabled or zero: nothing
     F = np.zeros((MODEL.body_count, 12))
-    prismatic_force.generalized_force(_state(0), DATA, np.array([2.5]), np.zeros(1, bool), F)
+    prismatic_generalized_force(_state(0), DATA, np.array([2.5]), np.zeros(1, bool), F)
     assert not F.any()
 
 

@@ -1,26 +1,17 @@
 """Where numba keeps the compiled physics kernels, so they compile once per install.
 
-numba's default cache sits beside each source file (`__pycache__`), keyed on the file's
-directory: the source tree (tests) and a colcon install space (sim_node) are two copies of
-the same files, so each compiled the kernels again. Here the kernels of this package are
-cached in one directory per user, numba version and Python version
-(`$ABD_KERNEL_CACHE`, else `$XDG_CACHE_HOME/abd_joint_sim/…` or `~/.cache/abd_joint_sim/…`),
-in a subdirectory named by a hash of ALL kernel sources: any edit to any kernel file
-gives a new directory (numba alone would not notice an edit in a callee that lives in
-another file). Why a directory per hash rather than one directory with stamped entries:
-numba unpickles an index's signatures before it compares the stamp, so another version's
-index naming a type this version lacks was an ImportError out of the first kernel call
-(switching checkouts or versions), and two versions used alternately recompiled over each
-other. Only the KEEP most recently used directories are kept. A directory that cannot be
-written leaves numba's own locators in charge.
+One directory per user, numba and Python version (`$ABD_KERNEL_CACHE`, else
+`$XDG_CACHE_HOME/abd_joint_sim/…` or `~/.cache/abd_joint_sim/…`), shared by the source tree
+and an install, with a subdirectory per hash of ALL kernel sources (an edit in any kernel
+file gives a new one; a directory per hash, as numba unpickles an index before comparing
+its stamp). The KEEP most recently used are kept. A directory that cannot be written leaves
+numba's own locators in charge.
 
-A cache entry is a pickle, and unpickling runs code: only what this user compiled is
-loaded. Each directory of the cache path (root, version, sources) is created mode 0700 and
-must be owned by the current user and not writable by group or others; a file (index or
-data) the same. A directory that fails the test is refused with one line on stderr, and the
-kernels are compiled into a private temporary cache (removed at exit); a file that fails it
-is not loaded (one line) and is compiled over. A damaged entry (truncated, unreadable) is
-discarded with one line naming it and compiled again.
+Unpickling runs code: each directory of the path is created mode 0700 and must be owned by
+the current user and not writable by group or others, and each file the same. A directory
+that fails is refused with one line on stderr (the kernels then go to a private temporary
+cache, removed at exit); a file that fails is not loaded (one line) and is compiled over,
+as is a damaged entry (one line naming it).
 """
 from __future__ import annotations
 
@@ -124,9 +115,8 @@ KEEP = 4
 
 
 def prune() -> None:
-    """Remove all but the KEEP most recently compiled source versions' directories, and
-    anything else there (an unfinished compile, the layout before per-version directories)
-    untouched for a day. Best effort."""
+    """Remove all but the KEEP most recently compiled versions' directories, and anything
+    else there untouched for a day (an unfinished compile). Best effort."""
     import shutil
     import time
     here = directory()
@@ -241,10 +231,8 @@ def install() -> None:
 
     caching.Cache.save_overload = save_overload
 
-    # Only this user's files are unpickled (unpickling runs code), and an index or data file
-    # that cannot be read (truncated by a full disk or a killed process, written by another
-    # numba) is a stale entry, discarded and compiled over, not an exception out of the
-    # first call. One line names the file.
+    # Only this user's files are unpickled; an unreadable index or data file (truncated,
+    # another numba's) is discarded and compiled over, with one line naming it.
     load_index = caching.IndexDataCacheFile._load_index
     load_data = caching.IndexDataCacheFile._load_data
 
@@ -286,12 +274,9 @@ def install() -> None:
     caching.IndexDataCacheFile._load_index = _load_index
     caching.IndexDataCacheFile._load_data = _load_data
 
-    # Two processes compiling at once (warmup's helper; two first runs) each read an index,
-    # number a new data file and write the index back: unserialised, both could take the same
-    # number and one's index name the other's machine code. An exclusive lock per cache
-    # directory around numba's read-number-write makes each save see the last. Installed
-    # once per process: a second copy of this package in it (bench/ab.py's) finds the lock
-    # there already, and a second lock on the same file would wait for the first forever.
+    # An exclusive lock per cache directory around numba's read-number-write of an index, so
+    # two compiling processes never take the same data file number. Installed once per
+    # process: a second copy of the package (bench/ab.py's) would wait on the first's lock.
     index_save = caching.IndexDataCacheFile.save
     if getattr(index_save, 'locks_cache_directory', False):
         _installed = True

@@ -1,21 +1,15 @@
 """Whole-array copies and fills as one flat loop.
 
-numba compiles `dst[:] = src` and `dst[:] = 0.0` on a 2-d or 3-d array through its n-d
-iterator, one index computation per element; a loop over the flat array is what the compiler
-turns into vector moves. Measured in a compiled loop (2-core VM, loaded): thirteen 12x12 blocks
-(a 13-body robot's Newton matrix) copy in 0.17 µs against 0.67, the (1000,12) q of a 1000-link
-chain in 1.8 µs against 4.5. Same values, bit for bit: a copy is a copy. `a.flat[i]` rather
-than a reshaped view: numba's reshape calls a C helper, ~20 ns a time, as much as copying a
-small robot's q. `array` makes the copies the kernels are compiled for.
+numba compiles `dst[:] = src` on a 2-d or 3-d array through its n-d iterator; a flat loop
+becomes vector moves (2-core VM, loaded: thirteen 12x12 blocks copy in 0.17 µs against 0.67,
+a 1000-link chain's q in 1.8 µs against 4.5). `a.flat[i]`, not a reshape (a C helper call,
+~20 ns). `array` makes the copies the kernels are compiled for.
 
-In the step (`python bench/profiler.py devices`, two runs, ratio of the µs per step with
-numba's assignments to with these loops): one link 1.09 and 1.11 in `World.step(n)`, 1.02 and
-1.08 one `World.step()` per call; 100 links 1.04 and 1.14 (n), 1.02 and 1.09 (per call); the
-KUKA iiwa 1.05-1.06 (n), 1.02-1.04 (per call); 1000 links 0.97-1.07. A few per cent, about the
-noise between runs on this loaded machine.
-
-`ABD_FLAT=0` in the environment compiles `copy` and `fill` as numpy's `dst[:] = src` (the
-comparison; cache.py keeps that build apart).
+In the step (`python bench/profiler.py devices`, two runs, µs per step with numba's
+assignments / with these loops, `World.step(n)`; per `World.step()`): one link 1.09, 1.11;
+1.02, 1.08; 100 links 1.04, 1.14; 1.02, 1.09; the KUKA iiwa 1.05-1.06; 1.02-1.04; 1000 links
+0.97-1.07: about the noise of this loaded machine. `ABD_FLAT=0` compiles them as numpy's
+`dst[:] = src` (the comparison; cache.py keeps that build apart).
 """
 from __future__ import annotations
 

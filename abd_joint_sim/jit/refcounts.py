@@ -1,23 +1,13 @@
 """The compiled step without numba's reference counts (docs/decisions.md).
 
-numba counts a reference (an atomic add and subtract on a MemInfo, ~20 cycles each here) for
-every array read out of a structref, every array argument, every view and every structref
-passed to a function, and its pruning pass removes the pairs only in functions that call no
-other compiled function: ~270 per step on a chain, ~470 on a 7-joint arm in its limits. The
-step's arrays all have an owner outside compiled code for as long as it runs, so:
+numba counts a reference (an atomic add and subtract, ~20 cycles each) for every array read
+from a structref, array argument, view and structref passed on: ~270 per step on a chain,
+~470 on a 7-joint arm in its limits. The step's arrays have an owner outside compiled code:
 
-- `borrow(proxy)` nulls the MemInfo of every array field of a ModelData or Workspace, once.
-  The arrays stay alive in the proxy's `__dict__` (`model_data.build`, `workspace.build` put
-  them there), and the struct lives no longer than its proxy: nothing compiled returns or
-  stores it. Each field keeps its `parent` pointer, the numpy array itself, so a field that
-  compiled code hands back to Python is that same array.
-- `array(a)` nulls the MemInfo of an argument for the duration of the call (the caller
-  holds a); every view of it inherits the null.
-- `struct(s)` retypes a structref argument as `Struct`, whose data model has no MemInfo;
-  the kernels it is passed to are compiled for that type.
-
-numba's incref and decref of a null MemInfo return at once, and a value without a MemInfo is
-never counted.
+- `borrow(proxy)` nulls the MemInfo of every array field of a ModelData or Workspace, once
+  (the arrays stay alive in the proxy's `__dict__`; each keeps its `parent`, the array);
+- `array(a)` nulls an argument's MemInfo for the call (its views inherit the null);
+- `struct(s)` retypes a structref argument as `Struct`, whose data model has no MemInfo.
 
 Pays (`python bench/profiler.py devices`, two runs, ratio of the µs per step without it to
 with it): one link 1.20 and 1.26 in `World.step(n)` (1.65 against 2.02 µs), 1.19 and 1.18 one

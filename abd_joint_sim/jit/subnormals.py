@@ -1,25 +1,14 @@
 """Subnormal numbers flushed to zero for the duration of a step, or of a batch of steps
 (docs/decisions.md "Subnormals flushed to zero inside the step").
 
-Why: a disturbance travels along a long chain through the linear solve decaying by ~10^0.7
-per link, so a few steps after a torque starts, the affine entries that were exactly 0 in the
-bodies ~450 links or more away hold values below 2.2e-308, the subnormal range. x86 cores handle each arithmetic operation on a
-subnormal in microcode, ~100× slower than on a normal number; on a 1000-link chain under
-torque ~10 % of the state was subnormal and every term touching it was 4–10× dearer per body
-than at 100 links. Values below 2.2e-308 m or rad mean nothing to
-the physics, so the step sets the core's flush-to-zero (FTZ: a subnormal result becomes 0)
-and denormals-are-zero (DAZ: a subnormal input is read as 0) flags on entry and puts the
-caller's flags back on exit: no other code in the process sees them.
+The step sets the core's flush-to-zero (FTZ) and denormals-are-zero (DAZ) flags on entry
+and puts the caller's back on exit (x86-64; elsewhere `enter` and `leave` do nothing). A
+scene without subnormals (all but long chains) steps bit-identically either way.
 
 Pays on the 1000-link chain under 1 N m per joint (`python bench/profiler.py devices`, two
-runs; 10 steps after the torque starts, 1623 entries of its state are subnormal without the
-flags): the step costs 1.39 and 1.54 times as much without them in `World.step(n)` (1.51
-against 2.09 ms), 1.47 and 1.49 one `World.step()` per call. Chains of 1 and 100 links and
-the KUKA iiwa hold no subnormals: 0.94-1.09, noise.
-
-A scene without subnormals (every scene but long chains) steps bit-identically either way.
-On a CPU other than x86-64 `enter` and `leave` do nothing (the step is then only slower on
-such a chain, not different in any digit that means something).
+runs; 1623 subnormal entries without the flags): 1.39 and 1.54 times the cost without them
+in `World.step(n)` (1.51 against 2.09 ms), 1.47 and 1.49 per `World.step()`. Chains of 1 and
+100 links and the KUKA iiwa hold no subnormals: 0.94-1.09, noise.
 
 `ABD_FLUSH_SUBNORMALS=0` in the environment makes `enter` and `leave` do nothing (the
 comparison; cache.py keeps that build apart).

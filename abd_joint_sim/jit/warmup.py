@@ -1,24 +1,19 @@
 """Compile the physics kernels once per install: `python -m abd_joint_sim.jit.warmup`.
 
-Every kernel is `njit(cache=True)`: numba compiles it on first use (about a minute of CPU for
-the whole step) and stores machine code on disk; later processes load it (a few seconds).
-`ensure_compiled()`, called by every Solver, runs a tiny scene through every kernel signature
-the simulator uses, printing one line to stderr BEFORE a compile starts and then a progress
-line every PROGRESS_SECONDS (kernels stored / expected), so a first run never waits in
-silence. A marker file keyed on the kernel sources records a completed compile (cache.py says
-where, and why it is shared between the source tree and an install).
-
-With two or more cores, a second process compiles the kernels the main sequence reaches last
-(three energy terms, the linear solve, the retraction, then `step.step_resident`) while this one
-works from the top (`_helper_kernels`): each process loads from the disk cache what the other
-has stored, and cache.py serialises numba's index writes, so the cache stays consistent
-whichever process stores a kernel. ABD_COMPILE_JOBS=1 compiles in this process alone.
+Kernels are cached on disk (cache.py): a compile takes about a minute of CPU, a load a few
+seconds. `ensure_compiled()`, called by every Solver, runs tiny scenes through every kernel
+signature the simulator uses, printing one line to stderr before a compile starts and a
+progress line every PROGRESS_SECONDS (kernels stored / expected); a marker file records a
+completed compile. With two or more cores a second process compiles the kernels the main
+sequence reaches last (`_helper_kernels`), each loading what the other stored.
+ABD_COMPILE_JOBS=1 compiles in this process alone.
 
 Exit status of the command: 0 on success, 1 when the kernels fail to compile.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
@@ -37,48 +32,40 @@ EXPECTED_KERNELS = 146
 _helper = None
 
 
-def _tiny_scene():
+def _scene(names, joints, **settings):
+    """A fixed box 'base' at the origin and free boxes `names` 0.2 m apart along x."""
     from ..scene import Scene
     box = dict(box=[0.2, 0.1, 0.1], density=1000.0)
-    return Scene.from_dict(dict(
-        dt=0.01, gravity=[0.0, 0.0, -9.81], integrator='bdf2',
-        bodies=[dict(name='base', position=[0.0, 0.0, 0.0], fixed=True, **box),
-                dict(name='a', position=[0.2, 0.0, 0.0], **box),
-                dict(name='b', position=[0.4, 0.0, 0.0], **box)],
-        joints=[dict(name='j1', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05],
-                     external_torque=dict(torque=1.0, enabled=True),
-                     driving=dict(aim_angle=0.5, enabled=True),
-                     limit=dict(lower=-0.1, upper=0.1)),
-                dict(name='j2', parent='a', child='b', p0=[0.3, 0, -0.05], p1=[0.3, 0, 0.05],
-                     external_torque=dict(torque=-1.0, enabled=True), damping=0.1)]))
+    bodies = [dict(name='base', position=[0.0, 0.0, 0.0], fixed=True, **box)]
+    bodies += [dict(name=n, position=[0.2 * (k + 1), 0.0, 0.0], **box) for k, n in enumerate(names)]
+    return Scene.from_dict(dict(dt=0.01, bodies=bodies, joints=joints, **settings))
+
+
+def _tiny_scene():
+    return _scene('ab', [
+        dict(name='j1', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05],
+             external_torque=dict(torque=1.0, enabled=True),
+             driving=dict(aim_angle=0.5, enabled=True), limit=dict(lower=-0.1, upper=0.1)),
+        dict(name='j2', parent='a', child='b', p0=[0.3, 0, -0.05], p1=[0.3, 0, 0.05],
+             external_torque=dict(torque=-1.0, enabled=True), damping=0.1)],
+        gravity=[0.0, 0.0, -9.81], integrator='bdf2')
 
 
 def _loop_scene():
     """Three free bodies in a closed loop: the dense linear solve."""
-    box = dict(box=[0.2, 0.1, 0.1], density=1000.0)
-    from ..scene import Scene
-    bodies = [dict(name='base', position=[0.0, 0.0, 0.0], fixed=True, **box)]
-    bodies += [dict(name=n, position=[0.2 * (k + 1), 0.0, 0.0], **box) for k, n in enumerate('abc')]
-    pairs = [('base', 'a'), ('a', 'b'), ('b', 'c'), ('c', 'a')]
-    joints = [dict(name=f'{p}_{c}', parent=p, child=c, p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05])
-              for p, c in pairs]
-    return Scene.from_dict(dict(dt=0.01, bodies=bodies, joints=joints))
+    return _scene('abc', [dict(name=f'{p}_{c}', parent=p, child=c, p0=[0.1, 0, -0.05],
+                               p1=[0.1, 0, 0.05])
+                          for p, c in [('base', 'a'), ('a', 'b'), ('b', 'c'), ('c', 'a')]])
 
 
 def _slide_scene():
     """A prismatic joint with its force, drive and limit beside a revolute one (BDF2)."""
-    box = dict(box=[0.2, 0.1, 0.1], density=1000.0)
-    from ..scene import Scene
-    return Scene.from_dict(dict(
-        dt=0.01, integrator='bdf2',
-        bodies=[dict(name='base', position=[0.0, 0.0, 0.0], fixed=True, **box),
-                dict(name='a', position=[0.2, 0.0, 0.0], **box),
-                dict(name='b', position=[0.4, 0.0, 0.0], **box)],
-        joints=[dict(name='hinge', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05]),
-                dict(name='slide', type='prismatic', parent='a', child='b', p0=[0.3, 0, 0],
-                     p1=[0.4, 0, 0], external_force=dict(force=1.0, enabled=True),
-                     driving=dict(aim_distance=0.01, enabled=True),
-                     limit=dict(lower=-0.01, upper=0.01), damping=0.5)]))
+    return _scene('ab', [
+        dict(name='hinge', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05]),
+        dict(name='slide', type='prismatic', parent='a', child='b', p0=[0.3, 0, 0], p1=[0.4, 0, 0],
+             external_force=dict(force=1.0, enabled=True),
+             driving=dict(aim_distance=0.01, enabled=True),
+             limit=dict(lower=-0.01, upper=0.01), damping=0.5)], integrator='bdf2')
 
 
 def _run_kernels():
@@ -117,9 +104,8 @@ def _run_kernels():
 
 
 def _late_subtrees():
-    """A compiled function (not cached, never run) whose compile compiles, in this order, the
-    subtrees `newton.minimize` reaches last, with the argument types it gives them: the step
-    borrows its structs (jit/refcounts.py), and the literal True is part of a signature."""
+    """A compiled function (not cached, never run) whose compile compiles the subtrees
+    `newton.minimize` reaches last, with its argument types (borrowed structs, literal True)."""
     from numba import njit
     from ..solver import linsolve, retraction
     from ..terms import damping, driving, limit
@@ -138,10 +124,8 @@ def _late_subtrees():
 
 
 def _helper_kernels(go) -> None:
-    """The second process's share, in the order that meets the main sequence (`_run_kernels`,
-    depth first from `step.steps`) at the latest: the subtrees it reaches last first, then,
-    once `go` returns (the main process has stored `step.one_step`, which both entries call),
-    `step.step_resident`. What counts is what numba stores."""
+    """The second process's share: the subtrees the main sequence (`_run_kernels`) reaches
+    last, then, once `go` returns (`step.one_step` is stored), `step.step_resident`."""
     from numba import typeof
     from ..model import compile_scene
     from ..solver.resident import Resident
@@ -205,32 +189,27 @@ def _helper_wait() -> None:
     _helper = None
 
 
-class _Progress:
+@contextlib.contextmanager
+def _progress(verbose: bool):
     """A line to stderr every PROGRESS_SECONDS while the kernels compile: kernels stored in
     the cache (by either process) / the count a complete compile stores."""
+    total = cache.previous_kernel_count() or EXPECTED_KERNELS
+    stop, t0 = threading.Event(), time.perf_counter()
 
-    def __init__(self, verbose: bool):
-        self.verbose = verbose
-        self.total = cache.previous_kernel_count() or EXPECTED_KERNELS
-        self.stop = threading.Event()
-        self.t0 = time.perf_counter()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self):
-        while not self.stop.wait(PROGRESS_SECONDS):
+    def run():
+        while not stop.wait(PROGRESS_SECONDS):
             done = cache.kernel_count()
-            print(f'abd_joint_sim: compiling the physics kernels: {done}/{max(done, self.total)} '
-                  f'stored, {time.perf_counter() - self.t0:.0f} s', file=sys.stderr, flush=True)
-
-    def __enter__(self):
-        if self.verbose:
-            self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.stop.set()
-        if self.thread.is_alive():
-            self.thread.join()
+            print(f'abd_joint_sim: compiling the physics kernels: {done}/{max(done, total)} '
+                  f'stored, {time.perf_counter() - t0:.0f} s', file=sys.stderr, flush=True)
+    thread = threading.Thread(target=run, daemon=True)
+    if verbose:
+        thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        if thread.is_alive():
+            thread.join()
 
 
 def ensure_compiled(verbose: bool = True) -> dict:
@@ -250,7 +229,7 @@ def ensure_compiled(verbose: bool = True) -> dict:
               file=sys.stderr, flush=True)
     _done = True
     try:
-        with _Progress(verbose and fresh):
+        with _progress(verbose and fresh):
             if jobs > 1:
                 _start_helper()
             _run_kernels()

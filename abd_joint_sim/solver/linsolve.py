@@ -1,14 +1,9 @@
 """Solve Newton's system H Δq = −∇Π over the free bodies (docs/physics.md "Newton").
 
-H is block-sparse: a 12x12 block per free body on the diagonal (`diag`) and one per joint
-between two free bodies off it (`pair`, the (parent, child) block). The method is chosen
-once per model by `structure`:
-- TREE: when the free bodies and the joints between them form a forest (chains, trees: every
-  robot arm without a closed loop), a block Cholesky along the forest, leaves first: no
-  fill-in, cost linear in the number of bodies. Each tree is rooted at its centre (a chain at
-  its middle, eliminated from both ends: docs/decisions.md);
-- DENSE: otherwise (closed loops), a dense Cholesky of all free unknowns, up to
-  DENSE_MAX_DOF unknowns (larger loops are refused with a message).
+H has a 12x12 block per free body (`diag`) and per joint between free bodies (`pair`, the
+(parent, child) block). `structure` chooses once per model: TREE (a forest: chains, trees)
+is a block Cholesky leaves first, each tree rooted at its centre (no fill-in, linear cost;
+docs/decisions.md); DENSE (closed loops) a dense Cholesky of up to DENSE_MAX_DOF unknowns.
 A matrix that is not positive definite gives a NaN step (Newton reports it non-finite).
 """
 from __future__ import annotations
@@ -36,26 +31,26 @@ class Structure:
     between_free: np.ndarray    #: (J,) bool: both bodies free
 
 
+def find_root(root, a):
+    """The root of node a in the union-find forest `root` (a list of parents), halving paths."""
+    while root[a] != a:
+        root[a] = root[root[a]]
+        a = root[a]
+    return a
+
+
 def _forest(nf, sp, sc):
-    """(order, parent) of an elimination order children-first over the free-body graph with
-    edges (sp, sc) in slot numbers, or None if the graph has a cycle (several joints between
-    the same two bodies are one edge). The leaves are peeled off in rounds, so each tree's
-    root is its centre (the middle of a chain; docs/decisions.md)."""
+    """(order, parent) of a children-first elimination over the free-body graph with edges
+    (sp, sc) (slots; parallel joints are one edge), or None if it has a cycle. Leaves are
+    peeled off in rounds, so each tree's root is its centre."""
     adj = [set() for _ in range(nf)]
     root = list(range(nf))
-
-    def find(a):
-        while root[a] != a:
-            root[a] = root[root[a]]
-            a = root[a]
-        return a
-
     for a, b in zip(sp.tolist(), sc.tolist()):
         if b in adj[a]:
             continue
         if a == b:
             return None
-        ra, rb = find(a), find(b)
+        ra, rb = find_root(root, a), find_root(root, b)
         if ra == rb:
             return None
         root[ra] = rb
@@ -83,9 +78,8 @@ def _forest(nf, sp, sc):
 
 
 def structure(model, force_dense: bool = False) -> Structure:
-    """How Newton's system of this model is solved; ValueError for a closed loop of more
-    than DENSE_MAX_DOF / 12 free bodies. `force_dense`: the dense solve whatever the
-    structure (the tests compare the tree solve with it)."""
+    """How Newton's system of this model is solved (`force_dense`: densely, for the tests);
+    ValueError for a closed loop of more than DENSE_MAX_DOF / 12 free bodies."""
     fixed = model.body_fixed
     free_idx = np.flatnonzero(~fixed)
     nf = len(free_idx)
@@ -162,17 +156,11 @@ def solve_dense(m, diag, pair, grad, dq, ws):
 
 @kernel
 def factor_block(blocks, b, inv_ds, slot):
-    """Lower Cholesky factor of the 12x12 W = blocks[b] in place, with inv_d = inv_ds[slot] =
-    1/diag(L) so the triangular solves multiply instead of divide. False if W is not PD.
-
-    Three passes: rows 0–2; the first three columns of rows 3–11; the rest of rows 3–11.
-    Each entry is the same sum in the same order as in the one row-by-row pass of the
-    textbook (every entry it reads is done before it), so the bits are that loop's
-    (test_solver.py); but the compiler unrolls these three small loop nests completely,
-    into straight-line code with constant indices, where it kept the single nest as loops:
-    twice as fast. (The block kernels take an array
-    and an index, not a view made by the caller: a view made in a loop costs two atomic
-    reference-count operations that numba cannot remove, docs/speed.md.)"""
+    """Lower Cholesky factor of the 12x12 W = blocks[b] in place, inv_d = inv_ds[slot] =
+    1/diag(L); False if W is not PD. Three passes (rows 0–2; columns 0–2 of rows 3–11; the
+    rest), each entry the row-by-row loop's sum in its order (its bits, test_solver.py), which
+    the compiler unrolls completely: twice as fast. (Block kernels take an array and an
+    index: a view made in a loop costs two atomic reference counts, docs/speed.md.)"""
     W, inv_d = blocks[b], inv_ds[slot]
     for i in range(3):
         for j in range(i + 1):
@@ -211,9 +199,8 @@ def factor_block(blocks, b, inv_ds, slot):
 
 @kernel
 def forward_block(L, inv_d, X, ncol):
-    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor), all columns at once: the
-    loop form of forward_vector12 and forward_block12, which the tree solve calls (the
-    tests compare them with it bit for bit)."""
+    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor): the loop form the tests
+    compare forward_vector12 and forward_block12 with, bit for bit."""
     for i in range(12):
         for k in range(i):
             lik = L[i, k]
@@ -239,14 +226,10 @@ def forward_vector12(blocks, b, inv_ds, ys, slot):
 
 @kernel
 def forward_block12(blocks, b, inv_ds, Xs, slot, src, j, transposed):
-    """X = L⁻¹ U into X = Xs[slot], for U = src[j] (or its transpose), L = blocks[b] and
-    inv_d = inv_ds[slot] (factor_block): U copied into X, then forward_block(L, inv_d, X, 12),
-    in one pass (row i of U is read as the row is solved: the joint's block goes into the
-    solve without a copy of its own; src may be Xs itself, j = slot, transposed False).
-    Written out over the 12 columns: row i is held in 12 locals while the rows above are
-    subtracted, so the SLP vectoriser (jit/slp.py) makes each run of 4 columns one vector
-    operation. The same operations in the same order as the copy (0.0 + U: a −0.0 becomes
-    +0.0) and forward_block: the same bits (test_solver.py checks)."""
+    """X = L⁻¹ U into X = Xs[slot], U = src[j] (or its transpose; src may be Xs, j = slot),
+    L = blocks[b], inv_d = inv_ds[slot]: the copy (0.0 + U) and forward_block(L, inv_d, X, 12)
+    in one pass, their bits (test_solver.py). Row i in 12 locals: the SLP vectoriser
+    (jit/slp.py) makes each run of 4 columns one vector operation."""
     L, inv_d, X, U = blocks[b], inv_ds[slot], Xs[slot], src[j]
     for i in range(12):
         if transposed:
@@ -288,14 +271,11 @@ def forward_block12(blocks, b, inv_ds, Xs, slot, src, j, transposed):
 
 @kernel
 def schur_update12(Xs, ys, slot, blocks, bp, p):
-    """W −= XᵀX (its lower half) and b −= Xᵀy for the 12x12 X = Xs[slot], y = ys[slot],
-    W = blocks[bp], b = ys[p] (the elimination of a child block into its parent). Only the
-    lower half is updated, the only half the factorisation and the solves read: rows 0–3
-    over columns 0–3, rows 4–7 over 0–7, rows 8–11 over all 12, runs of 4 columns that the
-    SLP vectoriser (jit/slp.py) makes one vector operation each (a third of the work of
-    the full square). Each row's entries are held in locals while the rows k of X are
-    subtracted (X[k, r] times row k), then stored once. Every entry gets its subtractions in
-    the order of k, as a loop over it: the same bits. The upper half keeps stale values."""
+    """W −= XᵀX (lower half only: the upper keeps stale values) and b −= Xᵀy, X = Xs[slot],
+    y = ys[slot], W = blocks[bp], b = ys[p]: a child eliminated into its parent. Rows 0–3
+    over columns 0–3, 4–7 over 0–7, 8–11 over all, held in locals: runs of 4 columns the SLP
+    vectoriser (jit/slp.py) makes one vector operation (a third of the square's work); each
+    entry's subtractions in the order of k, a loop's bits."""
     X, y, W, b = Xs[slot], ys[slot], blocks[bp], ys[p]
     for r in range(4):
         w0, w1, w2, w3 = W[r, 0], W[r, 1], W[r, 2], W[r, 3]
@@ -356,9 +336,7 @@ def solve_tree(m, diag, pair, grad, dq, ws):
     """Block Cholesky along a forest of free bodies, leaves first (no fill-in, linear cost).
     For node k with elimination parent p and U = H[k, p]: L_kk = chol(D_k), X = L_kk⁻¹ U,
     D_p −= XᵀX; forward y_k = L_kk⁻¹ b_k, b_p −= Xᵀ y_k; backward x_k = L_kk⁻ᵀ (y_k − X x_p).
-    NaN if not PD. The diagonal blocks are factored in place: `diag` is overwritten (Newton
-    assembles it afresh each iteration; a copy would double the memory traffic, which is what
-    a step of a thousand bodies is bound by)."""
+    NaN if not PD. `diag` is factored in place (a copy would double the memory traffic)."""
     free_idx, jp, order, eparent = m.free_bodies, m.joint_parent, m.tree_order, m.tree_parent
     edge_ptr, edge_joint = m.tree_edge_ptr, m.tree_edge_joints
     nf = free_idx.size
@@ -406,10 +384,7 @@ def solve_tree(m, diag, pair, grad, dq, ws):
                 for c in range(12):
                     acc += X[s, r, c] * y[p, c]
                 y[s, r] -= acc
-        for i in range(11, -1, -1):                         # Lᵀ x = y
-            # (k downwards: the entry just solved, y[k = i + 1], is subtracted last, so the
-            # rest of the sum runs while it is being solved; upwards, each row's whole sum
-            # waited for it, a chain of 66 dependent subtractions per block)
+        for i in range(11, -1, -1):     # Lᵀ x = y, k downwards: no chain of dependent sums
             acc = y[s, i]
             for k in range(11, i, -1):
                 acc -= diag[b, k, i] * y[s, k]

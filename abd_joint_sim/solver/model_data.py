@@ -1,15 +1,8 @@
 """`ModelData`: the Model as the compiled step reads it, built once per Solver.
 
-A numba structref (a reference to a struct of named arrays): compiled code reads
-`m.joint_parent`, `m.body_M`, ..., and Python passes one object per call. Why not a
-namedtuple: numba unboxes every field of a namedtuple on every call (~0.5 µs per array
-on this machine, ~15 µs for this model), a structref is one pointer (measured in
-docs/physics-code.md).
-
-The fields are BASE_FIELDS (the bodies and joints, the solver's own: free bodies, the linear
-solve's elimination order, the screw retraction's floating groups, Newton's settings and
-constant blocks) followed by each term's FIELDS in terms.TERMS' order: a term's data is
-written in its own module (terms/), and `FIELDS` follows from the list.
+A numba structref: one pointer per call, where a namedtuple's every field is unboxed on
+every call (~0.5 µs per array, ~15 µs for this model; docs/physics-code.md). Its fields are
+BASE_FIELDS followed by each term's FIELDS (built in its module) in terms.TERMS' order.
 """
 from __future__ import annotations
 
@@ -22,10 +15,8 @@ from ..terms import TERMS, inertia, revolute
 from . import linsolve, retraction
 from .bdf import BETA_BDF2
 
-# The share of a body's smallest inertia that the unprojected Hessians of the angle terms
-# (UID 19, 670, damping) may take together, split evenly among the angle terms on a body's
-# joints (terms/angle.py, docs/decisions.md): with the shape term's, Newton's matrix keeps a
-# quarter of the inertia.
+# The share of a body's smallest inertia the unprojected angle Hessians (UID 19, 670,
+# damping) may take together, split evenly among them (terms/angle.py, docs/decisions.md)
 ANGLE_EXACT_SHARE = 0.25
 
 #: (name, meaning) of the fields every model has; the values come from `build`.
@@ -43,10 +34,8 @@ BASE_FIELDS = (
     ('joint_nbar', '(J,2,3) n̄ per side'),
     ('joint_bbar', '(J,2,3) b̄ per side'),
     ('joint_init_angle', '[rad] (J,)'),
-    ('joint_angle_budget', '(J,) a drive\'s, limit\'s or damper\'s Hessian on joint j is used '
-                           'unprojected while its most negative eigenvalue is ≥ −s × this '
-                           '(terms/angle.py: ANGLE_EXACT_SHARE of the smaller body inertia, '
-                           'shared among the angle terms on the body\'s joints)'),
+    ('joint_angle_budget', '(J,) an angle term\'s Hessian on joint j is used unprojected while '
+                           'its λ_min ≥ −s × this (`joint_angle_budget`)'),
     ('solve_kind', 'linsolve.TREE or linsolve.DENSE'),
     ('tree_order', '(F,) elimination order over free-body slots, leaves first'),
     ('tree_parent', '(F,) elimination parent slot, -1 at a root'),
@@ -66,8 +55,7 @@ BASE_FIELDS = (
     ('constant_diag', '(B,12,12) the constant Hessian blocks (UID 18) Newton starts from'),
     ('constant_pair', '(J,12,12) the same, off the diagonal'),
     ('inertia_scales', '(2,) the inertia term\'s scales s: 1 (BDF1) and 1/β (BDF2)'),
-    ('constant_diag_inertia', '(2,B,12,12) constant_diag + s M on the free bodies for each of '
-                              'inertia_scales: Newton\'s diagonal blocks before the shape and angle terms'),
+    ('constant_diag_inertia', '(2,B,12,12) constant_diag + s M per inertia_scales entry'),
 )
 #: (name, meaning) of every field, in the struct's order
 FIELDS = BASE_FIELDS + tuple(field for term in TERMS for field in term.FIELDS)
@@ -92,10 +80,9 @@ def mass_blocks(body_M, body_Minv):
 
 
 def constant_blocks(values, B, J):
-    """(constant_diag, constant_pair, inertia_scales, constant_diag_inertia): the Hessian blocks
-    that do not change over a run, summed once, each by its term (UID 18's, then the inertia
-    term's s M for each BDF scale s on top: one rounding per entry, c + s·M, the same numbers
-    as adding it every iteration)."""
+    """(constant_diag, constant_pair, inertia_scales, constant_diag_inertia): the Hessian
+    blocks constant over a run, UID 18's, then + s M per BDF scale s (adding it per iteration's
+    bits)."""
     diag, pair = np.zeros((B, 12, 12)), np.zeros((J, 12, 12))
     revolute.add_constant_hessian(values['joint_parent'], values['joint_child'],
                                   values['joint_hessian'], diag, pair)
@@ -121,11 +108,8 @@ structref.define_proxy(ModelData, ModelDataType, [name for name, _ in FIELDS])
 
 
 def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints, damping_joints=()):
-    """(J,) per joint, min over its free bodies of ANGLE_EXACT_SHARE μ_min(M̄_b) / n_b, n_b the
-    number of angle terms (drives, limits, dampers) on the joints of body b: the angle terms'
-    unprojected Hessians, each ≥ −s × its joint's budget, then take at most that share of
-    s μ_min(M̄_b) from any direction of body b in Newton's matrix (angle.py). inf for a joint
-    between fixed bodies; 0 (always projected) beside a body without inertia."""
+    """(J,) per joint, min over its free bodies b of ANGLE_EXACT_SHARE μ_min(M̄_b) / n_b, n_b
+    the angle terms on b's joints; inf between fixed bodies, 0 beside a body without inertia."""
     B, J = len(fixed), len(parent)
     mu = inertia.min_eigenvalue(Mbar)
     count = np.zeros(B)
@@ -150,20 +134,16 @@ def build(model, force_dense: bool = False) -> ModelData:
     st = linsolve.structure(m, force_dense)
     group, share, groups = retraction.floating_groups_and_shares(m)
     Mbar, Minv_bar = mass_blocks(m.body_M, m.body_Minv)
-    values = dict(
+    values = {name: arr(getattr(m, name), np.float64) for name in (
+        'body_M', 'body_Minv', 'body_mass', 'body_corners', 'joint_nbar', 'joint_bbar',
+        'joint_init_angle')}
+    values.update({name: arr(getattr(m, name), np.int64) for name in ('joint_parent',
+                                                                      'joint_child')})
+    values.update(
         body_fixed=arr(fixed, np.bool_),
         free_bodies=arr(free, np.int64),
-        body_M=arr(m.body_M, np.float64),
-        body_Minv=arr(m.body_Minv, np.float64),
-        body_mass=arr(m.body_mass, np.float64),
         body_Mbar=arr(Mbar, np.float64),
         body_Minv_bar=arr(Minv_bar, np.float64),
-        body_corners=arr(m.body_corners, np.float64),
-        joint_parent=arr(m.joint_parent, np.int64),
-        joint_child=arr(m.joint_child, np.int64),
-        joint_nbar=arr(m.joint_nbar, np.float64),
-        joint_bbar=arr(m.joint_bbar, np.float64),
-        joint_init_angle=arr(m.joint_init_angle, np.float64),
         solve_kind=int(st.kind),
         tree_order=arr(st.order, np.int64),
         tree_parent=arr(st.parent, np.int64),
@@ -179,8 +159,7 @@ def build(model, force_dense: bool = False) -> ModelData:
         max_iterations=int(m.newton.max_iterations),
         line_search_max=int(m.newton.line_search_max),
         max_step_rotation=float(m.newton.max_step_rotation),
-        # as numpy sums it (np.sum's pairwise order): the tolerance must not depend on layout
-        free_mass=float(np.sum(m.body_mass[free])),
+        free_mass=float(np.sum(m.body_mass[free])),     # (np.sum's order, whatever the layout)
     )
     values['joint_angle_budget'] = arr(joint_angle_budget(Mbar, fixed, m.joint_parent, m.joint_child,
                                                           m.drive_joints, m.limit_joints,

@@ -3,16 +3,12 @@
 
     Π(q) = (s/2) Σ_free (q − q̃)ᵀ M (q − q̃) + Σ_terms E(q)
 
-Each iteration solves H Δq = −∇Π (H = sM + the PSD-projected term Hessians, positive
-definite on the free bodies); a step that meets the tolerances below is taken whole and ends
-Newton, any other is cut by halving α until Π(q ⊕ αΔq) ≤ Π(q) + ROUNDOFF·|Π|, where ⊕ applies
-each body's step as a screw motion (retraction.py; = q + Δq to first order).
-Converged (libuipc's tests, plus ours): every free body's bounding-box corners move less
-than velocity_tol·h under Δq, max |Δq[3:12]| ≤ transrate_tol·h, and the Newton decrement
-−½∇ΠᵀΔq is at most s·½Σm(velocity_tol·h)², what moving every body by the displacement
-tolerance costs in the mass metric. A decrement below ROUNDOFF·|Π| is converged whatever
-the tolerances (double precision can do no better). Max iterations, a failed line search
-and a non-finite value are returned as a status, never hidden.
+Each iteration solves H Δq = −∇Π (H = sM + the PSD-projected term Hessians); a step within
+the tolerances is taken whole and ends Newton, any other is halved until Π(q ⊕ αΔq) ≤ Π(q) +
+ROUNDOFF·|Π| (⊕: each body's screw motion, retraction.py). Converged: every free body's
+bounding-box corners move less than velocity_tol·h, max |Δq[3:12]| ≤ transrate_tol·h, and
+the decrement −½∇ΠᵀΔq ≤ s·½Σm(velocity_tol·h)²; or a decrement below ROUNDOFF·|Π|. Max
+iterations, a failed line search and a non-finite value are returned as a status.
 
 `potential` and `assemble` call terms.ENERGY_TERMS one by one in the list's order (numba
 cannot loop over modules); test_terms.py checks them against the list.
@@ -28,9 +24,7 @@ from ..terms import (damping, driving, inertia, limit, ortho, prismatic, prismat
 from . import linsolve
 from .retraction import retract
 
-# Every term of Π is nonnegative and computed without cancellation, so Π's rounding error
-# is a small multiple of eps·Π; below this relative decrement Newton cannot improve q.
-ROUNDOFF = 1e-12
+ROUNDOFF = 1e-12        # Π's relative rounding (its terms are ≥ 0, without cancellation)
 # status codes (report.Status)
 CONVERGED, MAX_ITERATIONS, LINE_SEARCH_FAILED, NONFINITE = 0, 1, 2, 3
 
@@ -42,8 +36,7 @@ def potential(q, m, ctx):
     E += ortho.energy(q, m, ctx)            # UID 1, shape
     if m.revolute_joints.size:
         E += revolute.energy(q, m, ctx)     # UID 18
-    # a term the model lacks is not called (its E would be 0.0, and the call would cost its
-    # arguments' reference counts, docs/speed.md)
+    # a term the model lacks is not called (the call costs reference counts, docs/speed.md)
     if m.drive_joints.size:
         E += driving.energy(q, m, ctx)      # UID 19
     if m.limit_joints.size:
@@ -63,14 +56,10 @@ def potential(q, m, ctx):
 
 @kernel
 def assemble(q, m, ctx, grad, diag, pair):
-    """∇Π into grad (B,12) and the PSD-projected ∇²Π into the diagonal blocks diag; returns
-    (joint blocks, Π(q)). The joint blocks are `pair`, or m.constant_pair itself in a model
-    without angle terms (drives, limits, dampers: then only UID 18 has joint blocks, and
-    copying them would be a pass over memory for nothing). The constant Hessians, UID 18's
-    and the inertia term's s·M, are summed once per model (model_data.constant_blocks, one
-    per BDF scale s); their terms (CONSTANT_HESSIAN) add only their gradients here. Each term returns its
-    energy from the quantities its gradient needs, with the bits of its `energy`, summed in
-    `potential`'s order: Π(q) comes with the assembly for the price of a few flops."""
+    """∇Π into grad (B,12) and the PSD-projected ∇²Π into diag; returns (joint blocks, Π(q)
+    with `potential`'s bits). The joint blocks are `pair`, or m.constant_pair itself when no
+    term adds to it (no copy). The constant Hessians (UID 18, s·M) are summed once per model
+    (model_data.constant_blocks); their terms (CONSTANT_HESSIAN) add only gradients here."""
     flat.fill(grad, 0.0)
     scales = m.inertia_scales
     k = 0 if ctx.scale == scales[0] else (1 if ctx.scale == scales[1] else -1)
@@ -141,16 +130,12 @@ def step_within_tolerance(dq, m, h):
 
 @kernel
 def minimize(m, ctx, q, ws, try_alt):
-    """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there (a
-    warm start never starts Newton above the plain prediction). With `try_alt`, q is an
-    extrapolated start and ws.q_alt a plain one: where q̃ beats q (the extrapolation
-    overshot, at a jump of the input) Newton starts from the lowest of the three. Returns
-    (status, iterations, line-search halvings)."""
+    """Minimise Π from q (overwritten with the result) or from q̃ if Π is lower there; with
+    `try_alt` (q extrapolated, ws.q_alt plain) where q̃ beats q, from the lowest of the
+    three. Returns (status, iterations, line-search halvings)."""
     h, scale = ctx.h, ctx.scale
     grad, diag, pair, dq, trial = ws.grad, ws.diag, ws.pair, ws.dq, ws.trial
-    # Newton's first matrix is assembled at q before the start is chosen: Π(q) comes with it,
-    # and q is nearly always the start (it is assembled again where it is not)
-    joint_blocks, E = assemble(q, m, ctx, grad, diag, pair)
+    joint_blocks, E = assemble(q, m, ctx, grad, diag, pair)     # (q: nearly always the start)
     E_tilde = potential(ctx.q_tilde, m, ctx)
     moved = False
     if try_alt and E_tilde < E:
@@ -180,11 +165,7 @@ def minimize(m, ctx, q, ws, try_alt):
         converged = step_within_tolerance(dq, m, h) and decrement <= scale * energy_tol
         if decrement <= ROUNDOFF * abs(E):
             return CONVERGED, it, halvings
-        if converged:
-            # The tolerances hold: the full step is taken without evaluating Π there. The
-            # decrease test could only choose between two answers that both pass them (q, or
-            # q ⊕ Δq); the step is the better one (nearer the minimum by O(|Δq|²)), and Π at
-            # the trial cost as much as the rest of the iteration's energy evaluations.
+        if converged:                           # the full step, without Π there
             retract(q, dq, 1.0, m, ws, trial)
             flat.copy(q, trial)
             return CONVERGED, it, halvings

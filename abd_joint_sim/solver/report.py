@@ -22,9 +22,8 @@ STATUS_BY_CODE = (Status.CONVERGED, Status.MAX_ITERATIONS, Status.LINE_SEARCH_FA
 
 
 class StepReport(NamedTuple):
-    """What one call of `World.step` did (the last step when several were taken). Immutable;
-    a NamedTuple because a frozen dataclass sets each field through object.__setattr__,
-    which made building one a tenth of a one-body step's time."""
+    """What one call of `World.step` did (the last step when several were taken). A
+    NamedTuple: a frozen dataclass cost a tenth of a one-body step's time to build."""
 
     time: float = 0.0                   #: [s] simulation time after the step
     status: Status = Status.CONVERGED   #: worst Newton status over the sub-steps

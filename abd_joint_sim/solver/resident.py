@@ -1,22 +1,12 @@
-"""`Resident`: the World's current state kept in ring buffers between one-step calls.
+"""`Resident`: the World's current state kept in ring buffers between one-step calls
+(docs/physics-code.md), instead of a State built per step: per call 2.6 µs against 6.7-6.9
+for `Solver.step` on States on one link (`python bench/profiler.py devices`), 11.0-11.3
+against 15.6-16.0 µs on the KUKA iiwa; 1.04-1.09x on chains of 100 and 1000 links.
 
-A `State` is immutable and every step returns a new one. Building it, with fresh arrays for q,
-v and the warm start, and handing its ten arrays to the compiled step, costs about as much as
-the step itself on a small robot. So `World.step()` keeps the state here instead: per call, 2.6 µs
-against 6.7-6.9 for `Solver.step` on States on one link (ratio 2.47 and 2.50 in two runs of
-`python bench/profiler.py devices`), 11.0-11.3 against 15.6-16.0 µs on the KUKA iiwa (1.40,
-1.41); 1.04-1.09 on chains of 100 and 1000 links. Slots of one
-(4,3,B,12) ring hold (q, v, warm_start) for the current state (slot `cur`), the state before it
-(`cur − 1`: q_prev, v_prev, warm_start_prev) and the one before that (`cur − 2`:
-warm_start_prev2), modulo 4; a step writes slot `cur + 1`, which then becomes the current one
-(the compiled `step.step_resident` turns the slots and the clock of a clean step;
-`Solver._step_resident`). The `State` is built only when it is read (`state()`), as copies, so a
-State a caller holds never changes. Whenever a State has been set or read since the last step
-it is the current state, and the next step copies it into the ring first (so a caller that
-changed its arrays in place, as tests and studies do to perturb a state, is obeyed).
-
-Which past warm starts are known is kept as a count (`known`: 0, 1 or 2), where a State marks
-the unknown ones by identity (`State.known_history`).
+A (4,3,B,12) ring holds (q, v, warm_start) of the current state (slot `cur`), the one before
+(q_prev, v_prev, warm_start_prev) and the one before that (warm_start_prev2), modulo 4; a
+step writes slot `cur + 1`. A State is built, as copies, only when read; a State set or read
+since the last step is the current one, copied into the ring before the next step.
 """
 from __future__ import annotations
 
@@ -27,11 +17,8 @@ from numba.experimental import structref
 from ..jit import kernel, refcounts
 from ..state import State
 
-#: what one compiled `World.step()` reads and writes (step.step_resident), in one struct, its
-#: only argument: a structref argument is unboxed in about the time of one array, and these
-#: are eleven arrays, two structs and four scalars. `model` and `work` are the Solver's
-#: ModelData and Workspace; h, bdf2, may_split, clean_rotation and keep_rotation its constant
-#: settings.
+#: what step.step_resident reads and writes, in one struct (unboxed in about the time of one
+#: array); `model`, `work` and the scalars are the Solver's
 IO_FIELDS = ('ring', 'angles', 'slots', 'clock', 'torque_value', 'torque_enabled', 'drive_aim',
              'drive_enabled', 'drive_passive', 'skipped', 'outcome', 'model', 'work', 'h', 'bdf2',
              'may_split', 'clean_rotation', 'keep_rotation')
@@ -52,11 +39,9 @@ structref.define_proxy(ResidentIO, ResidentIOType, list(IO_FIELDS))
 
 
 class Resident:
-    """Holds the current state: as a State (`_state`, when set or read since the last
-    step; it then wins), else in the ring. The slot numbers and clock live in two small
-    arrays because the compiled step advances them (step.step_resident): `slots` = (cur, the
-    slot of the current state; known, the past warm starts known: 0, 1 or 2; step_count),
-    `clock` = (time [s], history_dt [s]: the size of the step that made the state)."""
+    """Holds the current state: as a State (`_state`, set or read since the last step: it
+    wins), else in the ring. `slots` = (cur, known past warm starts 0-2, step_count), `clock`
+    = (time [s], history_dt [s]): arrays, as step.step_resident advances them."""
 
     __slots__ = ('ring', 'angles', 'slots', 'clock', 'clock_view', '_state', 'io', 'io_key', 'io_call')
 
@@ -74,9 +59,8 @@ class Resident:
     cur = property(lambda self: int(self.slots[0]), doc='slot of the current state in the ring')
 
     def bind(self, key, control, **solver) -> ResidentIO:
-        """The ResidentIO of this ring with a Control's arrays and a Solver's (`solver`: the
-        IO_FIELDS from `skipped` on), kept (with `key`, what the caller checks by identity
-        before reusing it) until bound again."""
+        """The ResidentIO of this ring, a Control's and a Solver's arrays (IO_FIELDS from
+        `skipped` on), kept with `key` (checked by identity by the caller)."""
         c = control
         values = dict(ring=self.ring, angles=self.angles, slots=self.slots, clock=self.clock,
                       torque_value=c.torque_value, torque_enabled=c.torque_enabled,
@@ -92,10 +76,7 @@ class Resident:
         self._state = state
 
     def state(self) -> State:
-        """The current state as a State (built from the ring once per step, then kept). Its
-        arrays are views of three fresh copies (the current slot, the one before, the
-        angles): no array of it is the ring's, and a slot copied whole costs what one of its
-        arrays did."""
+        """The current state as a State (built once per step from three fresh slot copies)."""
         if self._state is None:
             ring = self.ring
             cur, known, step_count = self.slots.tolist()
@@ -149,10 +130,8 @@ class Resident:
 
 @kernel
 def load_ring(ring, angles, q, v, w, q_prev, v_prev, w_prev, w_prev2, joint_angle, joint_velocity):
-    """Resident.load's copies in one compiled call (numpy's nine assignments cost ~2x more):
-    slot 2 = (q, v, w), slot 1 = (q_prev, v_prev, w_prev), slot 0's warm start = w_prev2,
-    angle slot 2 = (joint_angle, joint_velocity). False, copying nothing, unless every array
-    has the ring's shape."""
+    """Resident.load's copies in one call (numpy's cost ~2x more) into slots 2, 1 and 0's
+    warm start; False, copying nothing, unless every array has the ring's shape."""
     B, J = ring.shape[2], angles.shape[2]
     for x in (q.shape, v.shape, w.shape, q_prev.shape, v_prev.shape, w_prev.shape, w_prev2.shape):
         if x != (B, 12):

@@ -1,28 +1,14 @@
-"""Screw retraction: apply a Newton step Δq to affine bodies along rigid motions.
+"""Screw retraction: apply a Newton step Δq to affine bodies along rigid motions
+(docs/physics.md "Newton", the reasons in docs/decisions.md). Each body's step is split into
 
-Newton's step is linear in q = [p, A]; a body turning by δ rad under q + Δq is also
-stretched by ~δ²/2. At everyday stiffness that stretch costs nothing, but at κ ≳ 1e11 the
-ortho potential blocks the linear step, the line search cuts it, and Newton crawls along the
-curved valley of rotations taking tiny steps that look converged (docs/studies.md §3,
-fixed item 6; the Maratos effect of a stiff penalty on a curved constraint). So each
-body's step is split into
     Δp = t,   ΔA = W A + D,   W = skew(ΔA A⁻¹)   (the spin of the velocity gradient)
-and applied as the screw motion that (t, W) describe, plus the remaining deformation D:
-    A' = exp(W) (A + D),   p' = c + exp(W)(p − c) + t∥
-where c is the screw axis (the points whose first-order motion is along ω). A body turning
-about a hinge is thus turned exactly about the hinge line and neither its shape nor the
-joint is stretched. To first order q' = q + Δq, so Newton's fixed point and local
-convergence are unchanged; the line search still only accepts decreases of Π.
-The screw is meant for (nearly) rigid bodies: where A is far from a rotation
-(max |A Aᵀ − I| > SCREW_STRAIN, e.g. a thin body's prediction sheared by a couple on its tiny
-cross-section inertia) the step stays linear for that body. Measured on the 0.4 x 4e-4 m
-rod of study/stability.py: screws from such states led Newton, from a prediction sheared
-beyond recognition, to another local minimiser of Π (0.63 rad instead of 2e-4); at 1e-2
-they are only used once the ortho term has pulled A back near SO(3).
-A linear Newton step keeps the linear momentum of a free system exactly balanced (the sum
-of ∂Π/∂p is linear in q); the screw's O(Δq²) turn would not, so within every group of
-bodies joined to no fixed body the mass-weighted mean of that turn's translation is
-removed (a rigid shift of the group: no joint or body is strained by it).
+
+and applied as the screw motion of (t, W) plus the remaining deformation D:
+A' = exp(W) (A + D), p' = c + exp(W)(p − c) + t∥ (c the screw axis); to first order
+q' = q + Δq. Where max |A Aᵀ − I| > SCREW_STRAIN the body's step stays linear (the 0.4 x
+4e-4 m rod of study/stability.py: screws from sheared states led Newton to another minimiser,
+0.63 rad instead of 2e-4). Within every group of bodies joined to no fixed body the
+mass-weighted mean of the screw's extra translation is removed (momentum stays balanced).
 """
 from __future__ import annotations
 
@@ -32,6 +18,7 @@ import numpy as np
 
 from ..jit import kernel
 from ..smallmat import adjugate3, product3
+from .linsolve import find_root
 
 SCREW_STRAIN = 1e-2   # max |A Aᵀ − I| up to which a body's step is applied as a screw
 # [rad] below: Taylor series of the screw coefficients to θ⁶ (truncation < 1e-21 relative);
@@ -44,16 +31,9 @@ def floating_groups(model):
     else -1 (a fixed body takes up any momentum)."""
     B = model.body_count
     root = list(range(B))
-
-    def find(i):
-        while root[i] != i:
-            root[i] = root[root[i]]
-            i = root[i]
-        return i
-
     for a, b in zip(model.joint_parent, model.joint_child):
-        root[find(int(a))] = find(int(b))
-    roots = np.array([find(i) for i in range(B)])
+        root[find_root(root, int(a))] = find_root(root, int(b))
+    roots = np.array([find_root(root, i) for i in range(B)])
     anchored = set(roots[model.body_fixed].tolist())
     labels = {r: k for k, r in enumerate(sorted(set(roots.tolist()) - anchored))}
     return np.array([labels.get(r, -1) for r in roots.tolist()], dtype=np.int64)
@@ -88,10 +68,8 @@ def screw_coefficients(th):
 @kernel
 def retract(q, dq, alpha, m, ws, out):
     """out = q ⊕ α·dq: each free body moved along the screw motion of its step, the floating
-    groups' mean turn translation removed. Works in ws (workspace.Workspace, its group_mean).
-    Each body's 3x3 matrices are 9-tuples of locals (smallmat.product3 and adjugate3): the
-    compiler keeps them in registers, where planes of a work array would go through
-    memory; the same operations in the same order as the plain loops, the same bits."""
+    groups' mean turn translation removed (ws.group_mean). 3x3 matrices are 9-tuples of
+    locals (smallmat.product3, adjugate3), kept in registers: the plain loops' bits."""
     free_idx, group, share, ngroups = m.free_bodies, m.body_group, m.group_share, m.group_count
     mean = ws.group_mean
     nf = len(free_idx)

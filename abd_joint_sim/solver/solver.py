@@ -1,31 +1,25 @@
 """`Solver`: built once per Model, steps a State under a Control (docs/physics.md).
 
-`Solver.step(state, control)` takes one step of the model's dt and returns the new State and
-a StepReport; the State passed in is never written (a State is replaced, not mutated).
-Recovery: a step whose Newton solve fails, whose state is not finite, in which a joint turns
-more than `max_step_rotation` (or is predicted to, before solving) or comes apart, is retried
-as two half steps, recursively up to 2**max_substep_depth sub-steps. If even that leaves a
-non-finite state or a joint apart, `SimulationError` is raised (the caller keeps its State:
-time stays a multiple of dt); a merely unconverged result is kept and reported.
-`Solver.steps(state, control, n)` takes up to n such steps, all but those that need sub-steps
-in one compiled call, with the same results bit for bit; with clean=True it stops before any
-warning too, for callers that publish every step and log every warning (sim_node). Both run
-the compiled `step.steps` (a step and a sub-step are n = 1); `World.step()` runs
-`step.step_resident` through `_step_resident`.
+`Solver.step(state, control)` returns the new State (the one passed in is never written) and
+a StepReport. A step whose Newton solve fails, whose state is not finite, in which a joint
+turns more than `max_step_rotation` (or is predicted to) or comes apart, is retried as two
+half steps, recursively up to 2**max_substep_depth sub-steps; if that still leaves a
+non-finite state or a joint apart, `SimulationError` is raised (the caller keeps its State);
+an unconverged result is kept and reported. `Solver.steps(state, control, n)` takes up to n
+steps in one compiled call (`step.steps`), bit-identical; clean=True also stops before any
+warning (sim_node). `World.step()` runs `step.step_resident` through `_step_resident`.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import SimulationError
 from ..state import Control, State
-from ..terms import TERMS, angle, damping, limit
+from ..terms import TERMS, angle, damping, limit, prismatic, prismatic_damping
 from ..terms.damping import axis_inertia
 from ..terms.context import StepContext
-from ..terms import prismatic, prismatic_damping
 from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
 from ..terms.torque import SINGULAR_RATIO
 from . import model_data, step as compiled, workspace
@@ -54,15 +48,13 @@ CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64)
 
 
 def _compiled_layout(arrays) -> bool:
-    """Whether Control's five arrays have the layout and dtypes the compiled entries were
-    built for (C-contiguous, aligned, writable, 1-d, CONTROL_DTYPES)."""
+    """Whether Control's arrays are C-contiguous, aligned, writable, 1-d, CONTROL_DTYPES."""
     return all(type(a) is np.ndarray and a.flags.c_contiguous and a.flags.aligned and a.flags.writeable
                and a.ndim == 1 and a.dtype == d for a, d in zip(arrays, CONTROL_DTYPES))
 
 
 def _entry_point(dispatcher, args):
-    """The compiled entry point of `dispatcher` for the types of `args`, or None (not
-    compiled for them yet, or a numba without these attributes)."""
+    """The compiled entry point of `dispatcher` for the types of `args`, or None."""
     try:
         return dispatcher.overloads[tuple(dispatcher.typeof_pyval(a) for a in args)].entry_point
     except (AttributeError, KeyError, TypeError):
@@ -89,13 +81,10 @@ class _Tally:
                  'max_step_rotation', 'max_joint_separation', 'overloaded', 'warnings')
 
     def __init__(self):
-        self.status, self.converged = Status.CONVERGED, True
+        self.status, self.converged, self.substeps, self.warnings = Status.CONVERGED, True, 1, []
         self.newton_iterations = self.line_search_iterations = 0
-        self.substeps = 1
-        self.max_step_rotation = 0.0
-        self.max_joint_separation = 0.0
+        self.max_step_rotation = self.max_joint_separation = 0.0
         self.overloaded = False         #: a joint beyond its warning separation
-        self.warnings = []
 
     def freeze(self, time) -> StepReport:
         return StepReport(time=time, status=self.status, converged=self.converged,
@@ -106,11 +95,9 @@ class _Tally:
 
 
 def _history(s: State, h: float, new_warm_start):
-    """(warm_start_prev, warm_start_prev2) of the state after a step of size h from s whose
-    own correction is new_warm_start: s's warm start, and s's previous one if known, when s
-    came from a step of size h too; an unknown one is the same array as the newer one
-    (nothing to extrapolate from: the first step, a sub-step, a dt change). The compiled
-    `step.steps` applies the same rule to the states it makes itself."""
+    """(warm_start_prev, warm_start_prev2) after a step of size h from s with correction
+    new_warm_start: s's own, where s came from a step of size h; an unknown one is the same
+    array as the newer one (as `step.steps` does)."""
     if s.history_dt != h:
         return new_warm_start, new_warm_start
     if s.warm_start_prev is s.warm_start:
@@ -119,9 +106,8 @@ def _history(s: State, h: float, new_warm_start):
 
 
 def _clean_report_of(time, newton_iterations, halvings, separation, rotation) -> StepReport:
-    """The StepReport of a clean step (converged, no sub-step, no warning). Built with
-    tuple.__new__, as StepReport._make does: the NamedTuple's own __new__ is a Python function
-    with keyword defaults, ~0.4 µs more per one-step call."""
+    """The StepReport of a clean step, built with tuple.__new__ (the NamedTuple's __new__
+    costs ~0.4 µs more per one-step call)."""
     return _new_tuple(StepReport, (time, _CONVERGED, True, newton_iterations, halvings, 1, separation,
                                    rotation if rotation > 0.0 else 0.0, ()))
 
@@ -155,9 +141,8 @@ class Solver:
         self.terms = tuple(term.NAME for term in TERMS if term.NAME and term.used(model))
 
     def context(self, state: State, control: Control, h: float, q_tilde=None) -> StepContext:
-        """The StepContext of a step from `state` (q̃ = state.q unless given), for the energy
-        functions of terms/ called from Python (World.mechanical_energy, tests); BDF1's, the
-        dampers linearised at state.q (their energy there is 0)."""
+        """The BDF1 StepContext of a step from `state` (q̃ = state.q unless given) for the
+        energy functions called from Python (World.mechanical_energy, tests)."""
         m = self.model
         start = state.joint_angle - m.joint_init_angle
         drives = np.concatenate([m.drive_joints, m.prismatic_drive_joints])     # UID 19, then UID 21
@@ -184,9 +169,7 @@ class Solver:
         """One step of dt; raises SimulationError when even sub-steps cannot finish it."""
         h = self.model.dt
         computed = self._compute(state, control, h, self._may_split)
-        # the common case, a step with nothing to report but its numbers, built directly
-        # (the general path below gives the same report, at a few µs more Python)
-        clean = self._clean_report(computed[2], state.time + h)      # (the new State's time)
+        clean = self._clean_report(computed[2], state.time + h)      # (a few µs less)
         if clean is not None:
             return self._state(state, h, computed[0], computed[1]), clean
         tally = _Tally()
@@ -194,12 +177,9 @@ class Solver:
         return state, self._finish(state, tally)
 
     def _step_resident(self, r: Resident, control: Control) -> StepReport:
-        """`step` on the state a Resident holds (World.step()): the compiled
-        `step.step_resident` reads and writes r's ring, and a clean step only turns r's slots,
-        building no State. A step that is not clean (a warning, sub-steps, a failure) goes
-        through `step`'s recovery from the result already computed, and its State is set on
-        r. Raises SimulationError as `step` does; r then still holds the last good state. The
-        same bits as `step`."""
+        """`step` on the state a Resident holds (World.step()), the same bits: a clean step
+        of `step.step_resident` only turns r's ring slots; any other goes through `step`'s
+        recovery and sets its State on r. On SimulationError r keeps the last good state."""
         if r._state is not None:            # (load's own test, without the call)
             r.load()
         c = control
@@ -215,9 +195,7 @@ class Solver:
                 return self._kept_report(self._outcome, r.clock.item(0), r.ring[r.cur, 0])
             if code < 0:                    # (line-search halvings: read from the row)
                 return self._report(self._outcome, r.clock.item(0))
-            # code is the Newton iterations; two entries read through memoryviews are Python
-            # floats without converting the whole row (~0.2 µs less)
-            o = self._outcome_view
+            o = self._outcome_view          # (code: Newton iterations; a memoryview: ~0.2 µs less)
             return _clean_report_of(r.clock_view[0], code, 0, o[_OUT_SEPARATION], o[_OUT_ROTATION])
         state, k = r.state(), (r.cur + 1) % 4
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
@@ -228,11 +206,9 @@ class Solver:
         return self._finish(new, tally)
 
     def _bind(self, r: Resident, c: Control) -> None:
-        """Bind r to Control c's arrays and this Solver's rows (Resident.bind), and the
-        compiled step_resident's entry point, once: it skips the dispatcher's typing of the
-        arguments (~0.65 µs per structref) and unboxes by the compiled signature, so it is
-        used only when c's arrays have the layout and dtypes it was compiled for (the key's
-        last item); other arrays go through the dispatcher, which types them."""
+        """Bind r to c's arrays and this Solver's rows (Resident.bind), and to step_resident's
+        entry point (no typing: ~0.65 µs less per structref) when c's arrays have the compiled
+        layout (the key's last item); others go through the dispatcher."""
         arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
         standard = _compiled_layout(arrays)
         io = r.bind((self,) + arrays + (standard,), c, skipped=self._skipped, outcome=self._outcome,
@@ -245,9 +221,7 @@ class Solver:
         r.io_call = (call, (io,))
 
     def _clean_report(self, out, time):
-        """The StepReport of a step whose outcome row `out` is clean (`step.clean`, the rule
-        the compiled batches and step_resident apply), else None: such a step needs none of
-        the recovery and warnings of `_recover` and `_finish`."""
+        """The StepReport of a step whose outcome row `out` is clean (`step.clean`), else None."""
         if not compiled.clean(out, self._clean_rotation):
             return None
         return self._report(out, time)
@@ -280,9 +254,8 @@ class Solver:
 
     def _drive_hint(self, state, control) -> str:
         """Why a failed step may be a drive's doing: an active drive whose aim is more than
-        max_step_rotation from its joint's angle. A drive (UID 19, K = γ(m_i+m_j), no h²) pulls
-        its joint onto the aim within a step, and sub-steps do not help (each is asked for the
-        whole turn), so such an aim change must be spread over several steps."""
+        max_step_rotation from its joint's angle (UID 19 pulls onto the aim within a step,
+        sub-steps do not help)."""
         m = self.model
         limit = m.newton.max_step_rotation
         far = []
@@ -299,8 +272,7 @@ class Solver:
                 'the aim in smaller increments over several steps')
 
     def joint_rates(self, state: State) -> np.ndarray:
-        """[rad/s] (J,) θ̇ = ∇θ(q)·v of a state's bodies, as a step reports it for its answer
-        (step.joint_rates): the joint velocities of an initial state whose bodies move."""
+        """[rad/s] (J,) θ̇ = ∇θ(q)·v of a state's bodies (step.joint_rates), as a step does."""
         m = self.model
         out = np.empty((2, m.joint_count))
         compiled.joint_rates(self.data, state.q, state.v, self.work.zero,
@@ -308,16 +280,13 @@ class Solver:
         return out[1].copy()
 
     def axis_inertia(self, j: int) -> float:
-        """[kg m²] The lighter of joint j's two bodies' moment of inertia about the joint's
-        axis (terms/damping.py axis_inertia)."""
+        """[kg m²] terms/damping.py axis_inertia of joint j."""
         return axis_inertia(self.model, j)
 
     def _torque_hint(self, control) -> str:
-        """Why a failed step may be a torque's doing: the torque of the joint that would turn
-        its lighter body the most in one step from rest, ½ (τ/I) dt² with I its moment about
-        the axis, when that is more than the accuracy threshold. (Outboard bodies add inertia,
-        so the turn is an upper bound; a torque the inertia of a finger cannot carry at this
-        dt makes every sub-step's prediction absurd.)"""
+        """Why a failed step may be a torque's doing: the joint whose torque turns its lighter
+        body the most in one step from rest, ½ (τ/I) dt² (an upper bound), above the accuracy
+        threshold."""
         m = self.model
         worst, who = 0.0, None
         for k, j in enumerate(m.torque_joints):
@@ -341,14 +310,11 @@ class Solver:
         return (made[0], made[1], made[4]), (made[5], aw[0, 1]), self._outcome
 
     def _run(self, s, c, h, n, may_split, keep_rotation, out):
-        """`step.steps` from State s under Control c: (count, qvw (n,3,B,12), aw (n,2,J)),
-        the outcome rows written into out (n, OUT_COLUMNS). Where s's arrays are those the
-        last call made (`_made`) and c's are checked (`_control_checked`), the compiled entry
-        point is called directly: numba's dispatcher types each of the 28 arguments on every
-        call (`Solver.step` on States, one link: 6.8 µs per call, 9.4 through the dispatcher;
-        KUKA iiwa 15.2 and 17.7; 2-core VM, loaded, side by side). It unboxes by the compiled
-        signature, so it would misread an array of another layout or dtype: anything else
-        goes through the dispatcher, which types (and if needed compiles) it."""
+        """`step.steps` from s under c: (count, qvw (n,3,B,12), aw (n,2,J)), outcome rows in
+        out. Where s's arrays are those the last call made (`_made`) and c's are checked, the
+        entry point is called without the dispatcher's typing of 28 arguments (`Solver.step`,
+        one link: 6.8 µs per call, 9.4 through the dispatcher; KUKA iiwa 15.2 and 17.7; 2-core
+        VM, loaded, side by side); it would misread another layout, so others go through it."""
         B, J = self._shape
         qvw, aw = np.empty((n, 3, B, 12)), np.empty((n, 2, J))
         uniform = s.history_dt == h
@@ -375,8 +341,7 @@ class Solver:
         return count, qvw, aw
 
     def _control_checked(self, c) -> bool:
-        """Whether `_run` may call the entry point with Control c's arrays: they have the
-        layout and dtypes it was compiled for (checked again whenever one is replaced)."""
+        """Whether c's arrays have the compiled layout (checked again when one is replaced)."""
         arrays = (c.torque_value, c.torque_enabled, c.drive_aim, c.drive_enabled, c.drive_passive)
         known = self._control
         if (arrays[0] is known[0] and arrays[1] is known[1] and arrays[2] is known[2]
@@ -407,8 +372,7 @@ class Solver:
         return new, None
 
     def _count(self, out, tally, q):
-        """Add outcome row `out` (the step's new body states q) to tally: its counts and
-        skipped-torque warnings. Returns why the step left nothing to keep, or None."""
+        """Add outcome row `out` (new body states q) to tally; why nothing is kept, or None."""
         m = self.model
         skipped = int(out[compiled.OUT_SKIPPED])
         if skipped:
@@ -449,8 +413,7 @@ class Solver:
                 f'{SINGULAR_RATIO}); joint torque not applied' for b in self._skipped[:count].tolist()]
 
     def _end_warnings(self, q, time, overloaded, rotation) -> list:
-        """The overloaded-joint and accuracy warnings of a step that ended at `time` with body
-        states q, its largest joint rotation `rotation`."""
+        """The overloaded-joint and accuracy warnings of a step ending at `time` with q."""
         m, out = self.model, []
         if overloaded:
             for j in range(m.joint_count):
@@ -465,9 +428,7 @@ class Solver:
         return out
 
     def _kept_report(self, out, time, q) -> StepReport:
-        """The report of a step kept with warnings (step.kept) from its outcome row, at its
-        time and new body states q: what `_decode` and `_finish` make of it (the test
-        compares them), without a State or a _Tally."""
+        """The report of a step kept with warnings (step.kept): `_decode` and `_finish`'s."""
         _, its, halvings, rotation, _, skipped, separation, overloaded, _ = out.tolist()
         rotation = rotation if rotation > 0.0 else 0.0
         warnings = self._skipped_warnings(int(skipped)) if skipped else []
@@ -482,16 +443,11 @@ class Solver:
 
     # -- several steps -------------------------------------------------------------------
     def steps(self, state: State, control: Control, n: int, clean: bool = False) -> Steps:
-        """Up to n steps, those that need no sub-steps in one compiled call, bit-identical to
-        `count` calls of `step`. By default at least one: steps that only warn stay in the
-        batch (`step.kept`: only the last step's report is returned, so only its warnings are
-        worded); a step that needs sub-steps ends it, and if it is the first it is taken
-        through `step` (which may raise SimulationError, having taken nothing). At most
-        `batch_limit` steps then: the compiled call writes every step's state, and a batch
-        larger than the cache (or than memory: World.step(100_000) on 100 bodies would be
-        3 GB) only costs. clean=True (sim_node's batches, bounded by their caller): stops
-        before the first step on which `step` would sub-step, warn or fail, which may be the
-        first (count 0)."""
+        """Up to n steps in one compiled call, bit-identical to `count` calls of `step`. By
+        default at least one and at most `batch_limit` (every state is written): steps that
+        only warn stay in (only the last report is returned); one that needs sub-steps ends
+        the batch, or goes through `step` if first (which may raise SimulationError).
+        clean=True (sim_node): stops before any step that would sub-step, warn or fail."""
         if not clean:
             n = min(n, self.batch_limit)
             if n <= 1:
@@ -512,9 +468,7 @@ class Solver:
         if count == 0:
             return Steps(0, s, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
         h = self.model.dt
-        # t + h, + h, ... as `step` accumulates it: numpy's accumulate adds in order (no
-        # pairwise sum), the same bits as a Python loop at a sixth of its cost per step
-        acc = np.full(count + 1, h)
+        acc = np.full(count + 1, h)     # t + h + h ... in order: `step`'s bits, 1/6 of a loop
         acc[0] = s.time
         np.add.accumulate(acc, out=acc)
         times = acc[1:].tolist()
@@ -525,9 +479,7 @@ class Solver:
         if k == 0:
             prev, prev2 = _history(s, h, w)
         else:                       # the state before it is this batch's
-            prev = qvw[k - 1, 2]
-            # two back: that state's own warm_start_prev (for the batch's first state, as
-            # _history made it from s: s's warm start, or prev itself when unknown)
+            prev = qvw[k - 1, 2]        # two back: that state's own warm_start_prev
             prev2 = qvw[k - 2, 2] if k >= 2 else _history(s, h, prev)[0]
         state = State(time=t, q=qvw[k, 0], v=qvw[k, 1],
                       q_prev=qvw[k - 1, 0] if k else s.q, v_prev=qvw[k - 1, 1] if k else s.v,

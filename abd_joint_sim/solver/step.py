@@ -2,22 +2,16 @@
 
     1. forces: a = g_q + M⁻¹F at qⁿ (BDF1) or 2qⁿ − qⁿ⁻¹ (BDF2)     terms/gravity, torque, prismatic_force
     2. prediction q̃ (bdf.predict); may_split: refuse a step whose linearised joint rotation
-       ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (BDF1 saturates the solved rotation below
-       any limit, so only the prediction can see a too-large step)
-    3. Newton minimises Π from q̃ + c h² w (c = 1 BDF1, β BDF2), w = 3 warm_start −
-       3 warm_start_prev + warm_start_prev2 (the last three corrections extrapolated to this
-       step; 2 warm_start − warm_start_prev when two are known), or from q̃ + c h² warm_start
-       or q̃ where Π is lower                                                 newton.minimize
-    4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), unwrapped joint angles and
-       θ̇ = ∇θ·v (prismatic joints: their distance d and ḋ = ∇d·v), the largest joint
-       rotation of the step, joint separations.
+       ∇θ(qⁿ)·(q̃ − qⁿ) exceeds max_step_rotation (only the prediction can see it)
+    3. Newton minimises Π from q̃ + c h² w (c = 1 BDF1, β BDF2), w the last three
+       corrections extrapolated (3 w_n − 3 w_(n−1) + w_(n−2), or linearly), or from
+       q̃ + c h² warm_start or q̃ where Π is lower                          newton.minimize
+    4. velocities (bdf.velocity), warm start (q − q̃)/(c h²), joint angles and θ̇ = ∇θ·v
+       (prismatic: d, ḋ = ∇d·v), the step's largest joint rotation, joint separations.
 
-`one_step` reads its inputs only and writes the new state into the caller's arrays; what
-happened goes into a row `outcome` whose columns are named below (solver.py turns it into a
-StepReport). Two entries are called from Python: `steps`, n ≥ 1 steps per call (every
-Solver step and sub-step is `steps` with n = 1), stopping before the first one that needs a
-sub-step (or, for sim_node, a warning), bit-identical to n calls with n = 1; and
-`step_resident`, one step on the state `World.step()` keeps in a Resident's ring.
+`one_step` writes the new state into the caller's arrays and what happened into an `outcome`
+row (columns below; solver.py makes a StepReport). Entries called from Python: `steps`
+(n ≥ 1 steps, bit-identical to n calls with n = 1) and `step_resident` (`World.step()`).
 """
 from __future__ import annotations
 
@@ -127,12 +121,10 @@ def store(q_new, q_tilde, cw, new_qvw):
 def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
              torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2, order,
              may_split, ws, new_qvw, new_angles, skipped, outcome):
-    """One step of size h, working in ws (workspace.Workspace). new_qvw (3,B,12) = new q, v,
-    warm_start; new_angles (2,J) = joint angle, joint velocity; skipped[:outcome[OUT_SKIPPED]]
-    = bodies without torque. `order` (State.extrapolation_order): Newton starts from the warm
-    start extrapolated over the last three steps (2), the last two (1), or from warm_start
-    alone (0). The two entries called from Python, `steps` and `step_resident`, flush
-    subnormal numbers to zero around it (jit/subnormals.py)."""
+    """One step of size h in ws (workspace.Workspace): new_qvw (3,B,12) = new q, v,
+    warm_start; new_angles (2,J) = joint angle, velocity; skipped[:outcome[OUT_SKIPPED]] =
+    bodies without torque. `order` (State.extrapolation_order): warm starts extrapolated over
+    (0, 1 or 2). The entries flush subnormals around it (jit/subnormals.py)."""
     # the caller keeps these alive: no reference counts below (refcounts.py)
     m, ws = refcounts.struct(m), refcounts.struct(ws)
     q, v, q_prev, v_prev = refcounts.array(q), refcounts.array(v), refcounts.array(q_prev), refcounts.array(v_prev)
@@ -169,17 +161,9 @@ def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_pr
         prismatic_driving.targets(m, angle_start, drive_aim, drive_passive, drive_target)
     cw = h * h / scale
     q_new, q_alt = ws.q_new, ws.q_alt
-    # The correction (q − q̃)/(c h²) is the acceleration the stiff terms add to the explicit
-    # prediction; it changes smoothly, so its value one step on is ~3 w_n − 3 w_(n−1) +
-    # w_(n−2) (the quadratic through the last three). Measured on robots from pybullet_data:
-    # the linear 2 w_n − w_(n−1) made the first Newton correction ~20x smaller than w_n
-    # alone, and the quadratic another 2-10x (the Mini Cheetah: 1.96 -> 1.16 Newton
-    # iterations per step). Where the corrections' second difference exceeds their first,
-    # summed over all bodies, the motion is not smooth (a torque switched in the last two
-    # steps, round-off at rest) and they are extrapolated linearly: all bodies alike, since a
-    # body extrapolated unlike its neighbours starts Newton with its joints pulled apart.
-    # Across a jump both overshoot: Newton then starts from w_n, or q̃, where Π is lower
-    # (docs/decisions.md).
+    # Newton starts from the correction extrapolated quadratically (Mini Cheetah: 1.96 -> 1.16
+    # iterations per step), linearly for all bodies where the second difference exceeds the
+    # first, or from w_n or q̃ where Π is lower (docs/decisions.md)
     extrapolate = order > 0
     quadratic = order == 2
     if quadratic:
@@ -206,9 +190,7 @@ def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_pr
     limit.references(m, angle_start, ws.angle_ref)
     if m.prismatic_damping_joints.size:
         prismatic_damping.references(m, q_prev, angle_start, h, bdf2, ws.angle_ref)
-    # the Workspace's context (over q_tilde, angle_start, drive_target, angle_ref and its own
-    # drive_on): a reference where a context built here would be copied into every term call
-    ctx = refcounts.struct(ws.ctx)
+    ctx = refcounts.struct(ws.ctx)          # (built here, it would be copied into every term call)
     ctx.h, ctx.scale = h, scale
     drive_on = ctx.drive_on
     for k in range(drive_on.size):
@@ -227,8 +209,7 @@ def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_pr
         if not finite or not v_finite:
             outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
             return
-        # the dampers' angle, linearised at Newton's start, checked against the answer's own:
-        # where it missed, linearised again at the answer, from which Newton goes on
+        # the dampers' linearisation checked at the answer; where it missed, Newton goes on
         if m.damping_joints.size == 0 or repeat == damping.RELINEARISE_MAX or \
                 damping.linearisation_holds(m, q_new, new_angles[0], ws.angle_ref, m.transrate_tol * h):
             break
@@ -255,19 +236,16 @@ def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_pr
 
 @kernel
 def clean(o, clean_rotation):
-    """Whether the step of outcome row o is clean: no failure, Newton converged, no torque
-    skipped, no joint turned more than `clean_rotation` (the accuracy warning's threshold) and
-    none overloaded. Such a step needs none of the Solver's sub-stepping or warnings."""
+    """Whether outcome row o is clean: no failure, converged, no torque skipped, no joint
+    turned more than `clean_rotation` (the accuracy warning's) or overloaded."""
     return (o[OUT_FAILURE] == FAIL_NONE and o[OUT_STATUS] == newton.CONVERGED and o[OUT_SKIPPED] == 0.0
             and o[OUT_ROTATION] <= clean_rotation and o[OUT_OVERLOADED] == 0.0)
 
 
 @kernel
 def kept(o, keep_rotation):
-    """Whether the step of outcome row o is kept as it is, needing no sub-steps (only, where
-    it is not `clean`, warnings: a joint turned more than the accuracy threshold, a joint
-    overloaded, a torque skipped): no failure, Newton converged, no joint turned more than
-    `keep_rotation` (max_step_rotation). The rule of Solver._decode."""
+    """Whether outcome row o is kept without sub-steps (Solver._decode's rule): no failure,
+    converged, no joint turned more than `keep_rotation` (max_step_rotation)."""
     return (o[OUT_FAILURE] == FAIL_NONE and o[OUT_STATUS] == newton.CONVERGED
             and o[OUT_ROTATION] <= keep_rotation)
 
@@ -278,22 +256,12 @@ KEPT_WITH_WARNINGS = -2
 
 @kernel
 def step_resident(io):
-    """`World.step()`: `one_step` on a Resident's ring (io: resident.ResidentIO, which also holds
-    the Control's arrays, the Solver's ModelData, Workspace, skipped and outcome rows and its
-    settings), and when the step is `clean`, the Resident advanced to it: slot cur + 1 becomes
-    the current state, the clock moves by h, and the past warm starts count only across steps
-    of one size (solver._history's rule: known + 1, at most 2, if the last step had size h,
-    else 0). If the step was not clean it returns 0, and nothing but the ring's slot cur + 1
-    and the outcome row changed: the Solver recovers from there. A clean step returns its
-    Newton iterations (≥ 1), or −1 if its line search halved the step (the outcome row has the
-    count): the caller builds the step's report without converting the row's floats. A step
-    that is not clean but `kept` (it only warns) advances the Resident as a clean one and
-    returns KEPT_WITH_WARNINGS: the caller words the warnings from the outcome row.
-
-    What it saves against `Solver.step` on States (a State built per step, its ten arrays
-    unboxed, numba's dispatcher typing 28 arguments): per call, 2.5 µs against 6.8 on one
-    link, 11.3 against 16.6 on a 10-link chain, 10.9 against 16.0 on the KUKA iiwa (side by
-    side in one process; `python bench/profiler.py devices` prints it as `resident`)."""
+    """`World.step()`: `one_step` on a Resident's ring (io: resident.ResidentIO). A `clean`
+    or `kept` step advances the Resident (slot cur + 1, the clock by h, known warm starts as
+    solver._history) and returns its Newton iterations (≥ 1), −1 if its line search halved,
+    or KEPT_WITH_WARNINGS; any other returns 0, only slot cur + 1 and the outcome changed.
+    Per call 2.5 µs against 6.8 for `Solver.step` on one link, 11.3 / 16.6 on a 10-link
+    chain, 10.9 / 16.0 on the KUKA iiwa (one process; `bench/profiler.py devices`)."""
     io = refcounts.struct(io)
     slots, clock, h = io.slots, io.clock, io.h
     cur, known = slots[0], slots[1]
@@ -327,15 +295,11 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
           torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
           bdf2_next, uniform_first, order_first, may_split, n, clean_rotation, keep_rotation, ws,
           new_qvw, new_angles, skipped, outcome):
-    """Up to n consecutive steps, each `one_step` on the previous one's output, stopping before the
-    first that is neither `clean` nor `kept` with keep_rotation (the steps on which the
-    Solver sub-steps; with keep_rotation < 0 also those on which it warns: sim_node logs
-    every warning). The caller redoes that one alone. A kept step whose torque skipped a
-    body ends the batch, so `skipped` lists that step's bodies when it is the last. Step k
-    writes new_qvw[k], new_angles[k], outcome[k]. Returns the number of steps taken. Each state's warm-start history follows
-    the Solver's rule (solver._history): the input's counts only where it was made by steps
-    of size h (`uniform_first`: its last step was; `order_first`: its extrapolation_order),
-    and every step here has size h."""
+    """Up to n steps, each `one_step` on the previous one's output, stopping before the first
+    neither `clean` nor `kept` with keep_rotation (< 0: before any warning too); a kept step
+    that skipped a torque ends the batch. Step k writes new_qvw[k], new_angles[k],
+    outcome[k]; returns the count. Warm-start history as solver._history (`uniform_first`,
+    `order_first`: the input's last step size was h, its extrapolation_order)."""
     # the caller keeps these alive: no reference counts for them or their views (refcounts.py)
     q, v, q_prev, v_prev = refcounts.array(q), refcounts.array(v), refcounts.array(q_prev), refcounts.array(v_prev)
     warm_start, warm_start_prev = refcounts.array(warm_start), refcounts.array(warm_start_prev)
@@ -348,8 +312,6 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
                  order_first, may_split, ws, new_qvw[0], new_angles[0], skipped, outcome[0])
         elif k == 1:
-            # the state after step 0 holds warm_start as its previous warm start only if the
-            # step before had size h too, and warm_start_prev two back only if that was known
             prev = warm_start if uniform_first else new_qvw[0, 2]
             prev2 = warm_start_prev if uniform_first and order_first > 0 else prev
             order = (2 if order_first > 0 else 1) if uniform_first else 0

@@ -1,8 +1,6 @@
 """`Workspace`: the arrays one step works in, allocated once per Solver (a numba structref,
-like ModelData). An array allocated inside a compiled kernel costs as much as a few hundred
-flops, and a step needs some forty of them: at a few bodies, allocating them would be a
-large share of the step. The kernels only write these arrays before reading them; nothing in them
-carries from one step to the next (a step with a fresh Workspace gives the same result).
+like ModelData; an allocation in a kernel costs a few hundred flops). Nothing in them carries
+from one step to the next (a fresh Workspace gives the same result).
 """
 from __future__ import annotations
 
@@ -24,8 +22,7 @@ FIELDS = (
     ('q_alt', "(B,12) Newton's other start: q̃ + c h² warm_start, not extrapolated"),
     ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
     ('drive_target', '(D + Ds,) UID 19 targets, then UID 21\'s'),
-    ('angle_ref', '(L + P + Ps, 3 or damping.ROW) the step\'s limit.references, '
-                  'damping.references and prismatic_damping.references (StepContext.angle_ref)'),
+    ('angle_ref', '(L + P + Ps, 3 or damping.ROW) StepContext.angle_ref'),
     ('grad', '(B,12) ∇Π'),
     ('diag', '(B,12,12) diagonal blocks of ∇²Π'),
     ('pair', '(J,12,12) joint blocks of ∇²Π'),
@@ -41,8 +38,7 @@ FIELDS = (
     ('group_mean', "(G,3) the retraction's mean turn translation of each floating group (G ≥ 1)"),
     ('angle_work', '(25,18) angle.ANGLE_WORK_SHAPE: where the drives and limits work (StepContext)'),
     ('drive_on', '(D + Ds,) bool: which drives (UID 19, then UID 21) are on in this step (StepContext.drive_on)'),
-    ('ctx', "the step's StepContext over q_tilde, angle_start, drive_target, drive_on, angle_work "
-            'and angle_ref (the step sets h and scale in it)'),
+    ('ctx', "the step's StepContext over the fields above (the step sets h and scale)"),
 )
 
 
@@ -66,11 +62,10 @@ def build(model, data) -> Workspace:
     F = int(data.free_bodies.size)
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), q_alt=(B, 12),
-                  angle_start=(J,),
-                  drive_target=(D,), angle_ref=damping.reference_shape(model), grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12),
-                  trial=(B, 12), tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12),
-                  dense_H=(n, n), dense_x=(n,), zero=(B, 12),
-                  torque_axes=(len(model.torque_joints) + 2, 3),
+                  angle_start=(J,), drive_target=(D,), angle_ref=damping.reference_shape(model),
+                  grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12), trial=(B, 12),
+                  tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12), dense_H=(n, n),
+                  dense_x=(n,), zero=(B, 12), torque_axes=(len(model.torque_joints) + 2, 3),
                   group_mean=(max(int(data.group_count), 1), 3), angle_work=angle.ANGLE_WORK_SHAPE)
     values = {name: np.zeros(shapes[name]) for name, _ in FIELDS if name in shapes}
     values['drive_on'] = np.zeros(D, dtype=np.bool_)

@@ -5,20 +5,16 @@ Every term module holds:
 - FIELDS, the fields of the compiled model (solver/model_data.py) it owns, as (name, meaning),
   and `build(model, data)`, their values for a Model;
 - energy terms of the incremental potential Π: `energy(q, m, ctx)` and
-  `accumulate(q, m, ctx, grad, diag, pair, project)`, which returns E(q) with the bits of
-  `energy`, from the quantities its gradient needs (Newton's first assembly gives Π at its
-  start); CONSTANT_HESSIAN (Newton's assembly then adds only `accumulate_gradient`: the
-  Hessian is summed into its constant blocks once per model) and STORED (its E/h² is stored
-  mechanical energy, World.mechanical_energy);
+  `accumulate(q, m, ctx, grad, diag, pair, project)`, which returns E(q) with `energy`'s
+  bits; CONSTANT_HESSIAN (Newton then adds only `accumulate_gradient`, the Hessian being in
+  the constant blocks) and STORED (E/h² is stored energy, World.mechanical_energy);
 - forces without energy, which enter only the prediction q̃: `add_acceleration`.
 
 `m` is the compiled model (solver/model_data.py), `ctx` the step's `StepContext`
-(terms/context.py). Hessians are accumulated as 12x12 blocks: `diag` (B,12,12) per body
-and `pair` (J,12,12) per joint for its (parent row, child column) block, the block
-pattern the linear solver factorises. `project` asks for the PSD-projected Hessian (Newton
-always does; the derivative tests also check the raw one). angle.py is the joint angle the
-angle terms (driving, limit, damping) share; prismatic.py's distance is the prismatic
-terms' (prismatic_driving, prismatic_limit, prismatic_force's readout).
+(terms/context.py). Hessians go into 12x12 blocks: `diag` (B,12,12) per body, `pair`
+(J,12,12) per joint (parent row, child column). `project` asks for the PSD-projected
+Hessian (Newton's; the tests also check the raw one). angle.py's joint angle and
+prismatic.py's distance are shared by the angle and prismatic terms.
 
 numba cannot loop over modules: solver/newton.py `potential` and `assemble` call the energy
 terms one by one, in ENERGY_TERMS' order (the order Π is summed in), and

@@ -1,21 +1,16 @@
 """Joint angle θ of a revolute joint, shared by UID 668 (angle readout), UID 19 and UID 670
 (docs/physics.md "Joint angle").
 
-Per body k the stored basis (n̄_k, b̄_k) is carried by A_k (not normalised):
-n_k = A_k n̄_k, b_k = A_k b̄_k, and
+With n_k = A_k n̄_k, b_k = A_k b̄_k (not normalised):
 
     cos θ = (n_i·n_j + b_i·b_j)/2,   sin θ = (b_i·n_j − n_i·b_j)/2,   θ = atan2(sin, cos).
 
 Rotating the child by +φ about +t = (P1 − P0)/|P1 − P0| gives θ = +φ (b = t × n).
-Derivatives are taken with respect to x = [vec A_i, vec A_j] (18,), vec = row-major, so x
-maps onto q_i[3:12] and q_j[3:12]. c and s are bilinear in (A_i, A_j): their second
-derivatives are zero within a body and ½ I3 ⊗ (outer products) across the pair.
+Derivatives are with respect to x = [vec A_i, vec A_j] (18,) (vec row-major: q[3:12]).
 `unwrap` picks the branch of θ nearest to the previous step's angle (multi-turn angle).
 `accumulate_angle_joint` adds the gradient and the (PSD-projected) Hessian of any E(θ) on one
-joint, the shared part of UID 19, UID 670 and the damping. With `project`, a joint with
-|E'| > GAUSS_NEWTON_RANGE·E'' gets H = E''∇θ∇θᵀ (PSD) instead of E''∇θ∇θᵀ + E'∇²θ, and H is
-PSD-projected (negative eigenvalues clamped to 0) in closed form up to a 4x4 eigenproblem
-(angle_hessian_projected).
+joint (UID 19, UID 670, damping): with `project`, E''∇θ∇θᵀ where |E'| > GAUSS_NEWTON_RANGE·E'',
+else E''∇θ∇θᵀ + E'∇²θ projected in closed form up to a 4x4 eigenproblem.
 """
 from __future__ import annotations
 
@@ -27,23 +22,16 @@ from ..jit import kernel
 from ..smallmat import eigh_ql_in
 
 TWO_PI = 2.0 * np.pi
-# [rad] Far from its minimum, E'∇²θ (the curvature of the angle itself) misleads Newton: θ is
-# atan2 of two quantities bilinear in (A_i, A_j), so E'∇²θ has directions of negative
-# curvature that shear and shrink A rather than turn it, and a stiff drive asked to turn
-# 0.3 rad in one step makes Newton crawl into singular A. Where |E'/E''| (the
-# distance to a drive's target) exceeds this, the Hessian is the Gauss-Newton E''∇θ∇θᵀ:
-# PSD, and with the screw retraction it turns the body. Near the minimum E'∇²θ is kept
-# (fast local convergence); the gradient, and so Newton's answer, is the same either way.
+# [rad] where |E'/E''| exceeds this, the Hessian is the Gauss-Newton E''∇θ∇θᵀ: E'∇²θ shears
+# A far from the minimum (docs/decisions.md)
 GAUSS_NEWTON_RANGE = 0.1
 WORK_SHAPE = (8, 18)     #: work array of theta_derivatives_at
 
 
 @kernel
 def unwrap(theta, reference):
-    """The branch of θ nearest to `reference`: reference + ((θ − reference + π) mod 2π) − π
-    (Python's float % has the sign of 2π, like numpy's remainder). Within a turn of the
-    reference (nearly always: a step turns a joint by much less) the remainder is x itself,
-    exactly, and the call into the C fmod is skipped: the same bits."""
+    """The branch of θ nearest to `reference`: reference + ((θ − reference + π) mod 2π) − π;
+    fmod is skipped within a turn, where the remainder is x itself (the same bits)."""
     x = theta - reference + np.pi
     if not (0.0 <= x < TWO_PI):
         x = x % TWO_PI
@@ -52,9 +40,8 @@ def unwrap(theta, reference):
 
 @kernel
 def frames(q, i_body, j_body, nbar, bbar, j, fr):
-    """fr[0..3] = n_i, n_j, b_i, b_j of joint j in world axes (nbar, bbar = m.joint_nbar,
-    m.joint_bbar: the functions ending in `_at` take the model's arrays, not m, because they
-    run once per joint and a structref field lookup in such a loop costs more than the math)."""
+    """fr[0..3] = n_i, n_j, b_i, b_j of joint j in world axes (`_at` functions take the model's
+    arrays, not m: a structref field lookup per joint costs more than the math)."""
     for r in range(3):
         ni = nj = bi = bj = 0.0
         for c in range(3):
@@ -166,10 +153,8 @@ def theta_derivatives_at(q, parent, child, nbar, bbar, j, grad, hess, want_hess,
 
 @kernel(inline='always')
 def cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
-    """(c, s, ∇θ(q)·d) of joint j along d = d_plus − d_minus, without θ itself (no atan2: the
-    predicted rotation needs the slope only). Computed without forming ∇θ:
-    dθ = (c ds − s dc)/(c² + s²), with dc, ds the derivatives of c, s along d, e.g.
-    dc = ½(Δn_i·n_j + n_i·Δn_j + Δb_i·b_j + b_i·Δb_j), Δn_k = ΔA_k n̄_k."""
+    """(c, s, ∇θ(q)·d) of joint j along d = d_plus − d_minus, without atan2 or ∇θ:
+    dθ = (c ds − s dc)/(c² + s²), dc = ½(Δn_i·n_j + n_i·Δn_j + Δb_i·b_j + b_i·Δb_j)."""
     i_body, j_body = parent[j], child[j]
     ninj = bibj = binj = nibj = 0.0
     dc = ds = 0.0
@@ -208,12 +193,10 @@ _TINY_SPLIT = 1e-150            # below this |a + bR|/|a − bR| the v± pair ca
 @kernel
 def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, pair, project,
                            work, exact_bound):
-    """Adds ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ (PSD-projected with `project`, module
-    docstring) to the blocks on q[3:12], for joint j with E' = d1, E'' = d2 (`work`: an array
-    of ANGLE_WORK_SHAPE, reused across joints). With `project`, the Hessian is taken exact
-    (unprojected) where its most negative eigenvalue is at least −exact_bound (the terms pass
-    s times model_data's joint_angle_budget: the bodies' inertia keeps Newton's matrix
-    positive definite then; 0.0 projects always)."""
+    """Adds ∇E = E'∇θ to grad and H = E''∇θ∇θᵀ + E'∇²θ (PSD-projected with `project`) to the
+    blocks on q[3:12], for joint j with E' = d1, E'' = d2 (`work`: ANGLE_WORK_SHAPE). With
+    `project`, H is taken exact where its most negative eigenvalue is ≥ −exact_bound (s times
+    joint_angle_budget; 0.0 projects always)."""
     G = work[8]
     tw = work[0:8]
     i_body, j_body = parent[j], child[j]
@@ -250,39 +233,10 @@ def accumulate_angle_joint(q, parent, child, nbar, bbar, j, d1, d2, grad, diag, 
 def angle_hessian_projected(fr, c, s, nbi, bbi, nbj, bbj, e1, e2, i_body, j_body, j, diag, pair,
                             work, exact_bound):
     """Adds the PSD projection of H = e2 ∇θ∇θᵀ + e1 ∇²θ (e1 = E', e2 = E'') to the blocks,
-    from its structure instead of a 12x12 eigenproblem (docs/speed.md).
-
-    Reduced coordinates Z = [n_i b_i n_j b_j] (3x4; H lives in their span, Q of the former
-    QᵀHQ). c, s are quadratic forms ½ tr(Z C Zᵀ), ½ tr(Z S Zᵀ) with constant 4x4 C, S, so
-    with r² = c² + s², O = (cR − sI)/r (R the +90° turn, O orthogonal), ∇r = Z M_r:
-
-        ∇²θ = I3 ⊗ M_θ − (∇θ ∇rᵀ + ∇r ∇θᵀ)/r,
-        M_θ = (cS − sC)/r² = [[0, O], [Oᵀ, 0]]/(2r),
-
-    i.e. I3 ⊗ (eigenvalues ±1/(2r), six times each) plus rank 2. In the coordinates
-    a = (X_i + X_j Oᵀ)/√2, b = (X_i − X_j Oᵀ)/√2 (X_i = [n_i b_i], X_j = [n_j b_j]), which
-    split the ± eigenspaces, ∇θ = (a, −b)/(2r) and ∇r = (−bR, aR)/2; |a| = |b| and
-    ⟨a, bR⟩ = −2r. So H is e1/(2r) on the +, −e1/(2r) on the − space except on the 4-dim
-    invariant span of u± (∝ a − bR, b + aR) and v± (∝ a + bR, b − aR), where in that
-    orthonormal basis (S = |a − bR|, δ = |a + bR|; δ = 0 for a rigid pair)
-
-        H_W = e1/(2r) diag(1, −1, 1, −1) + e2 gθ gθᵀ − (e1/r)(gr gθᵀ + gθ grᵀ),
-        gθ = (S, −S, δ, −δ)/(4r),   gr = (S, S, −δ, −δ)/4.
-
-    Projection: H⁺ = β Π_pos + V (H_W⁺ − β E_pos) Vᵀ, β = |e1|/(2r), Π_pos the projector
-    on the space of eigenvalue +β (I3 ⊗ (I/2 + sign(e1) r M_θ)), E_pos its part in the
-    basis V, H_W⁺ from a 4x4 eigenproblem (smallmat.eigh_ql_in). The rows of H_W⁺ − β E_pos on v± are
-    O(δ), so v±, whose direction is ill-determined when δ is tiny, enter only with weight
-    O(δ): the result is accurate to rounding even for rigid pairs.
-
-    Exact instead: the eigenvalues of H are ±β (outside the span of V), 0 and those of H_W,
-    so λ_min(H) ≥ −β + λ_min(H_W − βD) (Weyl; D = diag(1, −1, 1, −1) sign(e1); H_W − βD is
-    the rank-2 part, gθ ⟂ gr, its eigenvalues from a 2x2; measured 1.00–1.26× the true
-    λ_min). Where that is ≥ −exact_bound, H itself is added, from the structure above in x
-    directly (no eigenproblem, no basis V):
-    H = e2 ∇θ∇θᵀ − (e1/r)(∇θ∇rᵀ + ∇r∇θᵀ) + e1 I3 ⊗ M_θ, whose last part is the cross blocks
-    I3 ⊗ e1/(2r) F_i O F_jᵀ (docs/decisions.md). `work` must hold what theta_derivatives_at
-    left there (∇c, ∇s in rows 4, 5; ∇θ in row 8)."""
+    from its structure instead of a 12x12 eigenproblem (docs/physics-code.md "The angle
+    terms' projected Hessian"): H itself where its Weyl bound λ_min ≥ −exact_bound, else
+    β Π_pos + V (H_W⁺ − β E_pos) Vᵀ with a 4x4 eigenproblem. `work` must hold what
+    theta_derivatives_at left there (∇c, ∇s in rows 4, 5; ∇θ in row 8)."""
     r = math.sqrt(c * c + s * s)
     o00, o01, o10, o11 = -s / r, -c / r, c / r, -s / r
     h = math.sqrt(0.5)
@@ -404,11 +358,8 @@ def _add_exact_angle_hessian(work, c, s, r, o00, o01, o10, o11, nbi, bbi, nbj, b
         Dr[a] = (c * dc[a] + s * ds[a]) / r
     k1 = e1 / r
     kx = e1 / (2.0 * r)
-    # ∇θ and ∇r of each body in locals (stores into the blocks cannot then change them), and
-    # every row written whole with constant bounds, so the SLP vectoriser (jit/
-    # slp.py) makes them vector operations. Each body's block is symmetric term by
-    # term (x_ab and x_ba are the same products, added in the same order): its whole square
-    # gives the bits of the upper triangle mirrored, in ~60 % of the time
+    # ∇θ, ∇r in locals and whole rows with constant bounds, for the SLP vectoriser (jit/slp.py);
+    # each block's whole square has the mirrored triangle's bits, in ~60 % of the time
     Gi = (G[0], G[1], G[2], G[3], G[4], G[5], G[6], G[7], G[8])
     Gj = (G[9], G[10], G[11], G[12], G[13], G[14], G[15], G[16], G[17])
     Ri = (Dr[0], Dr[1], Dr[2], Dr[3], Dr[4], Dr[5], Dr[6], Dr[7], Dr[8])

@@ -1,11 +1,8 @@
 """What the energy terms read besides q and the model: fixed for the duration of one step.
 
-A numba structref, passed by reference. Every term call of a step takes the context (a
-dozen calls per Newton iteration on a chain, more on an arm): a namedtuple of six arrays
-would be copied onto the stack at each of them, ~300 bytes per call, with stalls where the
-callee reads back what has just been written.
-The step itself does not build one: its Workspace holds a context over the workspace's own
-arrays, and the step sets h, scale and drive_on in place (solver/step.py).
+A numba structref, passed by reference (a namedtuple of six arrays would be copied onto the
+stack, ~300 bytes, at each of a dozen term calls per Newton iteration). The step uses its
+Workspace's context, setting h, scale and drive_on in place (solver/step.py).
 
 Fields:
 - h [s] step size; scale s of the inertia term (1 BDF1, 9/4 BDF2);
@@ -13,11 +10,8 @@ Fields:
 - angle_start [rad] (J,) unwrapped joint angle minus init_angle at the start of the step;
 - drive_target [rad] (D,) UID 19 target relative to init_angle (the aim, or angle_start
   when passive); drive_on (D,) bool;
-- angle_work: scratch of angle.ANGLE_WORK_SHAPE the drives and limits work in (no
-  allocation in the step);
-- angle_ref (L + P, ≥ 3) the angle terms' references for the step: row k < L what
-  limit.inside reads for limit k (limit.references, from angle_start), row L + k damper k's
-  stiffness and angle linearised at Newton's start (damping.references).
+- angle_work: scratch of angle.ANGLE_WORK_SHAPE the drives and limits work in;
+- angle_ref (L + P, ≥ 3): row k < L limit.references, row L + k damping.references.
 """
 from __future__ import annotations
 

@@ -1,33 +1,19 @@
 """Viscous joint damping (docs/physics.md "Joint damping"): a torque −d θ̇ on each damped
-joint, d [N m s/rad] from the scene (`damping:`) or a URDF's `<dynamics damping>`. Not a
-libuipc constitution (libuipc's joints carry none); MuJoCo's and PyBullet's URDF imports
-apply the same torque.
-
-It is integrated implicitly, as the incremental potential of its torque at the end of the
-step, where the integrator's velocity is θ̇ = (θ − θ*)/(c h):
+joint, d [N m s/rad], integrated implicitly with the integrator's θ̇ = (θ − θ*)/(c h):
 
     BDF1: θ* = θⁿ,                  c = 1
     BDF2: θ* = (4θⁿ − θⁿ⁻¹)/3,      c = 2/3
     E = K/2 (θ − θ*)²,   K = h d / c
 
-(∂E/∂θ = h² d θ̇: h² times the torque, as the inertia term's s M (q − q̃) carries every force
-of the step, s β = 1). Explicit damping would be unstable beyond h d / I = 2 (I the moment
-about the axis); this is stable for any d.
-
-θ is taken linear in q over the step, from Newton's start q₀ (`references`, once per step):
+θ (unwrapped, relative to init_angle) is taken linear in q from Newton's start q₀
+(`references`, once per step):
 
     θ(q) ≈ θ₀ + ∇θ₀·(q − q₀),   E = K/2 e²,   e = θ₀ − θ* + ∇θ₀·(q − q₀)
     ∇E = K e ∇θ₀,   ∇²E = K ∇θ₀∇θ₀ᵀ (PSD: nothing to project)
 
-so Newton's loop evaluates no angle (no atan2) for it: a dot product per joint for E, a rank
-one block for the Hessian. What the linearisation leaves out is θ's curvature over
-|q − q₀|, the distance from Newton's start to the answer (about the step tolerance): the
-damping torque acts along ∇θ at the start rather than at the answer, as UID 668's torque
-acts along its axis at the step's explicit point, which is farther away (docs/decisions.md).
-Where the answer's own angle shows the linearisation missed it by more than LINEAR_TOL (a
-start far from the answer: a torque the damper undoes within the step), the step linearises
-again at the answer and Newton goes on from there (`linearisation_holds`, solver/step.py).
-θ is the unwrapped joint angle relative to init_angle (angle.py), as for UID 19.
+Where the answer's own angle shows the linearisation missed by more than LINEAR_TOL, the
+step linearises again at the answer and Newton goes on (`linearisation_holds`,
+solver/step.py; docs/decisions.md).
 """
 from __future__ import annotations
 
@@ -48,7 +34,6 @@ DAMPING_RATIO_MAX = 1e15
 NAME = 'joint_damping'      #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('damping_joints', '(P,) joints with viscous damping'),
     ('damping_coeff', '[N m s/rad] (P,) their damping coefficients d'),
@@ -95,7 +80,6 @@ def axis_inertia(model, j: int) -> float:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(damping_joints=flat.array(model.damping_joints, np.int64),
                 damping_coeff=flat.array(model.damping_coeff, np.float64))
 
@@ -122,9 +106,8 @@ def reference_shape(model):
 @kernel
 def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
     """Rows L + k of out (angle_ref, L limits): per damped joint k, K = h d / c, θ₀ − θ*,
-    ∇θ₀·q₀, ∇θ₀ and θ* for a step of size h whose Newton starts at q0, from the angles at the
-    start of the step, angle_start (θⁿ, relative to init_angle), and, with bdf2, the bodies
-    one step back, q_prev (for θⁿ⁻¹). `work`: an angle.ANGLE_WORK_SHAPE array. Returns out."""
+    ∇θ₀·q₀, ∇θ₀ and θ* for Newton's start q0, from angle_start (θⁿ) and, with bdf2, q_prev
+    (θⁿ⁻¹). `work`: angle.ANGLE_WORK_SHAPE. Returns out."""
     joints, d = m.damping_joints, m.damping_coeff
     L = m.limit_joints.size
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
@@ -156,9 +139,8 @@ def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
 @kernel
 def linearisation_holds(m, q, angle, ref, floor):
     """Whether at Newton's answer q every damper's linearised angle is within LINEAR_TOL of
-    its exact one, `angle` (J,): θ(q) relative to init_angle, unwrapped as the step reports
-    it, i.e. the linearised torque is within LINEAR_TOL of the implicit damper's own;
-    `floor` [rad]: the smallest turn the share is taken of."""
+    its exact one, `angle` (J,, relative to init_angle); `floor` [rad]: the smallest turn the
+    share is taken of."""
     joints, parent, child, init = m.damping_joints, m.joint_parent, m.joint_child, m.joint_init_angle
     L = m.limit_joints.size
     for k in range(joints.size):

@@ -20,7 +20,6 @@ from .revolute import stiffness
 NAME = 'driving'            #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('drive_joints', '(D,) joints with UID 19'),
     ('drive_K', '(D,) UID 19 stiffness γ (m_i + m_j)'),
@@ -46,7 +45,6 @@ def from_scene(scene, model) -> dict:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(drive_joints=flat.array(model.drive_joints, np.int64),
                 drive_K=flat.array(model.drive_K, np.float64))
 
@@ -69,9 +67,8 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the enabled drives (E', E'' and
-    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
-    Returns E (the bits of `energy`)."""
+    """∇E and the (projected) Hessian of the enabled drives via angle.accumulate_angle_joint
+    (in ctx.angle_work); returns E (`energy`'s bits)."""
     drive_joints, K, on = m.drive_joints, m.drive_K, ctx.drive_on
     target, start = ctx.drive_target, ctx.angle_start
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar

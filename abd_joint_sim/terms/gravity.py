@@ -8,7 +8,6 @@ import numpy as np
 from ..jit import flat, kernel
 
 NAME = 'gravity'            #: in Solver.terms
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('gravity', '[m/s²] (3,)'),
     ('has_gravity', 'bool'),
@@ -25,9 +24,7 @@ def from_scene(scene, model) -> dict:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(gravity=flat.array(model.gravity, np.float64), has_gravity=bool(model.has_gravity))
-
 
 
 @kernel

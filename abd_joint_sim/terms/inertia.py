@@ -5,15 +5,10 @@
 with s = 1 (BDF1) or 1/β = 9/4 (BDF2). It makes Newton's matrix positive definite on the
 free bodies.
 
-M = M̄ ⊗ I3: with q = [p, vec A] (vec row-major), spatial row k of a body couples only the
-four entries [p_k, A_k0, A_k1, A_k2] through the 4x4 M̄ = [[m, m c̄ᵀ], [m c̄, S̄]]
-(m.body_Mbar), so (M d)_r is a 4-term sum instead of 12, 48 of the 144 entries of M are
-nonzero, and those are all the Hessian adds. The sums run over the same nonzero products in
-the same order as the dense 12x12 product: the results are bit-identical to it.
-
-Its Hessian s M is constant for each s: `add_hessian` adds it into Newton's constant blocks
-once per model, for both scales (model_data.constant_blocks), and the step adds only the
-gradient (`accumulate_gradient`).
+M = M̄ ⊗ I3: spatial row k couples only [p_k, A_k0, A_k1, A_k2] through the 4x4
+M̄ = [[m, m c̄ᵀ], [m c̄, S̄]] (m.body_Mbar): 48 nonzero entries, summed in the dense
+product's order (its bits). s M is added into Newton's constant blocks once per model
+(`add_hessian`, model_data.constant_blocks); the step adds only `accumulate_gradient`.
 """
 from __future__ import annotations
 
@@ -24,9 +19,7 @@ from ..jit import kernel
 NAME = None                 #: not listed in Solver.terms (every scene has it)
 STORED = False              #: World.mechanical_energy counts the kinetic energy itself
 CONSTANT_HESSIAN = True     #: Newton adds only the gradient (accumulate_gradient)
-#: the fields of the compiled model (solver/model_data.py) this term owns: none (it reads the
-#: bodies' body_Mbar and free_bodies)
-FIELDS = ()
+FIELDS = ()                 #: none (it reads body_Mbar and free_bodies)
 
 
 def used(model) -> bool:
@@ -45,9 +38,7 @@ def min_eigenvalue(Mbar):
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return {}
-
 
 
 @kernel

@@ -7,10 +7,8 @@
 E' and E'' follow; gradient and Hessian via angle.accumulate_angle_joint (PSD-projected, or
 exact where the bodies' inertia keeps Newton's matrix positive definite).
 
-Most limits are inside their range most of the time, where they contribute nothing: `inside`
-shows that without atan2 (the angle's cosine against the step's start), and only the others
-compute the angle. The same results, bit for bit: it answers "inside" only where the angle
-is at least INSIDE_SAFETY from both bounds.
+`inside` shows a limit inside its range (contributing nothing) without atan2, only where the
+angle is at least INSIDE_SAFETY from both bounds: the same bits.
 """
 from __future__ import annotations
 
@@ -24,7 +22,6 @@ from . import angle, select
 NAME = 'limit'              #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('limit_joints', '(L,) joints with UID 670'),
     ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),
@@ -37,23 +34,26 @@ def used(model) -> bool:
     return len(model.limit_joints) > 0
 
 
-def from_scene(scene, model) -> dict:
-    """The Model's fields of this term: limit_joints (n,), the joints with UID 670;
-    limit_lower and _upper [rad] (absolute), limit_strength, (n,)."""
-    ks = select.joints(scene, model, False, lambda j: j.limit is not None)
+def from_scene(scene, model, prefix='limit_', sliding=False) -> dict:
+    """The Model's fields of this term (prismatic_limit's with its `prefix`, on the sliding
+    joints): the joints with a limit, (n,); their lower and upper bounds (absolute: rad, or m
+    sliding) and strength, (n,)."""
+    ks = select.joints(scene, model, sliding, lambda j: j.limit is not None)
     spec = [scene.joints[k].limit for k in ks]
-    return dict(limit_joints=ks, limit_lower=np.array([s.lower for s in spec], float),
-                limit_upper=np.array([s.upper for s in spec], float),
-                limit_strength=np.array([s.strength for s in spec], float))
+    return {prefix + 'joints': ks, prefix + 'lower': np.array([s.lower for s in spec], float),
+            prefix + 'upper': np.array([s.upper for s in spec], float),
+            prefix + 'strength': np.array([s.strength for s in spec], float)}
 
 
-def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
-    lj, init = model.limit_joints, model.joint_init_angle
-    return dict(limit_joints=flat.array(lj, np.int64),
-                limit_lower=flat.array(model.limit_lower - init[lj], np.float64),
-                limit_upper=flat.array(model.limit_upper - init[lj], np.float64),
-                limit_strength=flat.array(model.limit_strength, np.float64))
+def build(model, data, prefix='limit_') -> dict:
+    """FIELDS' values (prismatic_limit's with its `prefix`), bounds relative to the init value."""
+    lj, lower, upper, strength = (getattr(model, prefix + n)
+                                  for n in ('joints', 'lower', 'upper', 'strength'))
+    init = model.joint_init_angle[lj]
+    return {prefix + 'joints': flat.array(lj, np.int64),
+            prefix + 'lower': flat.array(lower - init, np.float64),
+            prefix + 'upper': flat.array(upper - init, np.float64),
+            prefix + 'strength': flat.array(strength, np.float64)}
 
 
 @kernel
@@ -150,9 +150,8 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E and the (projected) Hessian of the active limits (E', E'' from `phi` and
-    angle.accumulate_angle_joint, joint by joint), working in ctx.angle_work.
-    Returns E (the bits of `energy`)."""
+    """∇E and the (projected) Hessian of the active limits via `phi` and
+    angle.accumulate_angle_joint (in ctx.angle_work); returns E (`energy`'s bits)."""
     limit_joints, lower, upper, strength = m.limit_joints, m.limit_lower, m.limit_upper, m.limit_strength
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     budget = m.joint_angle_budget

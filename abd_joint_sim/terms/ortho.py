@@ -7,14 +7,8 @@ indefinite away from SO(3); its PSD projection comes from the analytic eigensyst
 A = U Σ Vᵀ: eigenvectors vec(u_i v_iᵀ) with λ = 3σ_i² − 1, and (u_i v_jᵀ ± u_j v_iᵀ)/√2 with
 λ = σ_i² + σ_j² − 1 ± σ_i σ_j (i < j), times 4h²κv̄; negative λ are clamped to 0.
 
-Where the projection is needed: every λ is ≥ min σ² − 1 ≥ −‖C‖_F (σ_i² − 1 are the
-eigenvalues of C), so the unprojected Hessian takes at most 4h²κv̄ ‖C‖_F from any direction,
-and the inertia term gives every direction at least s μ_min(M̄). Near SO(3), where bodies
-spend their lives, the first is a small share of the second: Newton then uses the exact
-Hessian (its own step, and no 3x3 SVD), and projects only where 4h²κv̄ ‖C‖_F exceeds
-ORTHO_EXACT_SHARE s μ_min(M̄) (m.ortho_exact_bound; docs/decisions.md). The λ the projection
-clamps (−‖C‖_F at most) lie on the body's rotations, which only the inertia resists: there
-the projection made Newton's matrix stiffer than Π.
+Every λ is ≥ −‖C‖_F, so Newton uses the exact Hessian (no 3x3 SVD) and projects only where
+4h²κv̄ ‖C‖_F exceeds ORTHO_EXACT_SHARE s μ_min(M̄) (m.ortho_exact_bound; docs/decisions.md).
 """
 from __future__ import annotations
 
@@ -29,15 +23,11 @@ from . import inertia
 NAME = 'ortho_potential'    #: in Solver.terms
 STORED = True               #: stored energy (World.mechanical_energy; its h² cancels there)
 CONSTANT_HESSIAN = False
-# The share of a body's smallest inertia, s μ_min(M̄), that the unprojected shape Hessian may
-# take away from Newton's matrix (docs/decisions.md).
-ORTHO_EXACT_SHARE = 0.5
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
+ORTHO_EXACT_SHARE = 0.5     # of s μ_min(M̄) the exact shape Hessian may take (docs/decisions.md)
 FIELDS = (
     ('ortho_weight', '(B,) κ v̄ of UID 1 [Pa m³]'),
-    ('ortho_exact_bound', '(B,) UID 1\'s Hessian is used unprojected while h² ‖AAᵀ − I‖_F ≤ s × this '
-                          '(Newton\'s matrix then keeps 1 − ORTHO_EXACT_SHARE of the body\'s '
-                          'smallest inertia)'),
+    ('ortho_exact_bound', '(B,) UID 1\'s Hessian is used unprojected while h² ‖AAᵀ − I‖_F ≤ s × '
+                          'this (`exact_bound`)'),
 )
 
 
@@ -51,17 +41,14 @@ def from_scene(scene, model) -> dict:
 
 
 def exact_bound(Mbar, weight):
-    """(B,) ORTHO_EXACT_SHARE μ_min(M̄) / (4 κv̄) per body (inf without a shape term): where
-    h² ‖AAᵀ − I‖_F is below s times it, the unprojected shape Hessian, whose eigenvalues are
-    ≥ −4h²κv̄ ‖AAᵀ − I‖_F, takes at most that share of the inertia term's s μ_min(M̄) away from
-    any direction of Newton's matrix."""
+    """(B,) ORTHO_EXACT_SHARE μ_min(M̄) / (4 κv̄) per body (inf without a shape term): below s
+    times it, h² ‖AAᵀ − I‖_F keeps the exact Hessian within that share of s μ_min(M̄)."""
     mu = inertia.min_eigenvalue(Mbar)
     with np.errstate(divide='ignore'):
         return np.where(weight > 0.0, ORTHO_EXACT_SHARE * mu / (4.0 * weight), np.inf)
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     weight = flat.array(model.body_kappa * model.body_volume, np.float64)
     return dict(ortho_weight=weight,
                 ortho_exact_bound=flat.array(exact_bound(data['body_Mbar'], weight), np.float64))
@@ -98,11 +85,9 @@ def energy(q, m, ctx):
 
 @kernel
 def accumulate(q, m, ctx, grad, diag, pair, project):
-    """∇E into grad; into diag the exact Hessian, or with `project` (Newton) a Hessian that
-    keeps Newton's matrix positive definite: the exact one where the body's inertia
-    outweighs its negative part (ORTHO_EXACT_SHARE, module docstring), else the PSD
-    projection. The exact path works on scalars and allocates nothing (docs/speed.md).
-    Returns E, the bits of `energy` (‖C‖² is summed in its order)."""
+    """∇E into grad; into diag the exact Hessian, or with `project` the PSD projection where
+    the inertia does not outweigh its negative part (ORTHO_EXACT_SHARE). The exact path
+    allocates nothing (docs/speed.md). Returns E, the bits of `energy`."""
     hh = ctx.h * ctx.h
     weight = m.ortho_weight
     exact_bound = m.ortho_exact_bound
@@ -127,11 +112,8 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
         AtA = (_ata(q, b, 0, 0), _ata(q, b, 0, 1), _ata(q, b, 0, 2),
                _ata(q, b, 1, 0), _ata(q, b, 1, 1), _ata(q, b, 1, 2),
                _ata(q, b, 2, 0), _ata(q, b, 2, 1), _ata(q, b, 2, 2))
-        # Row (i, k) of the A-block, columns (j, l) = 3j + l: x = A_il A_jk, + (AᵀA)_lk where
-        # j = i, + C_ij where l = k (the module docstring's sum, in that order), held in
-        # locals and written out as one run of 9 columns, which the SLP vectoriser
-        # (jit/slp.py) makes vector operations: half the time of the 4-deep loop nest, the
-        # same bits
+        # Row (i, k), columns (j, l) = 3j + l: A_il A_jk, + (AᵀA)_lk where j = i, + C_ij where
+        # l = k, in locals, one run of 9 columns for SLP (jit/slp.py): half the loop nest's time
         for i in range(3):
             a0, a1, a2 = q[b, 3 + 3 * i], q[b, 4 + 3 * i], q[b, 5 + 3 * i]        # A_il
             c0, c1, c2 = C[3 * i], C[3 * i + 1], C[3 * i + 2]                      # C_ij

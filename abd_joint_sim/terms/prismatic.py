@@ -1,33 +1,16 @@
 """Prismatic joint, libuipc UID 20 (docs/physics.md "Prismatic joint (UID 20)"): the child
 slides along the axis t̂ = (P1 − P0)/|P1 − P0| of its parent, without turning relative to it.
 
-Each body k ∈ {i (parent), j (child)} stores the joint frame in its rest coordinates: the
-point c̄_k (P0, translation included) and the directions t̄_k, n̄_k, b̄_k (rotation only).
-In the current state c_k = A_k c̄_k + p_k, t_k = A_k t̄_k, n_k = A_k n̄_k, b_k = A_k b̄_k, and
+With the joint frame c̄_k, t̄_k, n̄_k, b̄_k stored on each body k ∈ {i (parent), j (child)} and
+c_k = A_k c̄_k + p_k, t_k = A_k t̄_k, n_k = A_k n̄_k, b_k = A_k b̄_k:
 
     C0 = (c_j − c_i) × t_i,   C1 = (c_i − c_j) × t_j,   C2 = n_i − n_j,   C3 = b_i − b_j
     E = K/2 Σ_k |C_k|²,       K = γ (m_i + m_j)   (γ = strength_ratio, no h²: E/h² is physical)
 
-C0, C1 leave only the slide along t; C2, C3 forbid relative rotation. With r = c_j − c_i and
-the constant Jacobians Dr = ∂r/∂x, L_tk = ∂t_k/∂x (x = [q_i, q_j] (24,), all of c, t, n, b
-are linear in x): ∇C0 = −[t_i]× Dr + [r]× L_ti, ∇C1 = [t_j]× Dr − [r]× L_tj, ∇C2 = L_ni − L_nj,
-∇C3 = L_bi − L_bj; ∇E = K Σ ∇C_kᵀ C_k. C0, C1 are bilinear in x, so E is quartic and its
-Hessian is not constant:
-
-    ∇²E = K Σ ∇C_kᵀ ∇C_k + K (Drᵀ M0 L_ti + L_tiᵀ M0ᵀ Dr) + K (Drᵀ M1 L_tj + L_tjᵀ M1ᵀ Dr),
-    M0 = −[C0]×,  M1 = [C1]×       (from w·(a × b) = −aᵀ [w]× b)
-
-Newton takes its Gauss-Newton part K Σ ∇C_kᵀ∇C_k (`project`): PSD by construction, exact
-where the joint holds (C = 0); the rest is O(|C|/ℓ) of it (ℓ the bodies' size), a few 1e-4
-on a loaded joint. The raw Hessian (project False) is the whole one, for the tests.
-
-The joint coordinate (the distance), shared by UID 667's readout, UID 21 and UID 669:
-
-    d(q) = ½ (c_j − c_i)·(t_i + t_j),   ∇d = ½ ((t_i + t_j)ᵀ Dr + rᵀ (L_ti + L_tj))
-
-the signed slide of the child along +t relative to the parent, 0 at creation; the reported
-distance is d + init_distance. ḋ = ∇d·v. Its separation (reported as UID 18's) is
-max(|C0|, |C1|) [m]: how far each body's axis point is off the other's axis.
+E is quartic: Newton takes the Gauss-Newton part K Σ ∇C_kᵀ∇C_k (`project`: PSD, exact where
+the joint holds); the raw Hessian (project False) is the whole one, for the tests.
+The distance d(q) = ½ (c_j − c_i)·(t_i + t_j) (UID 667's readout, UID 21, UID 669) is the
+child's signed slide along +t, 0 at creation; ḋ = ∇d·v. The separation is max(|C0|, |C1|) [m].
 """
 from __future__ import annotations
 
@@ -41,18 +24,14 @@ from . import select
 NAME = 'prismatic_joint'    #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-# the same warning and fault rule as UID 18's (revolute.SEPARATION_WARN, SEPARATION_FAULT)
-SEPARATION_WARN = 0.01
+SEPARATION_WARN = 0.01      # the same rule as UID 18's (revolute.py)
 SEPARATION_FAULT = 1e3
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('prismatic_joints', '(S,) the prismatic joints (UID 20)'),
     ('prismatic_slot', '(J,) k of joint j in prismatic_joints, -1 for a revolute joint'),
-    ('prismatic_frame', '[m] (S,2,4,3) per joint and side (parent, child): c̄, t̄, n̄, b̄ in the '
-                        'body\'s rest frame'),
+    ('prismatic_frame', '[m] (S,2,4,3) per joint and side: c̄, t̄, n̄, b̄ in the rest frame'),
     ('prismatic_K', '[kg] (S,) UID 20 stiffness K = γ (m_i + m_j)'),
-    ('prismatic_outer', '(S,12,4,4) outer products of the rest vectors ȳ the Hessian blocks are made of '
-                        '(`outer_products`)'),
+    ('prismatic_outer', '(S,12,4,4) `outer_products` of the rest vectors ȳ'),
     ('prismatic_warn_separation', '[m] (S,) separation above which a step warns (overloaded joint)'),
     ('prismatic_fault_separation', '[m] (S,) separation above which the joint has come apart'),
 )
@@ -70,8 +49,7 @@ def from_scene(scene, model) -> dict:
 
 
 def rest_frames(model) -> np.ndarray:
-    """(S,2,4,3) c̄, t̄, n̄, b̄ per prismatic joint and side, from the Model's anchors (the
-    initial poses are rigid: A⁻¹ = Aᵀ keeps t̄ a unit vector)."""
+    """(S,2,4,3) c̄, t̄, n̄, b̄ per prismatic joint and side, from the Model's anchors."""
     S = model.prismatic_joints
     out = np.zeros((len(S), 2, 4, 3))
     for k, j in enumerate(S):
@@ -92,8 +70,8 @@ OUTER_ROWS = ('c̃_i c̃_iᵀ', 'c̃_i t̃_iᵀ', 't̃_i t̃_iᵀ', 'ñ_i ñ_i�
 
 
 def outer_products(frames) -> np.ndarray:
-    """(S,12,4,4) the outer products OUTER_ROWS of each joint's rest vectors (frames: (S,2,4,3)
-    from `rest_frames`): the constant factors of UID 20's Hessian blocks (`accumulate`)."""
+    """(S,12,4,4) the outer products OUTER_ROWS of each joint's rest vectors (`rest_frames`):
+    the constant factors of UID 20's Hessian blocks (`accumulate`)."""
     S = len(frames)
     y = np.zeros((S, 2, 4, 4))
     y[:, :, :, 1:] = frames
@@ -114,7 +92,6 @@ def outer_products(frames) -> np.ndarray:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     m = model
     S = m.prismatic_joints
     slot = np.full(m.joint_count, -1, np.int64)
@@ -134,12 +111,8 @@ def build(model, data) -> dict:
 
 
 # -- geometry of one joint ----------------------------------------------------------------------
-# A body's frame vector a (0: the point c, 1: t, 2: n, 3: b) is J(ȳ) q with the homogeneous
-# rest vector ȳ = [1, c̄] for the point and [0, x̄] for a direction: row r reads q's column
-# r (translation) and columns 3 + 3r + col (row r of A). So its Jacobian is I3 ⊗ ȳᵀ, and a
-# Jacobian M (I3 ⊗ ȳᵀ) (M 3×3) has the entry M[m, r] ȳ[κ] in row m and column `col(r, κ)`.
-# Every derivative below is a sum of such terms: the Hessian blocks are sums of
-# N[r, s] ȳ[κ] z̄[λ] over a few 3×3 matrices N and homogeneous vectors ȳ, z̄.
+# A frame vector a (0: c, 1: t, 2: n, 3: b) is J(ȳ) q, ȳ = [1, c̄] or [0, x̄]: its Jacobian
+# I3 ⊗ ȳᵀ, and M (I3 ⊗ ȳᵀ) has M[m, r] ȳ[κ] at row m, column `col(r, κ)`.
 
 
 @kernel(inline='always')
@@ -179,8 +152,7 @@ def axis_and_offset(q, i_body, j_body, fr, k):
 
 @kernel
 def frames(q, i_body, j_body, fr, k, W):
-    """W (≥ 8, 3) rows c_i, c_j, t_i, t_j, n_i, n_j, b_i, b_j of prismatic joint k (fr =
-    m.prismatic_frame) in world axes."""
+    """W (≥ 8, 3) rows c_i, c_j, t_i, t_j, n_i, n_j, b_i, b_j of prismatic joint k in world axes."""
     for side in range(2):
         b = i_body if side == 0 else j_body
         for r in range(3):
@@ -318,8 +290,7 @@ def joint_separation(q, m, j):
 
 @kernel
 def check_separations(q, m):
-    """(largest separation, whether one exceeds its warning, the first joint beyond its fault
-    separation or -1) over the prismatic joints, as revolute.check_separations. [m]"""
+    """revolute.check_separations over the prismatic joints. [m]"""
     joints, parent, child, fr = m.prismatic_joints, m.joint_parent, m.joint_child, m.prismatic_frame
     warn, fault = m.prismatic_warn_separation, m.prismatic_fault_separation
     largest = 0.0

@@ -1,20 +1,13 @@
 """Viscous damping of a prismatic joint (docs/physics.md "Prismatic joint damping"): a force
-−c ḋ along the slide, c [N s/m] from the scene (`damping:`) or a URDF's `<dynamics
-damping>`, as MuJoCo and PyBullet apply it. Not a libuipc constitution.
-
-Implicit, as the revolute joints' damping (terms/damping.py): the incremental potential of
-the force at the end of the step, where the integrator's rate is ḋ = (d − d*)/(c_I h):
+−c ḋ along the slide, c [N s/m], implicit as terms/damping.py with ḋ = (d − d*)/(c_I h):
 
     BDF1: d* = dⁿ,                 c_I = 1
     BDF2: d* = (4dⁿ − dⁿ⁻¹)/3,     c_I = 2/3
     E = K/2 (d(q) − d*)²,   K = h c / c_I
 
-(∂E/∂d = h² c ḋ). d(q) = ½ (c_j − c_i)·(t_i + t_j) (prismatic.py) is bilinear in the two
-bodies' q, with no branch to pick, so it is used as it is (no linearisation): ∇E = K (d − d*)
-∇d, Newton's Hessian the Gauss-Newton K ∇d∇dᵀ (PSD), the raw one adds K (d − d*) ∇²d.
-Per step, `references` writes K and d* of damper k into row L + P + k of
-StepContext.angle_ref (after the L limits' and P revolute dampers' rows).
-Requirement: a prismatic joint (UID 20).
+d(q) (prismatic.py) is used as it is: Newton's Hessian is K ∇d∇dᵀ (PSD), the raw one adds
+K (d − d*) ∇²d. `references` writes K and d* of damper k into row L + P + k of
+StepContext.angle_ref. Requirement: a prismatic joint (UID 20).
 """
 from __future__ import annotations
 
@@ -30,7 +23,6 @@ from .damping import DAMPING_RATIO_MAX
 NAME = 'prismatic_damping'  #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('prismatic_damping_joints', '(Ps,) prismatic joints with viscous damping'),
     ('prismatic_damping_coeff', '[N s/m] (Ps,) their damping coefficients c'),
@@ -62,7 +54,6 @@ def from_scene(scene, model) -> dict:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(prismatic_damping_joints=flat.array(model.prismatic_damping_joints, np.int64),
                 prismatic_damping_coeff=flat.array(model.prismatic_damping_coeff, np.float64))
 
@@ -75,9 +66,8 @@ def first_row(m):
 
 @kernel
 def references(m, q_prev, angle_start, h, bdf2, out):
-    """Rows first_row + k of out (angle_ref): K = h c / c_I and d* of damper k for a step of
-    size h from the joint positions at its start, angle_start (dⁿ, relative to
-    init_distance), and, with bdf2, the bodies one step back, q_prev (for dⁿ⁻¹). Returns out."""
+    """Rows first_row + k of out (angle_ref): K = h c / c_I and d* of damper k, from
+    angle_start (dⁿ) and, with bdf2, q_prev (dⁿ⁻¹). Returns out."""
     joints, c = m.prismatic_damping_joints, m.prismatic_damping_coeff
     parent, child, fr, slot = m.joint_parent, m.joint_child, m.prismatic_frame, m.prismatic_slot
     row = first_row(m)

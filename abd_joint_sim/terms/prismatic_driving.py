@@ -3,14 +3,10 @@ spring pulling a prismatic joint (UID 20) toward a target distance d̃,
 
     E = K/2 (u_i − d̃)² + K/2 (u_j − d̃)²,   u_k = t_k·(c_j − c_i),   K = γ (m_i + m_j)
 
-(γ = driving strength_ratio) for each enabled drive: u_i, u_j are the slide measured along
-each body's own axis (d = ½ (u_i + u_j), prismatic.py). d̃ is the aim minus init_distance,
-or the distance at the start of the step when the drive is passive (it holds the joint). No
-h² (physical potential E/h²). ∇E = K Σ_k (u_k − d̃) ∇u_k; Newton's Hessian is the
-Gauss-Newton K Σ_k ∇u_k∇u_kᵀ (PSD), the raw one adds K Σ_k (u_k − d̃) ∇²u_k.
-The targets are rows D.. of StepContext.drive_target and drive_on, after the D revolute
-drives (UID 19); their aims, switches and passive flags are the same rows of Control's
-drive_aim, drive_enabled and drive_passive.
+for each enabled drive (u_k the slide along body k's own axis; d̃ the aim minus
+init_distance, or the start's distance when passive). No h². Newton's Hessian is
+K Σ_k ∇u_k∇u_kᵀ (PSD), the raw one adds K Σ_k (u_k − d̃) ∇²u_k. The targets are rows D.. of
+StepContext.drive_target and drive_on and of Control's drive arrays, after UID 19's.
 Requirement: a prismatic joint (the scene refuses `aim_angle` on one).
 """
 from __future__ import annotations
@@ -24,7 +20,6 @@ from .revolute import stiffness
 NAME = 'prismatic_driving'  #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('prismatic_drive_joints', '(Ds,) joints with UID 21'),
     ('prismatic_drive_K', '[kg] (Ds,) UID 21 stiffness γ (m_i + m_j)'),
@@ -50,16 +45,14 @@ def from_scene(scene, model) -> dict:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(prismatic_drive_joints=flat.array(model.prismatic_drive_joints, np.int64),
                 prismatic_drive_K=flat.array(model.prismatic_drive_K, np.float64))
 
 
 @kernel
 def targets(m, angle_start, drive_aim, drive_passive, target):
-    """target[D + k] = d̃ of UID 21 drive k (D = the revolute drives, rows before): its aim
-    minus init_distance, or its joint's distance at the step's start when passive
-    (angle_start: joint positions minus their init values)."""
+    """target[D + k] = d̃ of UID 21 drive k (after the D revolute drives): its aim minus
+    init_distance, or angle_start when passive."""
     D = m.drive_joints.size
     joints, init = m.prismatic_drive_joints, m.joint_init_angle
     for k in range(joints.size):

@@ -7,12 +7,9 @@ prediction q̃ only, as UID 668's torque. For each enabled joint with force f [N
     t̂_j = ½ (t̃_i + t̃_j),   t̂_i = −t̂_j    same-order anchors: an exact antisymmetric pair
     F_k = J(c̄_k)ᵀ (f t̂_k)                  the force f t̂_k acting at the joint's point P0 on body k
 
-J(c̄_k)ᵀ w = [w ; w ⊗ c̄_k] (the rows of A get w_r c̄_k). Both forces act on the axis line, so
-they are equal, opposite and collinear: the pair's linear and angular momentum are unchanged
-(Newton's third law, docs/decisions.md). A positive f pushes the child along +t relative to
-the parent: it increases the joint's distance. Runtime control: per joint the force and an
-enable flag; they are rows T.. of Control.torque_value and torque_enabled, after the T
-revolute joints' UID 668 torques (World.set_effort).
+J(c̄_k)ᵀ w = [w ; w ⊗ c̄_k]. The pair keeps its linear and angular momentum (docs/decisions.md).
+A positive f increases the joint's distance. The force and its flag are rows T.. of
+Control.torque_value and torque_enabled, after UID 668's (World.set_effort).
 Requirement: a prismatic joint (UID 20; the scene refuses external_force on a revolute one).
 """
 from __future__ import annotations
@@ -25,7 +22,6 @@ from ..jit import flat, kernel
 from . import select
 
 NAME = 'external_force'     #: in Solver.terms
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('prismatic_force_joints', '(F,) joints with UID 667'),
 )
@@ -48,7 +44,6 @@ def from_scene(scene, model) -> dict:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     return dict(prismatic_force_joints=flat.array(model.prismatic_force_joints, np.int64))
 
 
@@ -92,24 +87,6 @@ def _body_force(f, e, fr, k, side, c):
         return sf * e[c]
     r = (c - 3) // 3
     return sf * e[r] * fr[k, side, 0, (c - 3) % 3]
-
-
-@kernel
-def generalized_force(q, m, effort_value, effort_enabled, F):
-    """Adds F_k of every enabled UID 667 joint to F (B,12)."""
-    T = m.torque_joints.size
-    joints, parent, child, fr, slot = (m.prismatic_force_joints, m.joint_parent, m.joint_child,
-                                       m.prismatic_frame, m.prismatic_slot)
-    for k in range(joints.size):
-        f = effort_value[T + k] if effort_enabled[T + k] else 0.0
-        if f == 0.0:
-            continue
-        j = joints[k]
-        e = axis(q, m, j)
-        for side in range(2):
-            b = parent[j] if side == 0 else child[j]
-            for c in range(12):
-                F[b, c] += _body_force(f, e, fr, slot[j], side, c)
 
 
 @kernel

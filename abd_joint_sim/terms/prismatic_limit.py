@@ -1,25 +1,16 @@
 """Prismatic joint limit, libuipc UID 669 (docs/physics.md "Prismatic limit (UID 669)"): the
 cubic barrier of UID 670 (limit.phi) on the distance x = d(q) of a prismatic joint
-(prismatic.py), relative to init_distance, with l = lower − init_distance,
-u = upper − init_distance, w = u − l and strength s:
-
-    x > u:  E = s ((x − u)/w)³          x < l:  E = s ((l − x)/w)³          inside: E = 0
-    w = 0:  E = s |x − l|³ (a locked joint)
-
-∇E = E' ∇d; Newton's Hessian is E''∇d∇dᵀ (PSD: E'' ≥ 0), the raw one adds E' ∇²d.
-Requirement: a prismatic joint (UID 20); bounds in m.
+(prismatic.py), bounds [m] relative to init_distance. ∇E = E' ∇d; Newton's Hessian is
+E''∇d∇dᵀ (PSD: E'' ≥ 0), the raw one adds E' ∇²d. Requirement: a prismatic joint (UID 20).
 """
 from __future__ import annotations
 
-import numpy as np
-
-from ..jit import flat, kernel
-from . import limit, prismatic, select
+from ..jit import kernel
+from . import limit, prismatic
 
 NAME = 'prismatic_limit'    #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('prismatic_limit_joints', '(Ls,) joints with UID 669'),
     ('prismatic_limit_lower', '[m] (Ls,) lower bound relative to init_distance'),
@@ -33,22 +24,11 @@ def used(model) -> bool:
 
 
 def from_scene(scene, model) -> dict:
-    """The Model's fields of this term: prismatic_limit_joints (n,), the joints with UID 669;
-    prismatic_limit_lower and _upper [m] (absolute), prismatic_limit_strength, (n,)."""
-    ks = select.joints(scene, model, True, lambda j: j.limit is not None)
-    spec = [scene.joints[k].limit for k in ks]
-    return dict(prismatic_limit_joints=ks, prismatic_limit_lower=np.array([s.lower for s in spec], float),
-                prismatic_limit_upper=np.array([s.upper for s in spec], float),
-                prismatic_limit_strength=np.array([s.strength for s in spec], float))
+    return limit.from_scene(scene, model, 'prismatic_limit_', True)
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
-    lj, init = model.prismatic_limit_joints, model.joint_init_angle
-    return dict(prismatic_limit_joints=flat.array(lj, np.int64),
-                prismatic_limit_lower=flat.array(model.prismatic_limit_lower - init[lj], np.float64),
-                prismatic_limit_upper=flat.array(model.prismatic_limit_upper - init[lj], np.float64),
-                prismatic_limit_strength=flat.array(model.prismatic_limit_strength, np.float64))
+    return limit.build(model, data, 'prismatic_limit_')
 
 
 @kernel

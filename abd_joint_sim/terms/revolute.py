@@ -29,7 +29,6 @@ CONSTANT_HESSIAN = True     #: Newton adds only the gradient (accumulate_gradien
 # UID 18 is stiff enough to make that a valid state, so the step fails.
 SEPARATION_WARN = 0.01
 SEPARATION_FAULT = 1e3
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('revolute_joints', '(R,) the revolute joints (UID 18; the others are prismatic, UID 20)'),
     ('joint_x_bar', '[m] (J,2,2,3) anchors x̄: [joint, side (i, j), anchor (P0, P1), xyz]'),
@@ -50,14 +49,12 @@ def from_scene(scene, model) -> dict:
 
 
 def stiffness(strength_ratio, mass_i, mass_j):
-    """K = γ (m_i + m_j) [kg] of a joint between bodies of masses m_i, m_j (UID 18; UID 19's
-    drive stiffness is the same formula with its own γ)."""
+    """K = γ (m_i + m_j) [kg] of a joint between bodies of masses m_i, m_j (UID 18, UID 19)."""
     return strength_ratio * (mass_i + mass_j)
 
 
 def constant_hessian(K, anchor0, anchor1) -> np.ndarray:
-    """(J,24,24) K Σ_a D_aᵀD_a per joint, D_a = [J(x̄_i^a), −J(x̄_j^a)] (anchors (J,2,3):
-    parent side, child side)."""
+    """(J,24,24) K Σ_a D_aᵀD_a per joint, D_a = [J(x̄_i^a), −J(x̄_j^a)] (anchors (J,2,3))."""
     H = np.zeros((len(K), 24, 24))
     for k in range(len(K)):
         D = [np.hstack([point_jacobian(anchors[0]), -point_jacobian(anchors[1])])   # (3,24)
@@ -67,7 +64,6 @@ def constant_hessian(K, anchor0, anchor1) -> np.ndarray:
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     m = model
     J = m.joint_count
     size, parent, child = m.body_size, m.joint_parent, m.joint_child
@@ -82,12 +78,10 @@ def build(model, data) -> dict:
         joint_fault_separation=flat.array(SEPARATION_FAULT * np.maximum(size[parent], size[child]), np.float64))
 
 
-
 @kernel
 def separation(q, i_body, j_body, x_bar, j, a):
-    """x_i − x_j of anchor a (0: P0, 1: P1) of joint j between bodies i_body, j_body, as a
-    tuple (x_bar = m.joint_x_bar; arrays, not m: this runs per joint and anchor; a tuple,
-    not a work array: an array costs an allocation and atomic reference counts). [m]"""
+    """x_i − x_j of anchor a (0: P0, 1: P1) of joint j as a tuple (no work array: an array
+    costs an allocation and reference counts). [m]"""
     return (_gap(q, i_body, j_body, x_bar, j, a, 0), _gap(q, i_body, j_body, x_bar, j, a, 1),
             _gap(q, i_body, j_body, x_bar, j, a, 2))
 
@@ -135,8 +129,8 @@ def max_separation(q, m):
 
 @kernel
 def check_separations(q, m):
-    """(largest separation, whether a joint exceeds m.joint_warn_separation, the first joint
-    beyond m.joint_fault_separation or -1), over the revolute joints. [m]"""
+    """(largest separation [m], whether one exceeds its warning, the first joint beyond its
+    fault separation or -1) over the revolute joints."""
     parent, child, x_bar = m.joint_parent, m.joint_child, m.joint_x_bar
     warn, fault = m.joint_warn_separation, m.joint_fault_separation
     largest = 0.0
@@ -178,8 +172,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
 
 @kernel
 def add_constant_hessian(parent, child, H, diag, pair):
-    """The joints' constant Hessians H (J,24,24) added into the blocks diag and pair (a
-    prismatic joint's are 0)."""
+    """The joints' constant Hessians H (J,24,24) added into diag and pair (0 if prismatic)."""
     for j in range(parent.size):
         i_body, j_body = parent[j], child[j]
         for r in range(12):
@@ -191,9 +184,7 @@ def add_constant_hessian(parent, child, H, diag, pair):
 
 @kernel
 def accumulate_gradient(q, m, ctx, grad):
-    """∇E only: Newton's assembly starts from the constant Hessian blocks
-    (model_data.constant_blocks), so the step adds just this. Returns E (the bits of
-    `energy`)."""
+    """∇E only (the Hessian is in model_data.constant_blocks); returns E (`energy`'s bits)."""
     parent, child, x_bar, K = m.joint_parent, m.joint_child, m.joint_x_bar, m.joint_K
     joints = m.revolute_joints
     if joints.size == 0:

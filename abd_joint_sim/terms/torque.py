@@ -23,7 +23,6 @@ from ..smallmat import adjugate3
 from . import select
 
 NAME = 'external_torque'    #: in Solver.terms
-#: the fields of the compiled model (solver/model_data.py) this term owns: (name, meaning)
 FIELDS = (
     ('torque_joints', '(T,) joints with UID 668'),
     ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
@@ -62,7 +61,6 @@ def incidence(torque_joints, parent, child):
 
 
 def build(model, data) -> dict:
-    """FIELDS' values for a Model (data: the compiled model's fields built so far)."""
     bodies, ptr, entries = incidence(model.torque_joints, model.joint_parent, model.joint_child)
     return dict(torque_joints=flat.array(model.torque_joints, np.int64),
                 torque_bodies=flat.array(bodies, np.int64), torque_body_ptr=flat.array(ptr, np.int64),
@@ -102,17 +100,14 @@ def axis_at(q, parent, child, x_bar, j, e, es):
 
 @kernel
 def clamp_command(value, effort_limit):
-    """A commanded torque clamped to [−effort_limit, effort_limit] (World.set_torque; the one
-    place of this rule)."""
+    """A commanded torque clamped to [−effort_limit, effort_limit] (the one place of this rule)."""
     return min(max(value, -effort_limit), effort_limit)
 
 
 @kernel
 def clamp_commands(values, effort_limit, out):
-    """out[k] = values[k] clamped to [−effort_limit[k], effort_limit[k]], the torques a
-    controller commands (World.set_torques: one compiled call costs a fifth of numpy's checks
-    and clamps on a few values). A non-finite value changes nothing: returns its index,
-    else −1."""
+    """out[k] = values[k] clamped to ±effort_limit[k] (World.set_torques: a fifth of numpy's
+    cost); a non-finite value changes nothing and its index is returned, else −1."""
     for k in range(values.size):
         if not math.isfinite(values[k]):
             return k
@@ -138,9 +133,8 @@ def _any_active(torque_value, torque_enabled, T):
 
 @kernel
 def _inverse_if_regular(q, b):
-    """(regular, A_b⁻¹ row-major as 9 scalars): smallmat.adjugate3 / det, on scalars (it runs
-    per body); regular is False (no torque on the body) if |det A| ≤ SINGULAR_RATIO
-    |a1||a2||a3|."""
+    """(regular, A_b⁻¹ row-major as 9 scalars): regular False (no torque on the body) if
+    |det A| ≤ SINGULAR_RATIO |a1||a2||a3|."""
     a00, a01, a02 = q[b, 3], q[b, 4], q[b, 5]
     a10, a11, a12 = q[b, 6], q[b, 7], q[b, 8]
     a20, a21, a22 = q[b, 9], q[b, 10], q[b, 11]
@@ -191,8 +185,7 @@ def _body_force(q, b, ptr0, ptr1, entries, e, torque_value, torque_enabled):
 
 @kernel
 def _axes(q, torque_joints, parent, child, x_bar, torque_value, torque_enabled, e):
-    """e[:T] = ê of the active torque joints (rows of the others unset), e (T+2,3): its last
-    two rows are scratch."""
+    """e[:T] = ê of the active torque joints (others unset); e (T+2,3), the last two scratch."""
     T = torque_joints.size
     es = e[T:]
     for k in range(T):
@@ -220,11 +213,9 @@ def _list_skipped(q, torque_joints, parent, child, torque_value, torque_enabled,
 
 @kernel
 def add_acceleration(q, m, torque_value, torque_enabled, acc, skipped, e):
-    """acc += M⁻¹F of the UID 668 torques; returns the number of skipped bodies. F_b is nonzero
-    only in its A rows, on the torque bodies, so with M⁻¹ = blocks per spatial row k
-    (m.body_Minv_bar) (M⁻¹F)_r is a 3-term sum, in the order of the dense 12x12 product.
-    A fixed body (a robot's base) gets none: its acceleration is never read (bdf.predict
-    keeps it where it is). e (T+2,3): work array for the axes (Workspace.torque_axes)."""
+    """acc += M⁻¹F of the UID 668 torques on the free bodies; returns the number of skipped
+    bodies. F_b is nonzero only in A's rows, so (M⁻¹F)_r is a 3-term sum (m.body_Minv_bar),
+    in the dense product's order. e (T+2,3): work for the axes (Workspace.torque_axes)."""
     if not _any_active(torque_value, torque_enabled, m.torque_joints.size):
         return 0
     tj, parent, child = m.torque_joints, m.joint_parent, m.joint_child
