@@ -2,6 +2,8 @@
 
 Every term module holds:
 - NAME (as `Solver.terms` lists it; None for the inertia, which every scene has), `used(model)`;
+- `from_scene(scene, model)`, its fields of the Model (model.compile_scene asks every term in
+  TERMS' order), with the scene checks that belong to it;
 - FIELDS, the fields of the compiled model (solver/model_data.py) it owns, as (name, meaning),
   and `build(model, data)`, their values for a Model;
 - energy terms of the incremental potential Π: `energy(q, m, ctx)` and
@@ -14,7 +16,8 @@ Every term module holds:
 (terms/context.py). Hessians go into 12x12 blocks: `diag` (B,12,12) per body, `pair`
 (J,12,12) per joint (parent row, child column). `project` asks for the PSD-projected
 Hessian (Newton's; the tests also check the raw one). angle.py's joint angle and
-prismatic.py's distance are shared by the angle and prismatic terms.
+prismatic.py's distance are shared by the angle and prismatic terms; select.py picks
+the joints a term is on.
 
 numba cannot loop over modules: solver/newton.py `potential` and `assemble` call the energy
 terms one by one, in ENERGY_TERMS' order (the order Π is summed in), and
