@@ -23,7 +23,7 @@ from .solver.solver import Solver
 from .state import Control, State
 from .terms import ENERGY_TERMS, prismatic, revolute, torque
 
-__all__ = ['World', 'StepReport', 'Status']
+__all__ = ['World', 'Trajectory', 'StepReport', 'Status']
 
 
 class World:
@@ -264,8 +264,6 @@ class World:
         self.state = state
         self.control = Control.initial(self.model)
         self.last_step = StepReport(max_joint_separation=self.max_joint_separation())
-        #: body states after each step of the last `step_clean` batch, (count, B, 12)
-        self.last_clean_q = np.empty((0, self.model.body_count, 12))
 
     # -- diagnostics --------------------------------------------------------------------
     def max_joint_separation(self) -> float:
@@ -312,13 +310,25 @@ class World:
         return kin + grav + pot / m.dt ** 2
 
     # -- stepping -----------------------------------------------------------------------
-    def step(self, n: int = 1) -> StepReport:
+    def step(self, n: int = 1, trajectory: Trajectory | None = None) -> StepReport:
         """Advance n steps of size dt; returns (and stores in `last_step`) the last report
         (n = 0: none, the last report again). Raises SimulationError when a step cannot be
         finished even with sub-steps; the state is then that of the last good step (time
-        stays a multiple of dt). An n that is not a whole number ≥ 0 raises ValueError."""
+        stays a multiple of dt). An n that is not a whole number ≥ 0 raises ValueError.
+
+        With a caller-owned `trajectory` (sim_node's batches): up to n steps that need no
+        sub-stepping and give no warning, in one compiled call, each step's rows written to
+        it; fewer (possibly 0) when a step is not clean, and the caller takes that one
+        without `trajectory` (which sub-steps, warns or raises as usual). State and
+        `last_step` are exactly as after `trajectory.count` one-step calls."""
         if n != 1:
             n = _step_count(n)
+        if trajectory is not None:
+            batch = self.solver.steps(self.state, self.control, n, clean=True) if n else None
+            trajectory._fill(batch, self.model)
+            if trajectory.count:
+                self.state, self.last_step = batch.state, batch.report
+            return self.last_step
         if n == 1:                  # (a controller's loop: this call every step)
             self.last_step = report = self.solver._step_resident(self._resident, self.control)
             return report
@@ -329,22 +339,22 @@ class World:
             n -= done.count
         return self.last_step
 
-    def step_clean(self, n: int):
-        """Up to n steps that need no sub-stepping and give no warning, in one compiled call
-        (for sim_node's batches). Returns (count, times, joint angles (count,J), joint
-        velocities (count,J)); state and `last_step` are exactly as after `count` calls of
-        `step`. Fewer than n (possibly 0) when a step is not clean: the caller then takes that
-        step with `step`, which sub-steps, warns or raises as usual. `last_clean_q` holds the
-        body states after each of the batch's steps, (count, B, 12) (sim_node's markers)."""
-        J = self.model.joint_count
-        if n <= 0:
-            self.last_clean_q = np.empty((0, self.model.body_count, 12))
-            return 0, [], np.empty((0, J)), np.empty((0, J))
-        batch = self.solver.steps(self.state, self.control, int(n), clean=True)
-        if batch.count:
-            self.state, self.last_step = batch.state, batch.report
-        self.last_clean_q = batch.q
-        return batch.count, batch.times, batch.joint_angles, batch.joint_velocities
+
+class Trajectory:
+    """The per-step rows of a `World.step(n, trajectory)` call, owned by the caller and
+    rewritten by each call: `count` steps, and after each the time `times` [s] (list), the
+    joint positions and velocities (count, J) and the body states `q` (count, B, 12)."""
+
+    count, times, positions, velocities, q = 0, (), None, None, None
+
+    def _fill(self, batch, model) -> None:
+        if batch is None:
+            J = model.joint_count
+            self.count, self.times, self.positions, self.velocities = 0, [], np.empty((0, J)), np.empty((0, J))
+            self.q = np.empty((0, model.body_count, 12))
+            return
+        self.count, self.times, self.q = batch.count, batch.times, batch.q
+        self.positions, self.velocities = batch.joint_angles, batch.joint_velocities
 
 
 def _step_count(n) -> int:

@@ -13,7 +13,7 @@ once:
   fault) before anything non-finite is published.
 
 Stepping is batched: pending commands are applied, then the loop takes clean steps in one
-``World.step_clean`` call up to the next boundary that needs the world in between — the
+``World.step(n, trajectory)`` call up to the next boundary that needs the world in between — the
 next command timeout, the next marker (when someone receives markers), the next simulated-
 time diagnostics (headless) — and any step that is not clean singly with ``World.step``.
 Nothing is applied at the boundaries a batch skips because nothing can be pending there
@@ -50,7 +50,7 @@ DIAGNOSTIC_KEYS = (
 """The values of the node's ``/diagnostics`` status, in order (docs/topics.md)."""
 
 MAX_BATCH = 256
-"""Most clean steps per ``World.step_clean`` call (bounds the arrays it returns)."""
+"""Most clean steps per batch (bounds the arrays of its Trajectory)."""
 
 
 class LoopOutput:
@@ -131,7 +131,7 @@ class SimLoop:
     def __init__(self, scene: Any, config: SimConfig, output: Optional[LoopOutput] = None,
                  clamp: bool = True, raise_faults: bool = False, paused: bool = False,
                  diagnostics_period_ns: int = 0):
-        from abd_joint_sim.world import World
+        from abd_joint_sim.world import Trajectory, World
         self.scene = scene
         self.config = config
         self.output = output if output is not None else LoopOutput()
@@ -148,7 +148,7 @@ class SimLoop:
         self.markers = (MarkerBuilder(scene, config.marker_frame_id, config.marker_joint_axes)
                         if config.marker_rate > 0.0 else None)
         # rows of the marker bodies in the world's states: markers inside a batch come from
-        # the batch's states (World.last_clean_q), so a batch need not end at a marker step
+        # the batch's states (its Trajectory), so a batch need not end at a marker step
         self._marker_rows = (None if self.markers is None else np.array(
             [self.world.model.body_names.index(n) for n in self.markers.body_names],
             dtype=np.intp))
@@ -163,6 +163,7 @@ class SimLoop:
         self.steps = 0
         self.not_converged = 0
         self.max_batch = MAX_BATCH
+        self._trajectory = Trajectory()     # the rows of each batch (World.step)
         self._warned_disabled: set[str] = set()
 
     def _scene_effort_limits(self) -> dict[str, float]:
@@ -185,9 +186,10 @@ class SimLoop:
             self.apply_commands()
             limit = self._batch_limit(n - taken) if not force_publish else 1
             if limit >= 2:
-                count, times, angles, velocities = self.world.step_clean(limit)
+                self.world.step(limit, self._trajectory)
+                count = self._trajectory.count
                 if count:
-                    self._after_batch(count, times, angles, velocities)
+                    self._after_batch(self._trajectory)
                     taken += count
                     if count == limit or self.paused:
                         continue
@@ -251,14 +253,13 @@ class SimLoop:
         self.publish_state(force=force_publish)
         return self.fault is None
 
-    def _after_batch(self, count: int, times, angles, velocities) -> None:
+    def _after_batch(self, batch) -> None:
+        count, times = batch.count, batch.times
+        angles, velocities, states = batch.positions, batch.velocities, batch.q
         self.fault = None
         self.steps += count
         last = count - 1
-        if isinstance(times, np.ndarray):
-            times = times.tolist()
         out = self.output
-        states = self.world.last_clean_q
         stamps = self._batch_stamps(times)
         # the efforts of every joint state in the batch: no command changes inside it
         effort = np.asarray(self.world.applied_efforts(), dtype=float).tolist()
