@@ -1,31 +1,13 @@
 """The simulation loop of sim_node and of the headless tools (run_headless, replay_check).
 
 :class:`SimLoop` owns the ``World``, the :class:`~.commands.CommandBuffer`, the publishing
-and marker schedules, the fault state and the diagnostics values, and implements the rules
-once:
-
-* commands take effect at a step boundary (``CommandBuffer.apply``), never inside a step;
-* the command timeout (simulated time) acts at the first boundary at or after it expires;
-* ``reset`` is the node's ``~/reset``: initial state, t = 0, torque commands cleared to 0;
-* ``set_parameters`` is the node's post-set callback for live parameters;
-* after every step: ``/clock``; the body markers when due (``marker_rate``); the joint state
-  when due (``publish_rate``); a step that fails or a non-finite state stops the loop (a
-  fault) before anything non-finite is published.
-
-Stepping is batched: pending commands are applied, then the loop takes clean steps in one
-``World.step(n, trajectory)`` call up to the next boundary that needs the world in between — the
-next command timeout, the next marker (when someone receives markers), the next simulated-
-time diagnostics (headless) — and any step that is not clean singly with ``World.step``.
-Nothing is applied at the boundaries a batch skips because nothing can be pending there
-(the node's executor delivers new commands only between ``advance`` calls, the headless
-runner advances only up to its next scheduled command), so the results are bit-identical
-to stepping one at a time.
-
-Where messages go is the :class:`LoopOutput`'s business: the node publishes and records,
-the headless recorder records, the replay checker compares. The loop needs no ROS node,
-context or executor; it does not import rclpy itself (``convert``, which builds the
-messages, imports the message packages and ``rclpy.serialization``). Nothing below World
-imports this module.
+and marker schedules, the fault state and the diagnostics values. Commands take effect at a
+step boundary; the command timeout acts at the first boundary at or after it expires; after
+every step go ``/clock``, the markers and the joint state when due; a failed step or a
+non-finite state stops the loop (a fault) before anything non-finite is published. Clean
+steps go in batches (``World.step(n, trajectory)``) up to the next boundary that needs the
+world (a command timeout, headless diagnostics), bit-identical to single steps
+(docs/decisions.md). Where messages go is the :class:`LoopOutput`'s business. No rclpy here.
 """
 from __future__ import annotations
 
@@ -54,10 +36,8 @@ MAX_BATCH = 256
 
 
 class LoopOutput:
-    """Where the loop's results go. Every method is a no-op here; override what you need.
-
-    The node implements it with publishers and the recorder, the headless recorder with
-    the bag only, the replay checker with a comparison."""
+    """Where the loop's results go (the node's publishers and recorder, a headless bag, the
+    replay checker). Every method is a no-op here; override what you need."""
 
     markers_wanted = False
     """Build the body markers (someone subscribes, or the run is recorded); their poses
@@ -74,8 +54,7 @@ class LoopOutput:
         """After every step (and at start, reset and a forced publish)."""
 
     def clocks(self, stamps_ns: list) -> None:
-        """`clock` for each of a batch's steps that publish nothing else, in order (one
-        call for a run of them; override to handle them at once)."""
+        """`clock` for each of a run of a batch's steps that publish nothing else."""
         for t_ns in stamps_ns:
             self.clock(t_ns)
 
@@ -103,11 +82,11 @@ class LoopOutput:
         """After the above, once per step or forced publish."""
 
     def batch_begin(self) -> None:
-        """Before the outputs of a batch of steps (their /clock may be held back and written
-        in one call, provided it is written before anything else is and by `batch_end`)."""
+        """Before a batch's outputs (its /clock may be held back until anything else or
+        `batch_end`)."""
 
     def batch_end(self) -> None:
-        """After the outputs of a batch of steps, also when one of them raised."""
+        """After a batch's outputs, also when one of them raised."""
 
     def log(self, level: str, text: str, key: Any = None) -> None:
         """A message for a person; `key` set: throttle repeats of this kind."""
@@ -141,14 +120,14 @@ class SimLoop:
         self.clamp = clamp
         self.commands = CommandBuffer(
             self.actuated, config.joints, config.effort_limits if clamp else [],
-            config.command_timeout, scene_limits=self._scene_effort_limits(),
+            config.command_timeout,
+            scene_limits=dict(zip(self.actuated, self.world.effort_limits.tolist())),
             driven=[j.name for j in getattr(scene, 'joints', ())
                     if getattr(j, 'driving', None) is not None])
         config.joints = list(self.commands.order)
         self.markers = (MarkerBuilder(scene, config.marker_frame_id, config.marker_joint_axes)
                         if config.marker_rate > 0.0 else None)
-        # rows of the marker bodies in the world's states: markers inside a batch come from
-        # the batch's states (its Trajectory), so a batch need not end at a marker step
+        # the marker bodies' rows in a batch's Trajectory.q: a batch need not end at a marker
         self._marker_rows = (None if self.markers is None else np.array(
             [self.world.model.body_names.index(n) for n in self.markers.body_names],
             dtype=np.intp))
@@ -165,12 +144,6 @@ class SimLoop:
         self.max_batch = MAX_BATCH
         self._trajectory = Trajectory()     # the rows of each batch (World.step)
         self._warned_disabled: set[str] = set()
-
-    def _scene_effort_limits(self) -> dict[str, float]:
-        limits = getattr(self.world, 'effort_limits', None)    # N m or N, actuated order
-        if limits is None:
-            return {}
-        return {j: float(v) for j, v in zip(self.actuated, limits)}
 
     @property
     def time_ns(self) -> int:
@@ -244,11 +217,11 @@ class SimLoop:
             return False
         self.fault = None
         self.steps += 1
-        if not getattr(report, 'converged', True):
+        if not report.converged:
             self.not_converged += 1
             self.output.log('warn', f'Newton did not converge at t={self.world.time:.6f} s '
                             f'({report.newton_iterations} iterations)', key='not converged')
-        for text in getattr(report, 'warnings', ()) or ():
+        for text in report.warnings:
             self.output.log('warn', f'step: {text}', key='step warning')
         self.publish_state(force=force_publish)
         return self.fault is None
@@ -319,8 +292,7 @@ class SimLoop:
             if value != 0.0 and not self.world.effort_enabled(joint) \
                     and joint not in self._warned_disabled:
                 self._warned_disabled.add(joint)
-                types = getattr(self.world, 'joint_types', None)
-                sliding = types is not None and types[self.world.joint_names.index(joint)] == 'prismatic'
+                sliding = self.world.joint_types[self.joint_names.index(joint)] == 'prismatic'
                 what, unit = ('force', 'N') if sliding else ('torque', 'N m')
                 # Throttled too: a sender toggling the enable would re-arm it each time.
                 self.output.log(
@@ -453,7 +425,7 @@ class SimLoop:
                            real_time_factor_achieved: float, recording: bool,
                            recording_error: str = '') -> dict[str, Any]:
         """The ``/diagnostics`` values (:data:`DIAGNOSTIC_KEYS`) of the last step."""
-        last = getattr(self.world, 'last_step', None)
+        last = self.world.last_step
         values = {
             'sim_time': float(self.world.time),
             'steps': self.steps,
@@ -461,12 +433,12 @@ class SimLoop:
             'time_step': float(self.world.dt),
             'real_time_factor_requested': float(real_time_factor_requested),
             'real_time_factor_achieved': float(real_time_factor_achieved),
-            'newton_iterations': getattr(last, 'newton_iterations', 0),
-            'line_search_iterations': getattr(last, 'line_search_iterations', 0),
-            'converged': bool(getattr(last, 'converged', True)),
+            'newton_iterations': last.newton_iterations,
+            'line_search_iterations': last.line_search_iterations,
+            'converged': bool(last.converged),
             'not_converged_steps_total': self.not_converged,
-            'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
-            'substeps': getattr(last, 'substeps', 1),
+            'max_joint_separation': float(last.max_joint_separation),
+            'substeps': last.substeps,
             'recording': bool(recording),
             'fault': self.fault or '',
             'recording_error': recording_error or '',
@@ -478,8 +450,7 @@ class SimLoop:
         """A ``DiagnosticArray`` with :meth:`diagnostics_values` (kwargs) for status `name`:
         ERROR after a fault, WARN on solver warnings, else OK."""
         values = self.diagnostics_values(**kwargs)
-        last = getattr(self.world, 'last_step', None)
-        ok = values['converged'] and not (getattr(last, 'warnings', None) or [])
+        ok = values['converged'] and not self.world.last_step.warnings
         if self.fault:
             level, message = convert.ERROR, f'stopped: {self.fault}'
         else:

@@ -1,35 +1,9 @@
-"""What sim_node publishes when, and what it records: one set of rules for the node
-(``ros/node.py``) and the headless tools (``tools/sim.py``: ``run_headless``,
-``replay_check``), so a node bag and a headless bag have the same layout and a replay
-re-creates exactly what the node published.
-
-* Topic names are given as the node declares them (``joint_states`` is relative and follows
-  the node's namespace; ``/clock`` is absolute). ``resolve`` turns them into the fully
-  qualified names that appear on the graph and in the bag: the node passes
-  ``Node.resolve_topic_name``, the headless tools :func:`resolve_root` (namespace ``/``).
-* :class:`PublishSchedule`: ``/joint_states`` at ``publish_rate`` Hz of simulated time, on
-  the grid ``k / publish_rate`` (so a state is published at the first step at or after each
-  grid point), after every step for rate 0, and always when forced (start, reset, single
-  step).
-* :func:`record_applied`: commands as they took effect at a step boundary, in the order a
-  replay must apply them (per-joint enables, the array command, then per-joint torques that
-  superseded it).
-* :func:`parameter_event_msg`: a live parameter change, as an ``rcl_interfaces/msg/
-  ParameterEvent`` on ``/parameter_events`` (the topic and type every ROS 2 node publishes
-  its changes on), stamped and logged at the simulated time from which it applies, so a
-  replay can honour e.g. a live change of ``command_timeout``.
-* :func:`bag_custom_data` and :func:`add_node_topics`: the bag's custom data, attachments and
-  topic list.
-* :class:`Recording`: the bag of a run, written in that layout by the node and by the
-  headless recorder alike (``/clock`` held back in a batch, commands as applied, parameter
-  changes).
-* :func:`markers_due`: the body markers (``ros/markers.py``) at ``marker_rate`` Hz of
-  simulated time on their own grid, at most once per step, and at start and reset.
-
-The rules are plain functions over a ``write(topic, stamp_ns, msg)`` callable;
-:class:`Recording` is the one writer both use: a failed write stops the node's recording
-(``on_error``) and ends a headless run (raised).
-"""
+"""What sim_node publishes when and records how: one set of rules for the node and the
+headless tools (``tools/sim.py``), so their bags share one layout and a replay re-creates what
+the node published. Topic names are as the node declares them; ``resolve`` qualifies them
+(``Node.resolve_topic_name``, or :func:`resolve_root` headless). :class:`Recording` is the
+one bag writer: a failed write stops the node's recording (``on_error``) and ends a headless
+run (raised)."""
 from __future__ import annotations
 
 import os
@@ -108,19 +82,12 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
     """Register every recorded topic of the node's table (``ros/topics.py``) on `writer` (a
     ``BagWriter``), with the QoS the node publishes it with; a ``{joint}`` topic once per
     actuated joint; `markers`: the body markers too (``marker_rate`` > 0)."""
-    actuated = list(actuated)
     specs = [t for t in TOPICS if t.recorded and (markers or t.name != TOPIC_MARKERS)]
-    for spec in [t for t in specs if '{joint}' not in t.name]:
-        if spec.name != TOPIC_MARKERS:
-            writer.add_topic(resolve(spec.name), spec.type, qos=spec.reliability,
-                             depth=spec.depth)
-    per_joint = [t for t in specs if '{joint}' in t.name]
-    for joint in actuated:
-        for spec in per_joint:
-            writer.add_topic(resolve(spec.name.format(joint=joint)), spec.type,
-                             qos=spec.reliability, depth=spec.depth)
-    for spec in [t for t in specs if t.name == TOPIC_MARKERS]:
-        writer.add_topic(resolve(spec.name), spec.type, qos=spec.reliability, depth=spec.depth)
+    names = [(t, t.name) for t in specs if '{joint}' not in t.name and t.name != TOPIC_MARKERS]
+    names += [(t, t.name.format(joint=j)) for j in actuated for t in specs if '{joint}' in t.name]
+    names += [(t, t.name) for t in specs if t.name == TOPIC_MARKERS]
+    for spec, name in names:
+        writer.add_topic(resolve(name), spec.type, qos=spec.reliability, depth=spec.depth)
 
 
 def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
