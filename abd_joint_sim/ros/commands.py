@@ -1,21 +1,11 @@
 """Torque and enable commands between ROS callbacks and the simulation step, in plain Python.
 
-Subscription callbacks hand incoming values to :class:`CommandBuffer`, which validates them
-(finite, right length, known actuated joint), clamps torques to the effort limits and keeps
-the latest value per joint as *pending*. At the next step boundary the node calls
-:meth:`CommandBuffer.apply`, which writes the pending values into the world (latest command
-wins; nothing changes in the middle of a step), runs the command-timeout bookkeeping and
-returns what took effect so the node can log and record it.
-
-The command timeout counts simulated time: a joint whose last torque command took effect at
-``t_cmd`` has its torque set to 0 at the first step boundary with ``t - t_cmd >= timeout``.
-Simulated time makes it deterministic (a recorded run replays identically) and consistent
-with controllers that run on ``/clock``.
-
-Magnitudes: a joint with an effort limit (scene or parameter) clamps any finite value to it.
-A joint without one rejects values beyond :data:`MAX_ABS_TORQUE`: such a value is a bug in
-the sender, not a command (from ~1e50 N m the solver tears joints apart, from ~1e200 it
-overflows; docs/robustness.md).
+:class:`CommandBuffer` validates incoming values (finite, right length, known actuated joint),
+clamps torques to the effort limits and keeps the latest per joint pending; at the next step
+boundary :meth:`CommandBuffer.apply` writes them into the world and runs the command timeout
+(simulated time: the torque goes to 0 at the first boundary with ``t - t_cmd >= timeout``).
+A joint without an effort limit rejects values beyond :data:`MAX_ABS_TORQUE`
+(docs/robustness.md).
 """
 from __future__ import annotations
 
@@ -138,14 +128,17 @@ class CommandBuffer:
         self.limits: dict[str, float] = {}
         self.set_effort_limits(effort_limits)
         self.command_timeout = float(command_timeout)
+        self._last_command_time: dict[str, float] = {}
+        self._last_value: dict[str, float] = {}
+        self._timed_out: set[str] = set()
+        self._drop_pending()
+
+    def _drop_pending(self) -> None:
         self._pending_torque: dict[str, tuple[float, str]] = {}
         self._pending_enable: dict[str, bool] = {}
         self._pending_array: Optional[list[float]] = None
         self._pending_enable_all: Optional[bool] = None
         self._pending_aim: dict[str, float] = {}
-        self._last_command_time: dict[str, float] = {}
-        self._last_value: dict[str, float] = {}
-        self._timed_out: set[str] = set()
 
     # -- configuration -----------------------------------------------------------------
     def set_effort_limits(self, limits: Sequence[float]) -> None:
@@ -298,11 +291,7 @@ class CommandBuffer:
 
     def clear(self) -> None:
         """Drop pending commands and forget command times (used on reset)."""
-        self._pending_torque.clear()
-        self._pending_enable.clear()
-        self._pending_array = None
-        self._pending_enable_all = None
-        self._pending_aim.clear()
+        self._drop_pending()
         self._last_command_time.clear()
         self._last_value.clear()
         self._timed_out.clear()
@@ -337,11 +326,7 @@ class CommandBuffer:
         for joint, aim in self._pending_aim.items():
             world.set_drive(joint, aim=aim)
             out.aims[joint] = aim
-        self._pending_aim.clear()
-        self._pending_torque.clear()
-        self._pending_enable.clear()
-        self._pending_array = None
-        self._pending_enable_all = None
+        self._drop_pending()
         if self.command_timeout > 0.0:
             for joint, t_cmd in self._last_command_time.items():
                 if joint in self._timed_out:

@@ -1,21 +1,12 @@
 """sim_node: runs the simulation loop (:mod:`.loop`) and talks ROS 2 (docs/topics.md).
 
-The node is ROS plumbing only: parameters come from :mod:`.params`; subscription callbacks
-hand commands to the loop's :class:`~.commands.CommandBuffer` (validated, clamped, pending);
-services call the loop (pause, step, reset); the step timer calls ``loop.advance(n)``, which
-applies pending commands at the step boundary, steps (in batches) and hands clock, joint
-states, markers, applied commands and parameter changes to :class:`_NodeOutput`, which
-publishes and records them. Topics, types and QoS come from :mod:`.topics`.
-
-Stepping in real time (``real_time_factor`` > 0): `main` starts a thread of its own for it
-(:meth:`SimNode.start_stepping_thread`), paced by sleeping to each step's wall time, so the
-executor wakes only for commands, services, parameters and two slow timers; each executor
-round costs ~0.7 ms of Python, and a round per 1 ms step held a real-time node at two thirds
-of a core (docs/speed.md). As fast as possible the step timer steps in 20 ms rounds, as it
-always did. The thread and every callback hold ``SimNode._lock`` while they touch the loop,
-so a callback never overlaps a step and the command buffer sees one caller at a time. A node
-made in another program (tests, embedding) steps from its step timer unless that program
-starts the thread.
+ROS plumbing only: parameters from :mod:`.params`, topics and QoS from :mod:`.topics`;
+callbacks hand commands to the loop's :class:`~.commands.CommandBuffer`; services call the
+loop; ``loop.advance(n)`` steps and hands its outputs to :class:`_NodeOutput`, which
+publishes and records them. In real time `main` steps in a thread of its own
+(:meth:`SimNode.start_stepping_thread`, docs/decisions.md), as fast as possible the step
+timer steps in 20 ms rounds; the thread and every callback hold ``SimNode._lock`` while they
+touch the loop, so a callback never overlaps a step.
 """
 from __future__ import annotations
 
@@ -66,11 +57,7 @@ def _qos(spec: TopicSpec) -> QoSProfile:
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
 BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
-# As fast as possible, commands wait for the end of the AFAP_BATCH_WALL round anyway, so the
-# wall clock is checked less often: fewer, longer compiled calls (the loop still ends a batch
-# at every boundary that needs one), each of about a quarter of the round at the wall time
-# per step measured so far (SimNode._afap_steps), at most AFAP_BATCH_STEPS.
-AFAP_BATCH_STEPS = 256
+AFAP_BATCH_STEPS = 256        # most steps per `_advance` as fast as possible (_afap_steps)
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 MAX_LOG_LINE = 500            # characters of a logged warning (the rest is counted)
@@ -200,8 +187,6 @@ class SimNode(Node):
                       lambda self, value: setattr(self.loop, 'paused', bool(value)))
     fault = property(lambda self: self.loop.fault)
     steps = property(lambda self: self.loop.steps)
-    publish_schedule = property(lambda self: self.loop.publish_schedule)
-    marker_schedule = property(lambda self: self.loop.marker_schedule)
 
     def _publisher(self, msg_type, name: str):
         """A publisher for a row of the topic table (its QoS from there)."""
@@ -209,14 +194,11 @@ class SimNode(Node):
 
     def _subscription(self, msg_type, name: str, callback, joint: Optional[str] = None):
         """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
-        spec = TOPICS_BY_NAME[name]
-        topic = name.format(joint=joint) if joint is not None else name
-        if joint is None:
-            return self.create_subscription(msg_type, topic, callback, _qos(spec))
         from rclpy.exceptions import InvalidTopicNameException
         try:
-            return self.create_subscription(msg_type, topic, callback, _qos(spec))
-        except InvalidTopicNameException:
+            return self.create_subscription(msg_type, name.format(joint=joint), callback,
+                                            _qos(TOPICS_BY_NAME[name]))
+        except InvalidTopicNameException:     # (only a joint's name can make one invalid)
             shown = joint if len(joint) <= 80 else f'{joint[:80]}... ({len(joint)} characters)'
             raise ValueError(
                 f'joint {shown!r} cannot name its command topic {name!r}: a ROS topic name '
@@ -751,11 +733,20 @@ class SimNode(Node):
 
 
 class _NodeOutput(LoopOutput):
-    """The loop's output in the node: publishers, the recorder and the log."""
+    """The loop's output in the node: publishers, the recorder and the log. /clock and
+    /joint_states are serialised once (convert.ClockEncoder, JointStateEncoder), published
+    and recorded as the same bytes; in a batch the recording holds /clock back and writes it
+    in one call (Recording.clock)."""
+
+    markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
 
     def __init__(self, node: SimNode):
         self.node = node
         self._clock_subscribed = True
+
+    def _record(self, what: str, *args) -> None:
+        if self.node.recorder is not None:
+            getattr(self.node.recorder, what)(*args)
 
     @property
     def markers_wanted(self) -> bool:
@@ -763,11 +754,7 @@ class _NodeOutput(LoopOutput):
         return node.marker_pub is not None and (
             node.recorder is not None or node.marker_pub.get_subscription_count() > 0)
 
-    def clock(self, t_ns: int) -> None:
-        # /clock after every step: 12 bytes of CDR published and recorded as they are
-        # (convert.ClockEncoder), serialised once instead of once per use. In a batch the
-        # recording holds them back and writes them in one call (Recording.clock), the same
-        # bytes in the same order.
+    def clock(self, t_ns: int) -> None:     # (after every step: no `_record` call)
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
         if self._clock_subscribed:          # (always outside a batch: see batch_begin)
@@ -776,9 +763,6 @@ class _NodeOutput(LoopOutput):
             node.recorder.clock(t_ns, clock)
 
     def clocks(self, stamps_ns: list) -> None:
-        # A run of a batch's steps with nothing but /clock to publish: encoded at once,
-        # published one by one (only when someone subscribes: see batch_begin) and recorded
-        # as `clock` records them.
         node = self.node
         if not self._clock_subscribed and node.recorder is None:
             return                          # nobody receives them, nothing records them
@@ -787,54 +771,36 @@ class _NodeOutput(LoopOutput):
             publish = node.clock_publish_raw
             for data in datas:
                 publish(data)
-        if node.recorder is not None:
-            node.recorder.clocks(stamps_ns, datas)
+        self._record('clocks', stamps_ns, datas)
 
     def batch_begin(self) -> None:
-        node = self.node
-        if node.recorder is not None:
-            node.recorder.batch_begin()
-        # /clock is best effort with depth 1 (what Gazebo does): a message nobody receives
-        # is lost whenever it is sent, so a batch's /clock is published only when a
-        # subscriber is matched as the batch begins (the count is asked once per batch, not
-        # per step; outside batches every /clock is sent). A subscriber matched during a
-        # batch gets /clock from the next one: the same as if its discovery had taken a few
-        # milliseconds longer.
-        self._clock_subscribed = node.clock_pub.get_subscription_count() > 0
+        self._record('batch_begin')
+        # /clock is best effort with depth 1 (as Gazebo's): a batch's /clock is published
+        # only when a subscriber is matched as the batch begins (asked once per batch); one
+        # matched during a batch gets /clock from the next, as if discovery took longer.
+        self._clock_subscribed = self.node.clock_pub.get_subscription_count() > 0
 
     def batch_end(self) -> None:
         self._clock_subscribed = True
-        if self.node.recorder is not None:
-            self.node.recorder.batch_end()
+        self._record('batch_end')
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
-        # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
-        node = self.node
-        data = node.joint_state_encoder.encode(t_ns, position, velocity, effort)
-        node.joint_state_publish_raw(data)
-        if node.recorder is not None:
-            node.recorder.joint_state(t_ns, data)
-
-    markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
+        data = self.node.joint_state_encoder.encode(t_ns, position, velocity, effort)
+        self.node.joint_state_publish_raw(data)
+        self._record('joint_state', t_ns, data)
 
     def markers(self, t_ns: int, data) -> None:
-        node = self.node
-        node.marker_pub.publish(data)
-        if node.recorder is not None:
-            node.recorder.markers(t_ns, data)
+        self.node.marker_pub.publish(data)
+        self._record('markers', t_ns, data)
 
     def applied(self, applied) -> None:
-        if self.node.recorder is not None:
-            self.node.recorder.applied(applied)
+        self._record('applied', applied)
 
     def restarted(self) -> None:
-        if self.node.recorder is not None:
-            self.node.recorder.restarted()          # log times keep increasing
+        self._record('restarted')           # log times keep increasing
 
     def parameters(self, t_ns: int, changes) -> None:
-        # Applies from the next step boundary on: log time = the current sim time.
-        if self.node.recorder is not None:
-            self.node.recorder.parameters(t_ns, changes)
+        self._record('parameters', t_ns, changes)   # log time: the current sim time
 
     def log(self, level: str, text: str, key=None) -> None:
         if key is not None and level == 'warn':
@@ -852,27 +818,16 @@ _STOP_SIGNAL = {'received': False}
 
 def _shutdown_on_signal(signum, frame):
     """SIGINT/SIGTERM: only note it; the node's timers shut the ROS context down at their next
-    call (`SimNode._stop_requested`), and spin() returns between callbacks.
-
-    Not KeyboardInterrupt (rclpy's own handler chains to Python's, which raises it): Python
-    runs a signal handler between any two bytecodes, so an exception could land inside a
-    bag write and leave the MCAP writer half updated (e.g. its statistics counting a
-    message its chunk never got). Not `rclpy.try_shutdown()` here either: it takes the
-    context's non-reentrant lock, which the interrupted code may be holding (inside
-    `Context.ok()`, called between steps), and the node would hang for good. Repeated signals
-    are ignored for the same reasons; SIGKILL still ends a hung node.
-    """
+    call (`SimNode._stop_requested`), and spin() returns between callbacks (docs/decisions.md:
+    neither KeyboardInterrupt nor rclpy.try_shutdown() here)."""
     _STOP_SIGNAL['received'] = True
 
 
 def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optional[str]]:
-    """Move ``-p robot_description:=<URDF text>`` into a temporary params file.
-
-    rcl parses every ``-p`` value as YAML, and URDF text rarely survives that (``: `` and
-    `` #`` in comments or attributes end it), so ``-p robot_description:="$(cat r.urdf)"``, as
-    users pass it to robot_state_publisher, would fail before the node starts. The same value,
-    quoted by a YAML writer in a params file at the same place in the arguments, is read as
-    the string it is. Returns (new args, the file to delete after rclpy.init, or None)."""
+    """Move ``-p robot_description:=<URDF text>`` into a temporary params file at the same
+    place in the arguments (rcl parses ``-p`` values as YAML, which URDF text rarely survives;
+    a YAML writer quotes it). Returns (new args, the file to delete after rclpy.init, or
+    None)."""
     import tempfile
     import yaml
     out: list[str] = []
