@@ -1,10 +1,5 @@
-"""World: owns a Model, its State and Control, and the Solver that steps them.
-
-One step of size h (docs/physics.md "Time integration"), run by the compiled Solver:
-forces (gravity, UID 668 torque) give the prediction q̃, Newton minimises the incremental
-potential Π over the free bodies, then velocities and the multi-turn joint angles are
-updated. Recovery (sub-stepping, SimulationError) is the Solver's (solver/solver.py); the
-World replaces its State with the one the Solver returns and keeps the report. Between
+"""World: owns a Model, its State and Control, and the Solver that steps them (one step:
+docs/physics.md "Time integration"; recovery and SimulationError: solver/solver.py). Between
 one-step calls the state stays in the solver's ring buffers (solver/resident.py) and
 `World.state` builds the State when it is read.
 """
@@ -42,7 +37,6 @@ class World:
         from .jit.warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.jit.warmup`)
         ensure_compiled()                     # says so before a first-time compile
         self.solver = Solver(m)
-        # the current state between one-step calls (solver/resident.py); `state` reads it
         self._resident = Resident(m.body_count, m.joint_count)
         self._joint_index = {n: k for k, n in enumerate(m.joint_names)}
         self._torque_slot = {m.joint_names[j]: k for k, j in enumerate(m.torque_joints)}
@@ -68,8 +62,7 @@ class World:
 
     @property
     def state(self) -> State:
-        """The current State (immutable: a step replaces it). After one-step calls it is
-        built when first read (the solver keeps the state in its own buffers meanwhile)."""
+        """The current State (immutable: a step replaces it; built when read)."""
         return self._resident.state()
 
     @state.setter
@@ -186,10 +179,8 @@ class World:
         return self.set_torques(values)
 
     def set_torque(self, joint: str, value: float) -> float:
-        """Set the UID 668 torque of a revolute joint, applied from the next step. Values beyond
-        the joint's effort_limit are clamped; the applied value is returned. A value that is not
-        a number or not finite raises ValueError naming the joint, and changes nothing. (A
-        prismatic joint's force: `set_effort`.)"""
+        """Set the UID 668 torque of a revolute joint, applied from the next step; as
+        `set_effort` (a prismatic joint's force), but refuses a prismatic joint."""
         k = self._torque_slot.get(joint) if type(joint) is str else None
         if k is None:
             if type(joint) is str and joint in self._effort_slot:
@@ -201,12 +192,11 @@ class World:
         return value
 
     def set_torques(self, values) -> np.ndarray:
-        """Set the effort of every actuated joint at once (the UID 668 torque [N m], and on a
-        prismatic joint the UID 667 force [N]), in `actuated_joint_names` order, applied from
-        the next step: a controller's per-step call, one array instead of
-        a `set_torque` per joint. Values beyond each joint's effort_limit are clamped; returns
-        the applied values (a copy). A wrong length, a value that is not a number or not
-        finite raises ValueError naming it, and then no torque is changed."""
+        """Set the effort of every actuated joint at once (UID 668 torque [N m], UID 667 force
+        [N] on a prismatic joint), in `actuated_joint_names` order, from the next step. Values
+        beyond each joint's effort_limit are clamped; returns the applied values (a copy). A
+        wrong length or a value that is not a finite number raises ValueError naming it, and
+        then no torque is changed."""
         names = self._actuated
         try:
             v = np.asarray(values, dtype=np.float64)
@@ -348,19 +338,18 @@ class Trajectory:
     count, times, positions, velocities, q = 0, (), None, None, None
 
     def _fill(self, batch, model) -> None:
-        if batch is None:
-            J = model.joint_count
-            self.count, self.times, self.positions, self.velocities = 0, [], np.empty((0, J)), np.empty((0, J))
+        if batch is None:                   # (n = 0)
+            self.count, self.times = 0, []
+            self.positions = self.velocities = np.empty((0, model.joint_count))
             self.q = np.empty((0, model.body_count, 12))
-            return
-        self.count, self.times, self.q = batch.count, batch.times, batch.q
-        self.positions, self.velocities = batch.joint_angles, batch.joint_velocities
+        else:
+            self.count, self.times, self.q = batch.count, batch.times, batch.q
+            self.positions, self.velocities = batch.joint_angles, batch.joint_velocities
 
 
 def _step_count(n) -> int:
     """World.step's n as an int: an integer (numpy's too) or a float with a whole value, ≥ 0;
-    ValueError naming n otherwise (1.5 steps, −1, '5' or NaN would otherwise be truncated,
-    skipped or converted without a word)."""
+    ValueError naming n otherwise."""
     try:
         k = operator.index(n)
     except TypeError:
@@ -386,7 +375,7 @@ def _number(value, joint: str, what: str) -> float:
 
 def _flag(value, joint: str, what: str) -> bool:
     """A command's on/off flag: True or False (numpy's bool and the integers 0 and 1 too);
-    ValueError naming the joint otherwise: bool('no') is True, a silent wrong answer."""
+    ValueError naming the joint otherwise (bool('no') is True)."""
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     try:
