@@ -11,22 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-from typing import Iterable, Mapping, Optional, Protocol, Sequence
+from typing import Any, Iterable, Mapping, Optional, Sequence
 
 from ..scene import MAX_ABS_AIM
 
 MAX_ABS_TORQUE = 1e9
 """[N m] Largest torque magnitude accepted on a joint without an effort limit."""
-
-
-class CommandTarget(Protocol):
-    """What :meth:`CommandBuffer.apply` needs from the world."""
-
-    time: float
-
-    def set_effort(self, joint_name: str, value: float) -> None: ...
-
-    def set_effort_enabled(self, joint_name: str, flag: bool) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -156,12 +146,14 @@ class CommandBuffer:
             self.limits[j] = min(lim, self.limits.get(j, math.inf))
 
     # -- from subscription callbacks ---------------------------------------------------
-    def _clamp(self, joint: str, value: float) -> tuple[float, Optional[Clamp]]:
+    def _queue(self, joint: str, value: float, source: str, clamps: list) -> float:
+        """Queue a valid torque, clamped to the joint's limit (a Clamp appended to `clamps`)."""
         lim = self.limits.get(joint)
-        if lim is None or abs(value) <= lim:
-            return value, None
-        applied = math.copysign(lim, value)
-        return applied, Clamp(joint, value, applied, lim)
+        if lim is not None and abs(value) > lim:
+            clamps.append(Clamp(joint, value, math.copysign(lim, value), lim))
+            value = math.copysign(lim, value)
+        self._pending_torque[joint] = (value, source)
+        return value
 
     def _check_joint(self, joint: str) -> Optional[str]:
         if joint not in self._actuated_set:
@@ -188,9 +180,9 @@ class CommandBuffer:
                 reason = self._check_value(joint, value)
         if reason is not None:
             return [Rejection(joint, value, reason)], []
-        applied, clamp = self._clamp(joint, float(value))
-        self._pending_torque[joint] = (applied, 'joint')
-        return [], [clamp] if clamp else []
+        clamps: list[Clamp] = []
+        self._queue(joint, value, 'joint', clamps)
+        return [], clamps
 
     def command_array(self, values: Iterable[float]) -> tuple[list[Rejection], list[Clamp]]:
         """Queue torques for all joints of `order`; a wrong length or a non-finite entry
@@ -205,15 +197,9 @@ class CommandBuffer:
                if (reason := self._check_value(j, v)) is not None]
         if bad:
             return bad, []
-        clamps = []
-        applied_values = []
-        for j, v in zip(self.order, values):
-            a, c = self._clamp(j, v)
-            applied_values.append(a)
-            if c:
-                clamps.append(c)
-            self._pending_torque[j] = (a, 'array')
-        self._pending_array = applied_values
+        clamps: list[Clamp] = []
+        self._pending_array = [self._queue(j, v, 'array', clamps)
+                               for j, v in zip(self.order, values)]
         return [], clamps
 
     def command_enable(self, joint: str, flag: bool) -> list[Rejection]:
@@ -273,10 +259,7 @@ class CommandBuffer:
                 if reason is not None:
                     rejections.append(Rejection(joint, value, f'effort: {reason}'))
                 else:
-                    applied, clamp = self._clamp(joint, value)
-                    self._pending_torque[joint] = (applied, 'joint_state')
-                    if clamp:
-                        clamps.append(clamp)
+                    self._queue(joint, value, 'joint_state', clamps)
             if position:
                 if joint not in self.driven:
                     rejections.append(Rejection(joint, position[k], 'position: joint has no '
@@ -305,7 +288,7 @@ class CommandBuffer:
                     or self._pending_aim
                     or self._pending_array is not None or self._pending_enable_all is not None)
 
-    def apply(self, world: CommandTarget) -> Applied:
+    def apply(self, world: Any) -> Applied:
         """Write pending commands into `world`, then apply the command timeout."""
         if self.idle:
             return NOTHING_APPLIED          # the common boundary: nothing to do

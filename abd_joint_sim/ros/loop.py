@@ -40,15 +40,13 @@ class LoopOutput:
     replay checker). Every method is a no-op here; override what you need."""
 
     markers_wanted = False
-    """Build the body markers (someone subscribes, or the run is recorded); their poses
-    need the world at the marker's step, so a batch ends there."""
+    """Build the body markers (someone subscribes, or the run is recorded)."""
     every_state = False
     """Hand over the joint state after every step, not only when ``publish_rate`` says."""
     world_each_step = False
     """`stepped` reads the world itself after every step: no batching."""
     markers_serialized = False
-    """`markers` gets the MarkerArray as serialized CDR bytes
-    (``MarkerBuilder.build_serialized``) instead of a message."""
+    """`markers` gets CDR bytes (``MarkerBuilder.build_serialized``), not a message."""
 
     def clock(self, t_ns: int) -> None:
         """After every step (and at start, reset and a forced publish)."""
@@ -69,8 +67,7 @@ class LoopOutput:
         """Commands as they took effect at a step boundary."""
 
     def restarted(self) -> None:
-        """Simulated time restarts at 0 (reset), before the reset's state is published: a
-        recorder keeps its log times increasing (``BagWriter.restart_time``)."""
+        """Simulated time restarts at 0 (reset), before the reset's state is published."""
 
     def parameters(self, t_ns: int, changes: Mapping[str, Any]) -> None:
         """Live parameter changes (recorded ones) in force from `t_ns` on."""
@@ -99,12 +96,10 @@ class SimLoop:
     """A World stepped with sim_node's rules; see the module docstring.
 
     :param clamp: apply the ``effort_limits`` parameter (False when the commands come from a
-        bag, where they are stored already clamped, so that a live change of the limits
-        during the recorded run cannot clamp them a second time).
-    :param raise_faults: re-raise a failed step (headless tools: the run ends there) instead
-        of pausing (the node keeps running).
+        bag, stored already clamped).
+    :param raise_faults: re-raise a failed step (headless tools) instead of pausing (node).
     :param diagnostics_period_ns: > 0: diagnostics are due on this grid of simulated time
-        (headless runs, which have no wall clock to follow); 0: the caller times them.
+        (headless runs); 0: the caller times them.
     """
 
     def __init__(self, scene: Any, config: SimConfig, output: Optional[LoopOutput] = None,
@@ -174,9 +169,7 @@ class SimLoop:
         return taken
 
     def _batch_limit(self, remaining: int) -> int:
-        """Steps the next batch may take: up to the next boundary that needs the world or
-        the command buffer (a command timeout, diagnostics due). Markers do not end a batch:
-        they are built from the batch's states."""
+        """Steps the next batch may take: up to the next command timeout or diagnostics."""
         if remaining < 2 or self.output.world_each_step:
             return 1
         limit = min(remaining, self.max_batch)
@@ -240,17 +233,13 @@ class SimLoop:
         try:
             i = 0
             while i < count:
-                # Steps that publish only /clock go out in one `clocks` call; `publish_state`
-                # takes the next step that has more to publish (the same messages in the
-                # same order as one publish_state per step).
+                # steps that publish only /clock: one `clocks` call
                 k = self._next_busy_step(stamps, i) if stamps is not None else i
                 if k > i:
                     out.clocks(stamps[i:k])
                     i = k
                     if i == count:
                         break
-                # Only the batch's last step is the world's current one; the markers of the
-                # others come from the batch's states.
                 self.publish_state(t=times[i], position=angles[i], velocity=velocities[i],
                                    current=i == last, states=states[i], effort=effort)
                 if self.fault:              # the publish guard stopped it: say so once
@@ -274,8 +263,7 @@ class SimLoop:
 
     def _next_busy_step(self, stamps: list, i: int) -> int:
         """The first step from `i` on at which `publish_state` publishes more than /clock
-        (a joint state, markers or diagnostics due): each schedule's next stamp, found by
-        bisection in the batch's increasing stamps; len(stamps) if none."""
+        (a joint state, markers or diagnostics due); len(stamps) if none."""
         k = bisect.bisect_left(stamps, self.publish_schedule.next_ns, i)
         if self.markers is not None:
             k = min(k, bisect.bisect_left(stamps, self.marker_schedule.next_ns, i))
@@ -320,10 +308,9 @@ class SimLoop:
                       position=None, velocity=None, current: Optional[bool] = None,
                       states=None, effort: Optional[list] = None) -> None:
         """/clock after every step, markers and the joint state when due; never a non-finite
-        value. A batch passes each step's time, joint angles and velocities, whether it is
-        the world's current step (by default the world's current), the body states (B, 12)
-        of that step and the efforts as a list (the world's applied torques, computed once
-        per batch: no command changes inside one)."""
+        value. A batch passes each step's time, joint positions and velocities, whether it
+        is the world's current step, its body states (B, 12) and the efforts (a list, the
+        same for the whole batch)."""
         out = self.output
         if t is None:
             t = self.world.time

@@ -89,9 +89,7 @@ class SimNode(Node):
         self._check_parameter_sources(kwargs)       # before a bad value ends the start
         self.config = config_from_values(values)
 
-        # Scene, and the loop that owns the world (ros/loop.py, shared with the headless
-        # tools). Imported here so that `--help`-like failures stay cheap.
-        from abd_joint_sim.scene import Scene
+        from abd_joint_sim.scene import Scene     # (here: `--help`-like failures stay cheap)
         self.scene = self._load_scene(Scene)
         self._output = _NodeOutput(self)
         self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,
@@ -116,17 +114,13 @@ class SimNode(Node):
         self.joint_state_pub = self._publisher(JointState, TOPIC_JOINT_STATES)
         self.clock_pub = self._publisher(Clock, TOPIC_CLOCK)
         self.clock_encoder = convert.ClockEncoder()      # /clock as checked CDR bytes
-        # What clock_pub.publish(bytes) calls, without its per-call type dispatch and handle
-        # guard (the publisher lives as long as the node; only this node's executor thread
-        # publishes): /clock goes out after every step.
+        # publish(bytes) without its per-call type dispatch and handle guard (the publisher
+        # lives as long as the node)
         self.clock_publish_raw = self.clock_pub.handle.publish_raw
-        # /joint_states as checked CDR bytes too (fixed names and frame_id: read-only).
         self.joint_state_encoder = convert.JointStateEncoder(self.joint_names,
                                                              self.config.frame_id)
         self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
-        # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
-        # the run is recorded.
         self.marker_pub = None
         if self.markers is not None:
             from visualization_msgs.msg import MarkerArray
@@ -162,9 +156,8 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._vet_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        # Timers: stepping (period from dt and the real-time factor) and diagnostics (wall).
-        # Both run on the steady clock: on the node's clock they would follow /clock under
-        # use_sim_time, which only moves when this node steps, so it would never step.
+        # Timers on the steady clock: under use_sim_time the node's clock follows /clock,
+        # which only moves when this node steps.
         self._wall_clock = RclpyClock(clock_type=ClockType.STEADY_TIME)
         self.step_timer = None
         self._make_step_timer()
@@ -248,9 +241,7 @@ class SimNode(Node):
         return values
 
     def _warn_undeclared_parameters(self) -> None:
-        """Warn about parameters given at start that this node does not have: a typo such
-        as real_time_factr would otherwise be ignored without a word (a warning, not a
-        refusal: docs/parameters.md)."""
+        """Warn about parameters given at start that this node does not have (typos)."""
         overrides = getattr(self, '_parameter_overrides', None) or {}
         names = [n for n in undeclared_parameters(overrides) if not self.has_parameter(n)]
         declared = sorted(getattr(self, '_parameters', None) or PARAMS_BY_NAME)
@@ -262,9 +253,8 @@ class SimNode(Node):
                 f'its parameters: {", ".join(PARAMS_BY_NAME)} (docs/parameters.md)')
 
     def _check_parameter_sources(self, kwargs: dict) -> None:
-        """Warn about a parameter given more than once with different values (e.g. `-p
-        record:=bag` and a --params-file with `record: ""`: only one of them is in
-        effect)."""
+        """Warn about a parameter given more than once with different values (`-p
+        record:=bag` and a --params-file with `record: ""`)."""
         argv = list(kwargs.get('cli_args') or [])
         if kwargs.get('use_global_arguments', True):
             argv = list(sys.argv[1:]) + argv
@@ -300,11 +290,8 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------- timing ----
     def _make_step_timer(self) -> None:
-        """The step timer at the period `real_time_factor` asks for; with the stepping thread
-        running and a real-time factor > 0, a slow one that only notices a SIGINT/SIGTERM
-        (the thread steps). As fast as possible the timer steps in both cases: its 20 ms
-        rounds leave the executor's rounds at ~3 % of the time, and a thread was measured no
-        faster there (docs/speed.md)."""
+        """The step timer at the period `real_time_factor` asks for; while the stepping thread
+        steps (real_time_factor > 0), a slow one that only notices a SIGINT/SIGTERM."""
         if self.step_timer is not None:
             self.destroy_timer(self.step_timer)
         rtf = self.config.real_time_factor
@@ -500,8 +487,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------ subscriptions ----
     def _warn_throttled(self, key, text: str) -> None:
-        """Warn at most once per LOG_THROTTLE s per key (rclpy throttles per call site,
-        which would hide a second joint's or a second reason's message)."""
+        """Warn at most once per LOG_THROTTLE s per key (rclpy's throttle is per call site)."""
         now = time.monotonic()
         last, suppressed = self._throttle.get(key, (-math.inf, 0))
         if now - last < LOG_THROTTLE:
@@ -515,10 +501,8 @@ class SimNode(Node):
         self.get_logger().warn(text)
 
     def _report(self, form: str, rejections, clamps) -> None:
-        """Throttled per command form (array, joint torque, enable), joint and reason: the
-        first rejection of each kind of command shows at once, whatever came before. Entries
-        naming joints the scene does not have are one line per message and reason, throttled
-        per reason (a flood of fresh names is one kind of refusal, not one per name)."""
+        """Warn of rejections and clamps, throttled per command form, joint and reason;
+        entries naming joints the scene does not have are one line per message and reason."""
         joints = self._scene_joints
         unknown: dict[str, list] = {}
         for r in rejections:
@@ -566,14 +550,18 @@ class SimNode(Node):
         self.commands.command_enable_all(msg.data)
 
     # ----------------------------------------------------------------- services ----
+    @staticmethod
+    def _answer(response, success: bool, message: str):
+        response.success, response.message = success, message
+        return response
+
     @_locked
     def _srv_pause(self, request, response):
         was = self.paused
         self.paused = True
         self._flush_recorder()
-        response.success = True
-        response.message = f'paused at t={self.world.time:.6f} s' + (' (already)' if was else '')
-        return response
+        return self._answer(response, True, f'paused at t={self.world.time:.6f} s'
+                            + (' (already)' if was else ''))
 
     @_locked
     def _srv_unpause(self, request, response):
@@ -581,21 +569,15 @@ class SimNode(Node):
         self.paused = False
         self._reanchor()
         self._wake_stepper()
-        response.success = True
-        response.message = (f'running from t={self.world.time:.6f} s'
+        return self._answer(response, True, f'running from t={self.world.time:.6f} s'
                             + ('' if was else ' (was not paused)'))
-        return response
 
     @_locked
     def _srv_step(self, request, response):
         if not self.paused:
-            response.success = False
-            response.message = 'not paused: call ~/pause first'
-            return response
+            return self._answer(response, False, 'not paused: call ~/pause first')
         ok = self._step_once(force_publish=True)
-        response.success = ok
-        response.message = f't={self.world.time:.6f} s'
-        return response
+        return self._answer(response, ok, f't={self.world.time:.6f} s')
 
     @_locked
     def _srv_reset(self, request, response):
@@ -604,9 +586,7 @@ class SimNode(Node):
         self._wake_stepper()
         self._live_refresh(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
-        response.success = True
-        response.message = f'reset to t={self.world.time:.6f} s'
-        return response
+        return self._answer(response, True, f'reset to t={self.world.time:.6f} s')
 
     # ---------------------------------------------------------------- live view ----
     def _start_live(self):

@@ -98,12 +98,9 @@ def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
 
 
 def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
-    """Commands as they took effect (log time = simulated time of the step boundary).
-
-    Same-time messages are written in the order a replay must apply them: per-joint
-    enables, then the array command, then per-joint torques that superseded it. Timeouts
-    are not written: they follow from ``command_timeout`` (and its recorded changes).
-    """
+    """Commands as they took effect (log time = simulated time of the step boundary), in the
+    order a replay must apply them: per-joint enables, the array command, per-joint torques
+    that superseded it, joint_commands. Timeouts follow from ``command_timeout``."""
     t_ns = convert.seconds_to_ns(applied.time)
     for joint, flag in applied.enables.items():
         write(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), t_ns, convert.bool_msg(flag))
@@ -135,23 +132,18 @@ def joint_command_msg(t_ns: int, names, position=(), effort=()):
 
 
 class Recording:
-    """The bag of a run in sim_node's layout (``ros/topics.py``): what the node and the
-    headless recorder (``tools/sim.py``) hand it, written through one ``BagWriter``.
-
-    In a batch of steps ``/clock`` (one per step) is held back and written with one
-    ``BagWriter.write_serialized_many`` call before any other message and at the batch's
-    end, so the bag gets the order and the bytes of one write per message; `counts` tells how many messages each topic got. A failed write closes
-    the bag and calls ``on_error(why)``, or raises when there is none. Open one with
-    :meth:`open`.
-    """
+    """The bag of a run in sim_node's layout, written through one ``BagWriter`` (open one
+    with :meth:`open`). In a batch ``/clock`` is held back and written in one call before any
+    other message and at the batch's end: the same order and bytes as one write per message.
+    `counts`: messages per topic. A failed write closes the bag and calls ``on_error(why)``,
+    or raises when there is none."""
 
     def __init__(self, writer: Any, resolve: Resolve, node_fqn: str,
                  on_error: Optional[Callable[[str], None]] = None,
                  zero_padding: bool = False) -> None:
         self.writer = writer            #: an open BagWriter with the node's topics; None: closed
-        #: messages serialised here get their alignment padding zeroed (cdr.without_padding):
-        #: the serialiser leaves its buffer's bytes there, so bags that must compare equal
-        #: byte for byte (sweep cases) ask for it
+        #: zero the alignment padding of messages serialised here (cdr.without_padding), for
+        #: bags that must compare equal byte for byte (sweep cases)
         self.zero_padding = zero_padding
         self.resolve = resolve
         self.node_fqn = node_fqn
@@ -295,12 +287,9 @@ class Recording:
 
 
 class PublishSchedule:
-    """When ``/joint_states`` is due: ``publish_rate`` Hz of simulated time (0 = every step).
-
-    The grid is ``k * period``: after a publish at ``t``, the next one is due at the first
-    grid point after ``t``. :meth:`restart` (reset, a change of ``publish_rate``) makes the
-    next call due at once.
-    """
+    """When ``/joint_states`` (or the markers) are due: ``rate`` Hz of simulated time on the
+    grid ``k * period`` (0 = every step), and always when forced (start, reset, single step);
+    after :meth:`restart` the next call is due at once."""
 
     def __init__(self) -> None:
         self.next_ns = 0
