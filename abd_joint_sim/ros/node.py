@@ -340,17 +340,18 @@ class SimNode(Node):
             rclpy.try_shutdown(context=self.context)
 
     def _pace(self) -> float:
-        """One round of the stepping thread (the lock held): the steps due now in real time
-        x real_time_factor, at most BATCH_STEPS; returns the wall seconds until the next step
-        is due (0: look again at once). Idle while paused and as fast as possible (the step
-        timer steps then)."""
+        """One round of real-time stepping (the thread's, or the step timer's without it; the
+        lock held): the steps due now in real time x real_time_factor, at most BATCH_STEPS;
+        returns the wall seconds until the next step is due (0: look again at once). Idle
+        while paused and as fast as possible."""
         rtf = self.config.real_time_factor
         if (self._closed or self.paused or rtf == 0.0 or _STOP_SIGNAL['received']
                 or not self.context.ok()):
             return THREAD_IDLE
         now = time.monotonic()
         dt = self.world.dt
-        due = self._steps_behind(self._real_time_target(rtf, now))
+        # whole steps to real time x rtf (1e-6 of a step to spare)
+        due = int((self._real_time_target(rtf, now) - self.world.time) / dt + 1e-6)
         if due >= 1:
             self._advance(min(due, BATCH_STEPS))
             return 0.0
@@ -367,10 +368,6 @@ class SimNode(Node):
                 MAX_LAG_WALL * rtf + dt:
             self._warn_lagging(rtf, dt)
         return self._anchor_sim + rtf * (now - self._anchor_wall)
-
-    def _steps_behind(self, target: float) -> int:
-        """Whole steps from the simulation's time to `target` (1e-6 of a step to spare)."""
-        return int((target - self.world.time) / self.world.dt + 1e-6)
 
     def _warn_lagging(self, rtf: float, dt: float) -> None:
         """Real time x rtf ran ahead of the simulation by more than MAX_LAG_WALL: say so
@@ -422,17 +419,11 @@ class SimNode(Node):
                 now, before = time.monotonic(), now
                 self._wall_per_step = (now - before) / taken
             return
-        now = time.monotonic()
-        dt = self.world.dt
-        target = self._real_time_target(rtf, now)
-        # Step while the end of the next step is not ahead of real time x rtf, and give the
-        # executor back after AFAP_BATCH_WALL so commands and services are never starved.
-        deadline = now + AFAP_BATCH_WALL
-        while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
-               and time.monotonic() < deadline and not _STOP_SIGNAL['received']
-               and self.context.ok()):
-            if not self._advance(max(1, min(self._steps_behind(target), BATCH_STEPS))):
-                break
+        # the stepping thread's rounds, until none is due or after AFAP_BATCH_WALL (the
+        # executor's turn: commands and services are never starved)
+        deadline = time.monotonic() + AFAP_BATCH_WALL
+        while self._pace() == 0.0 and time.monotonic() < deadline:
+            pass
 
     # -------------------------------------------------------------------- steps ----
     def _afap_steps(self) -> int:
@@ -810,24 +801,22 @@ def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optio
     None)."""
     import tempfile
     import yaml
+    key = 'robot_description:='
     out: list[str] = []
     path = None
     i = 0
     while i < len(args):
-        a = args[i]
-        value = None
-        if a in ('-p', '--param') and i + 1 < len(args) \
-                and args[i + 1].startswith('robot_description:='):
-            value, i = args[i + 1][len('robot_description:='):], i + 2
-        if value is None:
-            out.append(a)
-            i += 1
-            continue
-        with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
-                                         delete=False) as f:
-            yaml.safe_dump({'/**': {'ros__parameters': {'robot_description': value}}}, f)
+        if args[i] in ('-p', '--param') and args[i + 1:i + 2] and args[i + 1].startswith(key):
+            with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
+                                             delete=False) as f:
+                yaml.safe_dump({'/**': {'ros__parameters': {
+                    'robot_description': args[i + 1][len(key):]}}}, f)
             path = f.name
-        out += ['--params-file', path]
+            out += ['--params-file', path]
+            i += 2
+        else:
+            out.append(args[i])
+            i += 1
     return out, path
 
 

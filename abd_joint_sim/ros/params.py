@@ -60,36 +60,24 @@ def _as_nonneg(name: str, value: Any) -> float:
     return value
 
 
-def _as_float_list(name: str, value: Any) -> list[float]:
-    if value is None:
+def _as_list(name: str, value: Any, what: str, ok: Callable[[Any], bool]) -> list:
+    """A list parameter's items (an empty list is declared as an empty byte array)."""
+    if value is None or (isinstance(value, bytes) and not value):
         return []
-    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-        # A byte array is what an empty list is declared as: accept it only when empty.
-        if isinstance(value, bytes) and not value:
-            return []
-        raise ValueError(f'parameter {name!r}: expected a list of numbers, got {value!r}')
-    out = []
-    for v in value:
-        if isinstance(v, bytes):
-            raise ValueError(f'parameter {name!r}: expected a list of numbers, got {value!r}')
-        out.append(_as_float(name, v))
-    return out
+    if (isinstance(value, (str, bytes)) or not isinstance(value, Sequence)
+            or not all(map(ok, value))):
+        raise ValueError(f'parameter {name!r}: expected a list of {what}, got {value!r}')
+    return list(value)
+
+
+def _as_float_list(name: str, value: Any) -> list[float]:
+    return [_as_float(name, v) for v in
+            _as_list(name, value, 'numbers', lambda v: not isinstance(v, bytes))]
 
 
 def _as_str_list(name: str, value: Any) -> list[str]:
-    if value is None:
-        return []
-    if isinstance(value, str) or not isinstance(value, Sequence):
-        raise ValueError(f'parameter {name!r}: expected a list of strings, got {value!r}')
-    out = []
-    for v in value:
-        if not isinstance(v, str):
-            if isinstance(v, bytes) and not value:
-                continue
-            raise ValueError(f'parameter {name!r}: expected a list of strings, got {value!r}')
-        if v.strip():
-            out.append(v.strip())
-    return out
+    return [v.strip() for v in _as_list(name, value, 'strings', lambda v: isinstance(v, str))
+            if v.strip()]
 
 
 def _as_str(name: str, value: Any) -> str:
