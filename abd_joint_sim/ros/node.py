@@ -54,6 +54,7 @@ def _qos(spec: TopicSpec) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
+SERVICES = ('pause', 'unpause', 'step', 'reset')     # ~/<name>, std_srvs/Trigger
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
 BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
@@ -102,8 +103,7 @@ class SimNode(Node):
         self.live = self._start_live()      # the live view (docs/live.md), live_port > 0
 
         self.recording_error: Optional[str] = None
-        self._anchor_wall = time.monotonic()
-        self._anchor_sim = self.world.time
+        self._reanchor()
         self._stats_wall = time.monotonic()
         self._stats_steps = 0
         self._throttle: dict = {}
@@ -121,10 +121,9 @@ class SimNode(Node):
                                                              self.config.frame_id)
         self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
-        self.marker_pub = None
-        if self.markers is not None:
-            from visualization_msgs.msg import MarkerArray
-            self.marker_pub = self._publisher(MarkerArray, TOPIC_MARKERS)
+        from visualization_msgs.msg import MarkerArray
+        self.marker_pub = (None if self.markers is None
+                           else self._publisher(MarkerArray, TOPIC_MARKERS))
 
         # Subscriptions: only actuated joints get command topics.
         self.command_subs = [
@@ -133,20 +132,16 @@ class SimNode(Node):
             self._subscription(JointState, TOPIC_JOINT_COMMANDS, self._on_joint_commands),
         ]
         for joint in self.actuated:
-            self.command_subs.append(self._subscription(
-                Float64, TOPIC_TORQUE_JOINT, lambda msg, j=joint: self._on_torque_joint(j, msg),
-                joint))
-            self.command_subs.append(self._subscription(
-                Bool, TOPIC_ENABLE_JOINT, lambda msg, j=joint: self._on_enable_joint(j, msg),
-                joint))
+            self.command_subs += [
+                self._subscription(Float64, TOPIC_TORQUE_JOINT,
+                                   lambda msg, j=joint: self._on_torque_joint(j, msg), joint),
+                self._subscription(Bool, TOPIC_ENABLE_JOINT,
+                                   lambda msg, j=joint: self._on_enable_joint(j, msg), joint)]
 
         # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
-        self.service_handles = [
-            self.create_service(Trigger, '~/pause', self._srv_pause),
-            self.create_service(Trigger, '~/unpause', self._srv_unpause),
-            self.create_service(Trigger, '~/step', self._srv_step),
-            self.create_service(Trigger, '~/reset', self._srv_reset),
-        ]
+        self.service_handles = [self.create_service(Trigger, f'~/{name}',
+                                                    getattr(self, f'_srv_{name}'))
+                                for name in SERVICES]
 
         # Recording (optional; failures never stop the simulation).
         self.recorder = None
@@ -597,9 +592,7 @@ class SimNode(Node):
             live = LiveServer(
                 self.scene, self.joint_names, self.config.live_port, self.config.live_host,
                 world_frame=self.config.marker_frame_id, name=self.get_fully_qualified_name(),
-                services={'pause': trigger(self._srv_pause),
-                          'unpause': trigger(self._srv_unpause),
-                          'step': trigger(self._srv_step), 'reset': trigger(self._srv_reset)},
+                services={name: trigger(getattr(self, f'_srv_{name}')) for name in SERVICES},
                 log=lambda level, text: getattr(self.get_logger(), level)(text)).start()
         except LiveError as exc:
             self.get_logger().error(f'{exc}; the simulation runs without the live view')
