@@ -76,26 +76,20 @@ class Applied:
 
 
 NOTHING_APPLIED = Applied(time=math.nan)
-"""What `CommandBuffer.apply` returns when nothing was pending and no timeout runs (falsy;
-shared, so never modify it): most step boundaries, and building an Applied costs ~1.5 µs."""
+"""What `CommandBuffer.apply` returns at most boundaries (nothing pending, no timeout: an
+Applied costs ~1.5 µs); falsy and shared, so never modify it."""
 
 
 class CommandBuffer:
     """Pending torque/enable commands, effort limits and the command timeout.
 
-    Parameters
-    ----------
-    actuated:
-        Names of the joints that accept commands (the world's actuated joints).
-    order:
-        Joint order of the array command (a subset or permutation of `actuated`).
-    effort_limits:
-        One positive limit [N m] per joint of `order`, or empty for none.
-    command_timeout:
-        Simulated seconds [s]; 0 = off.
-    scene_limits:
-        joint -> effort limit [N m] the scene itself imposes (inf = none); the tighter of
-        the two limits applies, so every clamp is reported here.
+    :param actuated: the joints that accept commands (the world's actuated joints).
+    :param order: joint order of the array command (a subset or permutation of `actuated`).
+    :param effort_limits: one positive limit [N m] per joint of `order`, or empty for none.
+    :param command_timeout: simulated seconds [s]; 0 = off.
+    :param scene_limits: joint -> the scene's own effort limit [N m] (inf = none); the
+        tighter limit applies, so every clamp is reported here.
+    :param driven: joints with driving (UID 19 / 21), which take position commands.
     """
 
     def __init__(self, actuated: Sequence[str], order: Sequence[str],
@@ -103,7 +97,7 @@ class CommandBuffer:
                  scene_limits: Optional[Mapping[str, float]] = None,
                  driven: Sequence[str] = ()):
         self.actuated = list(actuated)
-        self.driven = list(driven)          # joints with driving (UID 19 / 21): position commands
+        self.driven = list(driven)
         self._actuated_set = set(self.actuated)
         self.order = list(order) if order else list(self.actuated)
         bad = [j for j in self.order if j not in self._actuated_set]
@@ -282,8 +276,7 @@ class CommandBuffer:
     # -- at the step boundary ----------------------------------------------------------
     @property
     def idle(self) -> bool:
-        """Nothing pending and no command timeout to run: `apply` would change nothing at
-        any boundary until a new command arrives (sim_node then steps in batches)."""
+        """Nothing pending and no command timeout to run: `apply` would change nothing."""
         return not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
                     or self._pending_aim
                     or self._pending_array is not None or self._pending_enable_all is not None)

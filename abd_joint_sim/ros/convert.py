@@ -48,9 +48,8 @@ def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[floa
     msg.header.stamp = ns_to_time_msg(stamp_ns)
     msg.header.frame_id = frame_id
     msg.name = list(names)
-    msg.position = [float(x) for x in np.asarray(position, dtype=float).ravel()]
-    msg.velocity = [float(x) for x in np.asarray(velocity, dtype=float).ravel()]
-    msg.effort = [float(x) for x in np.asarray(effort, dtype=float).ravel()]
+    msg.position, msg.velocity, msg.effort = (np.asarray(a, dtype=float).ravel().tolist()
+                                              for a in (position, velocity, effort))
     check_lengths(len(msg.name), msg.position, msg.velocity, msg.effort)
     return msg
 
