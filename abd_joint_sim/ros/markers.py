@@ -99,9 +99,8 @@ class MarkerBuilder:
                 q1 = np.asarray(joint.p1, dtype=float)
                 if length is not None:
                     q1 = q0 + length * (q1 - q0) / np.linalg.norm(q1 - q0)
-                a = R0.T @ (q0 - p0)
-                b = R0.T @ (q1 - p0)
-                self.axes.append((j, joint.name, joint.parent, a, b))
+                self.axes.append((j, joint.name, joint.parent, R0.T @ (q0 - p0),
+                                  R0.T @ (q1 - p0)))
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
         self._cdr: Optional[Any] = None    # build_serialized's cdr.Template
@@ -225,13 +224,9 @@ class MarkerBuilder:
             P = np.ascontiguousarray(pose[:, :3], dtype=float)
             A = np.ascontiguousarray(pose[:, 3:12], dtype=float).reshape(-1, 3, 3)
         else:
-            ps, As = [], []
-            for name in self.body_names:
-                p, A = pose(name)
-                ps.append(p)
-                As.append(A)
-            P = np.asarray(ps, dtype=float)
-            A = np.asarray(As, dtype=float)
+            poses = [pose(name) for name in self.body_names]
+            P = np.asarray([p for p, _ in poses], dtype=float)
+            A = np.asarray([a for _, a in poses], dtype=float)
         if self._stacked is None:
             index = self._index
             ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)

@@ -54,7 +54,6 @@ def _qos(spec: TopicSpec) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
-SERVICES = ('pause', 'unpause', 'step', 'reset')     # ~/<name>, std_srvs/Trigger
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
 BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
@@ -62,8 +61,7 @@ AFAP_BATCH_STEPS = 256        # most steps per `_advance` as fast as possible (_
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 MAX_LOG_LINE = 500            # characters of a logged warning (the rest is counted)
-THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (paused, or as fast as
-#                               possible, where the step timer steps; a change wakes it)
+THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (a change wakes it)
 
 
 def _locked(method):
@@ -85,7 +83,6 @@ class SimNode(Node):
         self._stepper_quit = threading.Event()
         self._stepper_wake = threading.Event()
         self.stepper_error: Optional[BaseException] = None
-        # Parameters -> config (read once; live ones re-applied by the post-set callback).
         values = self._declare_parameters()
         self._check_parameter_sources(kwargs)       # before a bad value ends the start
         self.config = config_from_values(values)
@@ -139,9 +136,12 @@ class SimNode(Node):
                                    lambda msg, j=joint: self._on_enable_joint(j, msg), joint)]
 
         # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
-        self.service_handles = [self.create_service(Trigger, f'~/{name}',
-                                                    getattr(self, f'_srv_{name}'))
-                                for name in SERVICES]
+        self.service_handles = [
+            self.create_service(Trigger, '~/pause', self._srv_pause),
+            self.create_service(Trigger, '~/unpause', self._srv_unpause),
+            self.create_service(Trigger, '~/step', self._srv_step),
+            self.create_service(Trigger, '~/reset', self._srv_reset),
+        ]
 
         # Recording (optional; failures never stop the simulation).
         self.recorder = None
@@ -592,7 +592,8 @@ class SimNode(Node):
             live = LiveServer(
                 self.scene, self.joint_names, self.config.live_port, self.config.live_host,
                 world_frame=self.config.marker_frame_id, name=self.get_fully_qualified_name(),
-                services={name: trigger(getattr(self, f'_srv_{name}')) for name in SERVICES},
+                services={name: trigger(getattr(self, f'_srv_{name}'))
+                          for name in ('pause', 'unpause', 'step', 'reset')},
                 log=lambda level, text: getattr(self.get_logger(), level)(text)).start()
         except LiveError as exc:
             self.get_logger().error(f'{exc}; the simulation runs without the live view')

@@ -34,16 +34,14 @@ def _as_float(name: str, value: Any) -> float:
     return value
 
 
-RANGES = {
-    # name: (lowest, highest) of a non-zero value; 0 means "off"/"auto"/"every step".
-    # Beyond them a value is a typo, not a wish, and the arithmetic on it overflows
-    # (1e9 / publish_rate ns, dt / real_time_factor s, ...).
+RANGES = {      # name: (lowest, highest) of a non-zero value (0: off, auto, every step)
     'time_step': (1e-6, 1.0),                  # s, as a scene's dt
     'real_time_factor': (1e-4, 1e4),
     'publish_rate': (1e-6, 1e9),               # Hz of simulated time; 1e9 = every ns
     'command_timeout': (1e-6, 1e6),            # s of simulated time
 }
-"""Sane ranges of the numeric parameters (refused beyond, at start and live)."""
+"""Sane ranges of the numeric parameters, refused beyond at start and live: a typo, and the
+arithmetic on it (1e9 / publish_rate ns, dt / real_time_factor s) would overflow."""
 
 MAX_EFFORT_LIMIT = 1e9
 """[N m] Largest effort limit (= commands.MAX_ABS_TORQUE, the largest accepted torque)."""

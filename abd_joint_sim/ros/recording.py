@@ -110,8 +110,7 @@ def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
         if applied.sources.get(joint) == 'joint':
             write(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)), t_ns,
                   convert.float64_msg(value))
-    # joint_commands as applied: one message with the efforts (after clamping), one with
-    # the driving aims; each joint's final value only, so the order among them is free.
+    # joint_commands: one message with the efforts (clamped), one with the driving aims
     efforts = {j: v for j, v in applied.torques.items()
                if applied.sources.get(j) == 'joint_state'}
     for kind, values in (('effort', efforts), ('position', applied.aims)):
