@@ -214,18 +214,14 @@ class SimNode(Node):
     def _declare_parameters(self) -> dict[str, Any]:
         values = {}
         for spec in PARAMS:
-            default = spec.default
-            if spec.name == 'scene':
-                default = default_scene_path()
-            dynamic = not isinstance(default, (str, bool))
+            default = default_scene_path() if spec.name == 'scene' else spec.default
             descriptor = ParameterDescriptor(description=spec.description,
                                              read_only=spec.read_only,
-                                             dynamic_typing=dynamic)
+                                             dynamic_typing=not isinstance(default, (str, bool)))
             try:
                 param = self.declare_parameter(spec.name, default, descriptor)
             except InvalidParameterTypeException:
-                # a string or bool parameter given a value of another YAML type: one line
-                # naming it, not rclpy's traceback
+                # (a string or bool parameter given another YAML type: one line, no traceback)
                 given = (getattr(self, '_parameter_overrides', None) or {}).get(spec.name)
                 given = getattr(given, 'value', given)
                 kind = 'true or false' if isinstance(default, bool) else 'a string'
