@@ -107,10 +107,7 @@ class World:
         revolute joint, the distance including init_distance [m] of a prismatic one. (J,)"""
         return self._resident.joint_values(0)
 
-    def joint_angles(self) -> np.ndarray:
-        """`joint_positions` (the name from revolute-only scenes): rad, or m on a prismatic
-        joint. (J,)"""
-        return self._resident.joint_values(0)
+    joint_angles = joint_positions      # (the name from revolute-only scenes)
 
     def joint_velocities(self) -> np.ndarray:
         """Time derivative of the joint positions. [rad/s | m/s] (J,)"""
@@ -173,11 +170,6 @@ class World:
     def effort_enabled(self, joint: str) -> bool:
         return bool(self.control.torque_enabled[self._slot(self._effort_slot, joint, 'external effort')])
 
-    def set_efforts(self, values) -> np.ndarray:
-        """Set the effort of every actuated joint at once, in `actuated_joint_names` order
-        (N m on revolute, N on prismatic joints); see `set_torques`."""
-        return self.set_torques(values)
-
     def set_torque(self, joint: str, value: float) -> float:
         """Set the UID 668 torque of a revolute joint, applied from the next step; as
         `set_effort` (a prismatic joint's force), but refuses a prismatic joint."""
@@ -214,6 +206,8 @@ class World:
             raise ValueError(f'joint {names[bad]!r}: torque {v[bad]} is not finite; rejected (no '
                              'torque changed)')
         return out.copy()
+
+    set_efforts = set_torques           # (the name that says it sets forces too)
 
     def set_torque_enabled(self, joint: str, enabled: bool) -> None:
         """Switch a joint's UID 668 torque on or off from the next step. `enabled` must be True
