@@ -305,7 +305,7 @@ FOREIGN_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'
 
 def undeclared_parameters(overrides: Sequence[str]) -> list[str]:
     """Names among the start-up overrides (``-p``, ``--params-file``, launch) that are no
-    parameter of the node (typos such as ``real_time_factr``: the node warns, docs/parameters.md)."""
+    parameter of the node (typos such as ``real_time_factr``: the node warns)."""
     return sorted(n for n in overrides if n not in PARAMS_BY_NAME
                   and n not in FOREIGN_PARAMETERS and not n.startswith('qos_overrides.'))
 
