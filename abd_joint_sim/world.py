@@ -1,10 +1,5 @@
-"""World: owns a Model, its State and Control, and the Solver that steps them.
-
-One step of size h (docs/physics.md "Time integration"), run by the compiled Solver:
-forces (gravity, UID 668 torque) give the prediction q̃, Newton minimises the incremental
-potential Π over the free bodies, then velocities and the multi-turn joint angles are
-updated. Recovery (sub-stepping, SimulationError) is the Solver's (solver/solver.py); the
-World replaces its State with the one the Solver returns and keeps the report. Between
+"""World: owns a Model, its State and Control, and the Solver that steps them (one step:
+docs/physics.md "Time integration"; recovery and SimulationError: solver/solver.py). Between
 one-step calls the state stays in the solver's ring buffers (solver/resident.py) and
 `World.state` builds the State when it is read.
 """
@@ -23,7 +18,7 @@ from .solver.solver import Solver
 from .state import Control, State
 from .terms import ENERGY_TERMS, prismatic, revolute, torque
 
-__all__ = ['World', 'StepReport', 'Status']
+__all__ = ['World', 'Trajectory', 'StepReport', 'Status']
 
 
 class World:
@@ -42,7 +37,6 @@ class World:
         from .jit.warmup import ensure_compiled   # (not at import: `python -m abd_joint_sim.jit.warmup`)
         ensure_compiled()                     # says so before a first-time compile
         self.solver = Solver(m)
-        # the current state between one-step calls (solver/resident.py); `state` reads it
         self._resident = Resident(m.body_count, m.joint_count)
         self._joint_index = {n: k for k, n in enumerate(m.joint_names)}
         self._torque_slot = {m.joint_names[j]: k for k, j in enumerate(m.torque_joints)}
@@ -68,8 +62,7 @@ class World:
 
     @property
     def state(self) -> State:
-        """The current State (immutable: a step replaces it). After one-step calls it is
-        built when first read (the solver keeps the state in its own buffers meanwhile)."""
+        """The current State (immutable: a step replaces it; built when read)."""
         return self._resident.state()
 
     @state.setter
@@ -114,10 +107,7 @@ class World:
         revolute joint, the distance including init_distance [m] of a prismatic one. (J,)"""
         return self._resident.joint_values(0)
 
-    def joint_angles(self) -> np.ndarray:
-        """`joint_positions` (the name from revolute-only scenes): rad, or m on a prismatic
-        joint. (J,)"""
-        return self._resident.joint_values(0)
+    joint_angles = joint_positions      # (the name from revolute-only scenes)
 
     def joint_velocities(self) -> np.ndarray:
         """Time derivative of the joint positions. [rad/s | m/s] (J,)"""
@@ -180,16 +170,9 @@ class World:
     def effort_enabled(self, joint: str) -> bool:
         return bool(self.control.torque_enabled[self._slot(self._effort_slot, joint, 'external effort')])
 
-    def set_efforts(self, values) -> np.ndarray:
-        """Set the effort of every actuated joint at once, in `actuated_joint_names` order
-        (N m on revolute, N on prismatic joints); see `set_torques`."""
-        return self.set_torques(values)
-
     def set_torque(self, joint: str, value: float) -> float:
-        """Set the UID 668 torque of a revolute joint, applied from the next step. Values beyond
-        the joint's effort_limit are clamped; the applied value is returned. A value that is not
-        a number or not finite raises ValueError naming the joint, and changes nothing. (A
-        prismatic joint's force: `set_effort`.)"""
+        """Set the UID 668 torque of a revolute joint, applied from the next step; as
+        `set_effort` (a prismatic joint's force), but refuses a prismatic joint."""
         k = self._torque_slot.get(joint) if type(joint) is str else None
         if k is None:
             if type(joint) is str and joint in self._effort_slot:
@@ -201,12 +184,11 @@ class World:
         return value
 
     def set_torques(self, values) -> np.ndarray:
-        """Set the effort of every actuated joint at once (the UID 668 torque [N m], and on a
-        prismatic joint the UID 667 force [N]), in `actuated_joint_names` order, applied from
-        the next step: a controller's per-step call, one array instead of
-        a `set_torque` per joint. Values beyond each joint's effort_limit are clamped; returns
-        the applied values (a copy). A wrong length, a value that is not a number or not
-        finite raises ValueError naming it, and then no torque is changed."""
+        """Set the effort of every actuated joint at once (UID 668 torque [N m], UID 667 force
+        [N] on a prismatic joint), in `actuated_joint_names` order, from the next step. Values
+        beyond each joint's effort_limit are clamped; returns the applied values (a copy). A
+        wrong length or a value that is not a finite number raises ValueError naming it, and
+        then no torque is changed."""
         names = self._actuated
         try:
             v = np.asarray(values, dtype=np.float64)
@@ -224,6 +206,8 @@ class World:
             raise ValueError(f'joint {names[bad]!r}: torque {v[bad]} is not finite; rejected (no '
                              'torque changed)')
         return out.copy()
+
+    set_efforts = set_torques           # (the name that says it sets forces too)
 
     def set_torque_enabled(self, joint: str, enabled: bool) -> None:
         """Switch a joint's UID 668 torque on or off from the next step. `enabled` must be True
@@ -264,8 +248,6 @@ class World:
         self.state = state
         self.control = Control.initial(self.model)
         self.last_step = StepReport(max_joint_separation=self.max_joint_separation())
-        #: body states after each step of the last `step_clean` batch, (count, B, 12)
-        self.last_clean_q = np.empty((0, self.model.body_count, 12))
 
     # -- diagnostics --------------------------------------------------------------------
     def max_joint_separation(self) -> float:
@@ -312,13 +294,25 @@ class World:
         return kin + grav + pot / m.dt ** 2
 
     # -- stepping -----------------------------------------------------------------------
-    def step(self, n: int = 1) -> StepReport:
+    def step(self, n: int = 1, trajectory: Trajectory | None = None) -> StepReport:
         """Advance n steps of size dt; returns (and stores in `last_step`) the last report
         (n = 0: none, the last report again). Raises SimulationError when a step cannot be
         finished even with sub-steps; the state is then that of the last good step (time
-        stays a multiple of dt). An n that is not a whole number ≥ 0 raises ValueError."""
+        stays a multiple of dt). An n that is not a whole number ≥ 0 raises ValueError.
+
+        With a caller-owned `trajectory` (sim_node's batches): up to n steps that need no
+        sub-stepping and give no warning, in one compiled call, each step's rows written to
+        it; fewer (possibly 0) when a step is not clean, and the caller takes that one
+        without `trajectory` (which sub-steps, warns or raises as usual). State and
+        `last_step` are exactly as after `trajectory.count` one-step calls."""
         if n != 1:
             n = _step_count(n)
+        if trajectory is not None:
+            batch = self.solver.steps(self.state, self.control, n, clean=True) if n else None
+            trajectory._fill(batch, self.model)
+            if trajectory.count:
+                self.state, self.last_step = batch.state, batch.report
+            return self.last_step
         if n == 1:                  # (a controller's loop: this call every step)
             self.last_step = report = self.solver._step_resident(self._resident, self.control)
             return report
@@ -329,28 +323,27 @@ class World:
             n -= done.count
         return self.last_step
 
-    def step_clean(self, n: int):
-        """Up to n steps that need no sub-stepping and give no warning, in one compiled call
-        (for sim_node's batches). Returns (count, times, joint angles (count,J), joint
-        velocities (count,J)); state and `last_step` are exactly as after `count` calls of
-        `step`. Fewer than n (possibly 0) when a step is not clean: the caller then takes that
-        step with `step`, which sub-steps, warns or raises as usual. `last_clean_q` holds the
-        body states after each of the batch's steps, (count, B, 12) (sim_node's markers)."""
-        J = self.model.joint_count
-        if n <= 0:
-            self.last_clean_q = np.empty((0, self.model.body_count, 12))
-            return 0, [], np.empty((0, J)), np.empty((0, J))
-        batch = self.solver.steps(self.state, self.control, int(n), clean=True)
-        if batch.count:
-            self.state, self.last_step = batch.state, batch.report
-        self.last_clean_q = batch.q
-        return batch.count, batch.times, batch.joint_angles, batch.joint_velocities
+
+class Trajectory:
+    """The per-step rows of a `World.step(n, trajectory)` call, owned by the caller and
+    rewritten by each call: `count` steps, and after each the time `times` [s] (list), the
+    joint positions and velocities (count, J) and the body states `q` (count, B, 12)."""
+
+    count, times, positions, velocities, q = 0, (), None, None, None
+
+    def _fill(self, batch, model) -> None:
+        if batch is None:                   # (n = 0)
+            self.count, self.times = 0, []
+            self.positions = self.velocities = np.empty((0, model.joint_count))
+            self.q = np.empty((0, model.body_count, 12))
+        else:
+            self.count, self.times, self.q = batch.count, batch.times, batch.q
+            self.positions, self.velocities = batch.joint_angles, batch.joint_velocities
 
 
 def _step_count(n) -> int:
     """World.step's n as an int: an integer (numpy's too) or a float with a whole value, ≥ 0;
-    ValueError naming n otherwise (1.5 steps, −1, '5' or NaN would otherwise be truncated,
-    skipped or converted without a word)."""
+    ValueError naming n otherwise."""
     try:
         k = operator.index(n)
     except TypeError:
@@ -376,7 +369,7 @@ def _number(value, joint: str, what: str) -> float:
 
 def _flag(value, joint: str, what: str) -> bool:
     """A command's on/off flag: True or False (numpy's bool and the integers 0 and 1 too);
-    ValueError naming the joint otherwise: bool('no') is True, a silent wrong answer."""
+    ValueError naming the joint otherwise (bool('no') is True)."""
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     try:

@@ -2,7 +2,7 @@
 and the one topic table (abd_joint_sim/ros/topics.py).
 
 * Batching: with commands pending and a command timeout set, the loop still takes clean
-  steps in batches (World.step_clean), and every state is bit-identical to an independent
+  steps in batches (World.step(n, trajectory)), and every state is bit-identical to an independent
   loop written here with World.step one step at a time (commands at their boundaries, the
   timeout at the first boundary at or after it expires).
 * The diagnostics key set exists once: the node's and the headless recorder's /diagnostics
@@ -93,13 +93,14 @@ def test_batches_with_pending_commands_and_timeout_are_bit_identical():
     sim = HeadlessSim(scene, config_from_values({'scene': 'default',
                                                  'command_timeout': 0.037}))
     calls = []
-    real_clean = sim.world.step_clean
+    real_step = sim.world.step
 
-    def counting_clean(n):
-        result = real_clean(n)
-        calls.append((n, result[0]))
+    def counting_step(n=1, trajectory=None):
+        result = real_step(n, trajectory)
+        if trajectory is not None:
+            calls.append((n, trajectory.count))
         return result
-    sim.world.step_clean = counting_clean
+    sim.world.step = counting_step
     out = Collect()
     sim.run(_plan(), out)
     ref = _reference(scene, 0.037)
@@ -108,7 +109,7 @@ def test_batches_with_pending_commands_and_timeout_are_bit_identical():
         assert out.states[t_ns] == state, f't={t_ns} ns differs'   # bit-identical
     # Batched although a command timeout is set and commands come every few ms.
     batched = sum(count for _, count in calls)
-    print(f'\n{batched} of {sim.steps} steps in {len(calls)} step_clean calls')
+    print(f'\n{batched} of {sim.steps} steps in {len(calls)} batches')
     assert batched > 200 and max(count for _, count in calls) >= 10
     # The timeout took the shoulder's torque to 0 at the first boundary >= 37 ms (after 2 N m
     # at t=0), while the elbow's (13 ms) lasted to 50 ms.
@@ -137,11 +138,12 @@ def test_node_loop_batches_while_commands_are_pending():
         loop = SimLoop(scene, config, output=out)
         takes = []
 
-        def counting(n, real=loop.world.step_clean):
-            result = real(n)
-            takes.append(result[0])
+        def counting(n=1, trajectory=None, real=loop.world.step):
+            result = real(n, trajectory)
+            if trajectory is not None:
+                takes.append(trajectory.count)
             return result
-        loop.world.step_clean = counting
+        loop.world.step = counting
         for round_ in range(20):
             if round_ % 4 != 3:         # every 4th round no command: the timeout fires
                 loop.commands.command_torque('shoulder', 10.0 * (round_ % 3) - 5.0)
@@ -263,7 +265,7 @@ class Record(LoopOutput):
 @pytest.mark.parametrize('scene_name', ['default', 'demo_arm'])
 def test_batched_publishing_is_what_single_steps_publish(scene_name):
     """The loop's batched path (the node as fast as possible: advance(64) in one compiled
-    batch, the markers built from the batch's states, World.last_clean_q) hands over exactly
+    batch, the markers built from the batch's states, the Trajectory's q) hands over exactly
     the events of one step at a time: every /clock, the joint states at 100 Hz (the default
     publish_rate) and the 30 Hz markers with the same stamps, values and bytes, in the same
     order."""
@@ -276,8 +278,13 @@ def test_batched_publishing_is_what_single_steps_publish(scene_name):
         loop = SimLoop(scene, config_from_values({'scene': scene_name}), output=out)
         loop.publish_state(force=True)
         takes = []
-        real = loop.world.step_clean
-        loop.world.step_clean = lambda n, real=real: takes.append(n) or real(n)
+        real = loop.world.step
+
+        def counting(n=1, trajectory=None, real=real):
+            if trajectory is not None:
+                takes.append(n)
+            return real(n, trajectory)
+        loop.world.step = counting
         for round_ in range(6):
             loop.commands.command_array([1.5 * (-1) ** round_] * len(loop.commands.order))
             if batched:

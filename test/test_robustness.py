@@ -262,13 +262,13 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
         real_step, real_efforts = world.step, world.applied_efforts
         n.spin_until(lambda: n.sim.steps >= 20, 20.0, '20 steps')
 
-        def failing_step(*a, **k):
+        def failing_step(n=1, trajectory=None):
+            # A failing step is never "clean": a batch (trajectory) stops before it (0
+            # steps) and the node takes it alone, which raises.
+            if trajectory is not None:
+                return real_step(0, trajectory)
             raise SimulationError(f't={world.time:.6g}s: Newton produced a non-finite state '
                                   'even with 16 sub-steps (injected)')
-        # A failing step is never "clean": World.step_clean stops before it (0 steps) and
-        # the node takes it with World.step, which raises.
-        real_clean = world.step_clean
-        world.step_clean = lambda count: real_clean(0)
         world.step = failing_step
         n.spin_until(lambda: n.sim.paused, 10.0, 'the node to pause')
         stopped_at = n.sim.steps
@@ -284,7 +284,7 @@ def test_solver_fault_reported_and_nothing_nonfinite_published(tmp_path):
         assert n.sim.steps == stopped_at, 'stepped while paused after a fault'
 
         # Recover: reset (clears the fault), real step again, unpause.
-        world.step, world.step_clean = real_step, real_clean
+        world.step = real_step
         client = {s: n.probe.create_client(Trigger, f'/abd_joint_sim/{s}')
                   for s in ('reset', 'unpause')}
         for name in ('reset', 'unpause'):

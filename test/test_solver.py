@@ -358,9 +358,10 @@ def _state_fields(w):
 
 @pytest.mark.parametrize('case', sorted(BATCH_CASES))
 def test_step_clean_is_bit_identical_to_single_steps(case):
-    """World.step_clean (sim_node's batches) leaves the same state, bit for bit, as the same
+    """World.step(n, trajectory) (sim_node's clean batches) leaves the same state, bit for bit, as the same
     number of World.step calls, reports each step's joint angles, and stops before a step
     World.step would sub-step or warn on, which the caller then takes with World.step."""
+    from abd_joint_sim.world import Trajectory
     d, n, setup = BATCH_CASES[case]
     one, batched = _world(d), _world(d)
     for w in (one, batched):
@@ -371,7 +372,9 @@ def test_step_clean_is_bit_identical_to_single_steps(case):
         one.step()
         angles_one.append(one.state.joint_angle.copy())
     while steps < n:
-        count, times, angles, _ = batched.step_clean(min(7, n - steps))
+        rows = Trajectory()
+        batched.step(min(7, n - steps), rows)
+        count, times, angles = rows.count, rows.times, rows.positions
         assert len(times) == count == len(angles)
         angles_batched += [a.copy() for a in angles]
         steps += count

@@ -1,42 +1,22 @@
 """Torque and enable commands between ROS callbacks and the simulation step, in plain Python.
 
-Subscription callbacks hand incoming values to :class:`CommandBuffer`, which validates them
-(finite, right length, known actuated joint), clamps torques to the effort limits and keeps
-the latest value per joint as *pending*. At the next step boundary the node calls
-:meth:`CommandBuffer.apply`, which writes the pending values into the world (latest command
-wins; nothing changes in the middle of a step), runs the command-timeout bookkeeping and
-returns what took effect so the node can log and record it.
-
-The command timeout counts simulated time: a joint whose last torque command took effect at
-``t_cmd`` has its torque set to 0 at the first step boundary with ``t - t_cmd >= timeout``.
-Simulated time makes it deterministic (a recorded run replays identically) and consistent
-with controllers that run on ``/clock``.
-
-Magnitudes: a joint with an effort limit (scene or parameter) clamps any finite value to it.
-A joint without one rejects values beyond :data:`MAX_ABS_TORQUE`: such a value is a bug in
-the sender, not a command (from ~1e50 N m the solver tears joints apart, from ~1e200 it
-overflows; docs/robustness.md).
+:class:`CommandBuffer` validates incoming values (finite, right length, known actuated joint),
+clamps torques to the effort limits and keeps the latest per joint pending; at the next step
+boundary :meth:`CommandBuffer.apply` writes them into the world and runs the command timeout
+(simulated time: the torque goes to 0 at the first boundary with ``t - t_cmd >= timeout``).
+A joint without an effort limit rejects values beyond :data:`MAX_ABS_TORQUE`
+(docs/robustness.md).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-from typing import Iterable, Mapping, Optional, Protocol, Sequence
+from typing import Any, Iterable, Mapping, Optional, Sequence
 
 from ..scene import MAX_ABS_AIM
 
 MAX_ABS_TORQUE = 1e9
 """[N m] Largest torque magnitude accepted on a joint without an effort limit."""
-
-
-class CommandTarget(Protocol):
-    """What :meth:`CommandBuffer.apply` needs from the world."""
-
-    time: float
-
-    def set_effort(self, joint_name: str, value: float) -> None: ...
-
-    def set_effort_enabled(self, joint_name: str, flag: bool) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -96,26 +76,20 @@ class Applied:
 
 
 NOTHING_APPLIED = Applied(time=math.nan)
-"""What `CommandBuffer.apply` returns when nothing was pending and no timeout runs (falsy;
-shared, so never modify it): most step boundaries, and building an Applied costs ~1.5 µs."""
+"""What `CommandBuffer.apply` returns at most boundaries (nothing pending, no timeout: an
+Applied costs ~1.5 µs); falsy and shared, so never modify it."""
 
 
 class CommandBuffer:
     """Pending torque/enable commands, effort limits and the command timeout.
 
-    Parameters
-    ----------
-    actuated:
-        Names of the joints that accept commands (the world's actuated joints).
-    order:
-        Joint order of the array command (a subset or permutation of `actuated`).
-    effort_limits:
-        One positive limit [N m] per joint of `order`, or empty for none.
-    command_timeout:
-        Simulated seconds [s]; 0 = off.
-    scene_limits:
-        joint -> effort limit [N m] the scene itself imposes (inf = none); the tighter of
-        the two limits applies, so every clamp is reported here.
+    :param actuated: the joints that accept commands (the world's actuated joints).
+    :param order: joint order of the array command (a subset or permutation of `actuated`).
+    :param effort_limits: one positive limit [N m] per joint of `order`, or empty for none.
+    :param command_timeout: simulated seconds [s]; 0 = off.
+    :param scene_limits: joint -> the scene's own effort limit [N m] (inf = none); the
+        tighter limit applies, so every clamp is reported here.
+    :param driven: joints with driving (UID 19 / 21), which take position commands.
     """
 
     def __init__(self, actuated: Sequence[str], order: Sequence[str],
@@ -123,7 +97,7 @@ class CommandBuffer:
                  scene_limits: Optional[Mapping[str, float]] = None,
                  driven: Sequence[str] = ()):
         self.actuated = list(actuated)
-        self.driven = list(driven)          # joints with driving (UID 19 / 21): position commands
+        self.driven = list(driven)
         self._actuated_set = set(self.actuated)
         self.order = list(order) if order else list(self.actuated)
         bad = [j for j in self.order if j not in self._actuated_set]
@@ -138,14 +112,17 @@ class CommandBuffer:
         self.limits: dict[str, float] = {}
         self.set_effort_limits(effort_limits)
         self.command_timeout = float(command_timeout)
+        self._last_command_time: dict[str, float] = {}
+        self._last_value: dict[str, float] = {}
+        self._timed_out: set[str] = set()
+        self._drop_pending()
+
+    def _drop_pending(self) -> None:
         self._pending_torque: dict[str, tuple[float, str]] = {}
         self._pending_enable: dict[str, bool] = {}
         self._pending_array: Optional[list[float]] = None
         self._pending_enable_all: Optional[bool] = None
         self._pending_aim: dict[str, float] = {}
-        self._last_command_time: dict[str, float] = {}
-        self._last_value: dict[str, float] = {}
-        self._timed_out: set[str] = set()
 
     # -- configuration -----------------------------------------------------------------
     def set_effort_limits(self, limits: Sequence[float]) -> None:
@@ -163,12 +140,14 @@ class CommandBuffer:
             self.limits[j] = min(lim, self.limits.get(j, math.inf))
 
     # -- from subscription callbacks ---------------------------------------------------
-    def _clamp(self, joint: str, value: float) -> tuple[float, Optional[Clamp]]:
+    def _queue(self, joint: str, value: float, source: str, clamps: list) -> float:
+        """Queue a valid torque, clamped to the joint's limit (a Clamp appended to `clamps`)."""
         lim = self.limits.get(joint)
-        if lim is None or abs(value) <= lim:
-            return value, None
-        applied = math.copysign(lim, value)
-        return applied, Clamp(joint, value, applied, lim)
+        if lim is not None and abs(value) > lim:
+            clamps.append(Clamp(joint, value, math.copysign(lim, value), lim))
+            value = math.copysign(lim, value)
+        self._pending_torque[joint] = (value, source)
+        return value
 
     def _check_joint(self, joint: str) -> Optional[str]:
         if joint not in self._actuated_set:
@@ -195,9 +174,9 @@ class CommandBuffer:
                 reason = self._check_value(joint, value)
         if reason is not None:
             return [Rejection(joint, value, reason)], []
-        applied, clamp = self._clamp(joint, float(value))
-        self._pending_torque[joint] = (applied, 'joint')
-        return [], [clamp] if clamp else []
+        clamps: list[Clamp] = []
+        self._queue(joint, value, 'joint', clamps)
+        return [], clamps
 
     def command_array(self, values: Iterable[float]) -> tuple[list[Rejection], list[Clamp]]:
         """Queue torques for all joints of `order`; a wrong length or a non-finite entry
@@ -212,15 +191,9 @@ class CommandBuffer:
                if (reason := self._check_value(j, v)) is not None]
         if bad:
             return bad, []
-        clamps = []
-        applied_values = []
-        for j, v in zip(self.order, values):
-            a, c = self._clamp(j, v)
-            applied_values.append(a)
-            if c:
-                clamps.append(c)
-            self._pending_torque[j] = (a, 'array')
-        self._pending_array = applied_values
+        clamps: list[Clamp] = []
+        self._pending_array = [self._queue(j, v, 'array', clamps)
+                               for j, v in zip(self.order, values)]
         return [], clamps
 
     def command_enable(self, joint: str, flag: bool) -> list[Rejection]:
@@ -280,10 +253,7 @@ class CommandBuffer:
                 if reason is not None:
                     rejections.append(Rejection(joint, value, f'effort: {reason}'))
                 else:
-                    applied, clamp = self._clamp(joint, value)
-                    self._pending_torque[joint] = (applied, 'joint_state')
-                    if clamp:
-                        clamps.append(clamp)
+                    self._queue(joint, value, 'joint_state', clamps)
             if position:
                 if joint not in self.driven:
                     rejections.append(Rejection(joint, position[k], 'position: joint has no '
@@ -298,11 +268,7 @@ class CommandBuffer:
 
     def clear(self) -> None:
         """Drop pending commands and forget command times (used on reset)."""
-        self._pending_torque.clear()
-        self._pending_enable.clear()
-        self._pending_array = None
-        self._pending_enable_all = None
-        self._pending_aim.clear()
+        self._drop_pending()
         self._last_command_time.clear()
         self._last_value.clear()
         self._timed_out.clear()
@@ -310,13 +276,12 @@ class CommandBuffer:
     # -- at the step boundary ----------------------------------------------------------
     @property
     def idle(self) -> bool:
-        """Nothing pending and no command timeout to run: `apply` would change nothing at
-        any boundary until a new command arrives (sim_node then steps in batches)."""
+        """Nothing pending and no command timeout to run: `apply` would change nothing."""
         return not (self._pending_torque or self._pending_enable or self.command_timeout > 0.0
                     or self._pending_aim
                     or self._pending_array is not None or self._pending_enable_all is not None)
 
-    def apply(self, world: CommandTarget) -> Applied:
+    def apply(self, world: Any) -> Applied:
         """Write pending commands into `world`, then apply the command timeout."""
         if self.idle:
             return NOTHING_APPLIED          # the common boundary: nothing to do
@@ -337,11 +302,7 @@ class CommandBuffer:
         for joint, aim in self._pending_aim.items():
             world.set_drive(joint, aim=aim)
             out.aims[joint] = aim
-        self._pending_aim.clear()
-        self._pending_torque.clear()
-        self._pending_enable.clear()
-        self._pending_array = None
-        self._pending_enable_all = None
+        self._drop_pending()
         if self.command_timeout > 0.0:
             for joint, t_cmd in self._last_command_time.items():
                 if joint in self._timed_out:

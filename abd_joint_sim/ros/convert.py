@@ -48,9 +48,8 @@ def joint_state_msg(stamp_ns: int, names: Sequence[str], position: Iterable[floa
     msg.header.stamp = ns_to_time_msg(stamp_ns)
     msg.header.frame_id = frame_id
     msg.name = list(names)
-    msg.position = [float(x) for x in np.asarray(position, dtype=float).ravel()]
-    msg.velocity = [float(x) for x in np.asarray(velocity, dtype=float).ravel()]
-    msg.effort = [float(x) for x in np.asarray(effort, dtype=float).ravel()]
+    msg.position, msg.velocity, msg.effort = (np.asarray(a, dtype=float).ravel().tolist()
+                                              for a in (position, velocity, effort))
     check_lengths(len(msg.name), msg.position, msg.velocity, msg.effort)
     return msg
 
@@ -71,15 +70,10 @@ def clock_msg(stamp_ns: int) -> Clock:
 
 
 class ClockEncoder:
-    """/clock as serialized CDR, for ``Publisher.publish(bytes)`` and the bag.
-
-    sim_node publishes /clock after every step: building a Clock and letting rclpy serialise
-    it costs ~10 µs (and as much again to record it), a tenth of a step of the default scene.
-    A Clock is 12 bytes: the 4-byte CDR encapsulation header, int32 sec, uint32 nanosec,
-    packed by ``cdr.Template`` and checked here against ``serialize_message``; if the check
-    fails (another RMW's encapsulation), ``encode`` serialises through rclpy instead.
-    test_ros_commands.py compares both on many stamps.
-    """
+    """/clock as serialized CDR, for ``Publisher.publish(bytes)`` and the bag: 12 bytes packed
+    by ``cdr.Template`` (a Clock through rclpy costs ~10 µs, a tenth of a step of the default
+    scene), checked against ``serialize_message``; if the check fails, ``encode`` serialises
+    through rclpy instead."""
 
     def __init__(self) -> None:
         from abd_joint_sim.record import cdr
@@ -103,17 +97,10 @@ class ClockEncoder:
 
 
 class JointStateEncoder:
-    """/joint_states as serialized CDR, for ``Publisher.publish(bytes)`` and the bag.
-
-    The node publishes a JointState of fixed names and frame at 100 Hz and records it: letting
-    rclpy convert and serialise the message each time (and once more for the bag) costs more
-    than the rest of the publish. The CDR stream of a JointState with fixed names has a fixed
-    layout: only the stamp (int32 sec, uint32 nanosec) and the three float64 arrays change,
-    packed into the message's template by ``cdr.Template``. The result is checked against
-    ``serialize_message`` of the filled message here, on several states; if that check
-    fails, ``encode`` serialises through rclpy instead (test_ros_encode.py compares both on
-    many states, and decodes the bytes with rosbags).
-    """
+    """/joint_states as serialized CDR, for ``Publisher.publish(bytes)`` and the bag: with
+    fixed names and frame only the stamp and the three float64 arrays change, packed into the
+    message's template by ``cdr.Template`` and checked here against ``serialize_message`` on
+    several states; if the check fails, ``encode`` serialises through rclpy instead."""
 
     def __init__(self, names: Sequence[str], frame_id: str = '') -> None:
         from abd_joint_sim.record import cdr
@@ -176,10 +163,8 @@ def array_values(msg: Float64MultiArray) -> list[float]:
 
 def _kv(key: str, value: object) -> KeyValue:
     if isinstance(value, float):
-        text = 'nan' if math.isnan(value) else f'{value:.6g}'
-    else:
-        text = str(value)
-    return KeyValue(key=key, value=text)
+        return KeyValue(key=key, value='nan' if math.isnan(value) else f'{value:.6g}')
+    return KeyValue(key=key, value=str(value))
 
 
 def diagnostics_msg(stamp_ns: int, name: str, hardware_id: str, level_ok: bool,
@@ -187,15 +172,9 @@ def diagnostics_msg(stamp_ns: int, name: str, hardware_id: str, level_ok: bool,
                     level: Optional[int] = None) -> DiagnosticArray:
     """One DiagnosticStatus in a DiagnosticArray stamped with sim time: OK or WARN after
     `level_ok`, unless `level` (OK, WARN, ERROR) is given."""
-    msg = DiagnosticArray()
+    status = DiagnosticStatus(level=(OK if level_ok else WARN) if level is None else level,
+                              name=name, hardware_id=hardware_id, message=message,
+                              values=[_kv(k, v) for k, v in values.items()])
+    msg = DiagnosticArray(status=[status])
     msg.header.stamp = ns_to_time_msg(stamp_ns)
-    status = DiagnosticStatus()
-    if level is None:
-        level = OK if level_ok else WARN
-    status.level = level
-    status.name = name
-    status.hardware_id = hardware_id
-    status.message = message
-    status.values = [_kv(k, v) for k, v in values.items()]
-    msg.status = [status]
     return msg

@@ -1,31 +1,13 @@
 """The simulation loop of sim_node and of the headless tools (run_headless, replay_check).
 
 :class:`SimLoop` owns the ``World``, the :class:`~.commands.CommandBuffer`, the publishing
-and marker schedules, the fault state and the diagnostics values, and implements the rules
-once:
-
-* commands take effect at a step boundary (``CommandBuffer.apply``), never inside a step;
-* the command timeout (simulated time) acts at the first boundary at or after it expires;
-* ``reset`` is the node's ``~/reset``: initial state, t = 0, torque commands cleared to 0;
-* ``set_parameters`` is the node's post-set callback for live parameters;
-* after every step: ``/clock``; the body markers when due (``marker_rate``); the joint state
-  when due (``publish_rate``); a step that fails or a non-finite state stops the loop (a
-  fault) before anything non-finite is published.
-
-Stepping is batched: pending commands are applied, then the loop takes clean steps in one
-``World.step_clean`` call up to the next boundary that needs the world in between — the
-next command timeout, the next marker (when someone receives markers), the next simulated-
-time diagnostics (headless) — and any step that is not clean singly with ``World.step``.
-Nothing is applied at the boundaries a batch skips because nothing can be pending there
-(the node's executor delivers new commands only between ``advance`` calls, the headless
-runner advances only up to its next scheduled command), so the results are bit-identical
-to stepping one at a time.
-
-Where messages go is the :class:`LoopOutput`'s business: the node publishes and records,
-the headless recorder records, the replay checker compares. The loop needs no ROS node,
-context or executor; it does not import rclpy itself (``convert``, which builds the
-messages, imports the message packages and ``rclpy.serialization``). Nothing below World
-imports this module.
+and marker schedules, the fault state and the diagnostics values. Commands take effect at a
+step boundary; the command timeout acts at the first boundary at or after it expires; after
+every step go ``/clock``, the markers and the joint state when due; a failed step or a
+non-finite state stops the loop (a fault) before anything non-finite is published. Clean
+steps go in batches (``World.step(n, trajectory)``) up to the next boundary that needs the
+world (a command timeout, headless diagnostics), bit-identical to single steps
+(docs/decisions.md). Where messages go is the :class:`LoopOutput`'s business. No rclpy here.
 """
 from __future__ import annotations
 
@@ -50,32 +32,27 @@ DIAGNOSTIC_KEYS = (
 """The values of the node's ``/diagnostics`` status, in order (docs/topics.md)."""
 
 MAX_BATCH = 256
-"""Most clean steps per ``World.step_clean`` call (bounds the arrays it returns)."""
+"""Most clean steps per batch (bounds the arrays of its Trajectory)."""
 
 
 class LoopOutput:
-    """Where the loop's results go. Every method is a no-op here; override what you need.
-
-    The node implements it with publishers and the recorder, the headless recorder with
-    the bag only, the replay checker with a comparison."""
+    """Where the loop's results go (the node's publishers and recorder, a headless bag, the
+    replay checker). Every method is a no-op here; override what you need."""
 
     markers_wanted = False
-    """Build the body markers (someone subscribes, or the run is recorded); their poses
-    need the world at the marker's step, so a batch ends there."""
+    """Build the body markers (someone subscribes, or the run is recorded)."""
     every_state = False
     """Hand over the joint state after every step, not only when ``publish_rate`` says."""
     world_each_step = False
     """`stepped` reads the world itself after every step: no batching."""
     markers_serialized = False
-    """`markers` gets the MarkerArray as serialized CDR bytes
-    (``MarkerBuilder.build_serialized``) instead of a message."""
+    """`markers` gets CDR bytes (``MarkerBuilder.build_serialized``), not a message."""
 
     def clock(self, t_ns: int) -> None:
         """After every step (and at start, reset and a forced publish)."""
 
     def clocks(self, stamps_ns: list) -> None:
-        """`clock` for each of a batch's steps that publish nothing else, in order (one
-        call for a run of them; override to handle them at once)."""
+        """`clock` for each of a run of a batch's steps that publish nothing else."""
         for t_ns in stamps_ns:
             self.clock(t_ns)
 
@@ -90,8 +67,7 @@ class LoopOutput:
         """Commands as they took effect at a step boundary."""
 
     def restarted(self) -> None:
-        """Simulated time restarts at 0 (reset), before the reset's state is published: a
-        recorder keeps its log times increasing (``BagWriter.restart_time``)."""
+        """Simulated time restarts at 0 (reset), before the reset's state is published."""
 
     def parameters(self, t_ns: int, changes: Mapping[str, Any]) -> None:
         """Live parameter changes (recorded ones) in force from `t_ns` on."""
@@ -103,11 +79,11 @@ class LoopOutput:
         """After the above, once per step or forced publish."""
 
     def batch_begin(self) -> None:
-        """Before the outputs of a batch of steps (their /clock may be held back and written
-        in one call, provided it is written before anything else is and by `batch_end`)."""
+        """Before a batch's outputs (its /clock may be held back until anything else or
+        `batch_end`)."""
 
     def batch_end(self) -> None:
-        """After the outputs of a batch of steps, also when one of them raised."""
+        """After a batch's outputs, also when one of them raised."""
 
     def log(self, level: str, text: str, key: Any = None) -> None:
         """A message for a person; `key` set: throttle repeats of this kind."""
@@ -120,18 +96,16 @@ class SimLoop:
     """A World stepped with sim_node's rules; see the module docstring.
 
     :param clamp: apply the ``effort_limits`` parameter (False when the commands come from a
-        bag, where they are stored already clamped, so that a live change of the limits
-        during the recorded run cannot clamp them a second time).
-    :param raise_faults: re-raise a failed step (headless tools: the run ends there) instead
-        of pausing (the node keeps running).
+        bag, stored already clamped).
+    :param raise_faults: re-raise a failed step (headless tools) instead of pausing (node).
     :param diagnostics_period_ns: > 0: diagnostics are due on this grid of simulated time
-        (headless runs, which have no wall clock to follow); 0: the caller times them.
+        (headless runs); 0: the caller times them.
     """
 
     def __init__(self, scene: Any, config: SimConfig, output: Optional[LoopOutput] = None,
                  clamp: bool = True, raise_faults: bool = False, paused: bool = False,
                  diagnostics_period_ns: int = 0):
-        from abd_joint_sim.world import World
+        from abd_joint_sim.world import Trajectory, World
         self.scene = scene
         self.config = config
         self.output = output if output is not None else LoopOutput()
@@ -141,14 +115,14 @@ class SimLoop:
         self.clamp = clamp
         self.commands = CommandBuffer(
             self.actuated, config.joints, config.effort_limits if clamp else [],
-            config.command_timeout, scene_limits=self._scene_effort_limits(),
+            config.command_timeout,
+            scene_limits=dict(zip(self.actuated, self.world.effort_limits.tolist())),
             driven=[j.name for j in getattr(scene, 'joints', ())
                     if getattr(j, 'driving', None) is not None])
         config.joints = list(self.commands.order)
         self.markers = (MarkerBuilder(scene, config.marker_frame_id, config.marker_joint_axes)
                         if config.marker_rate > 0.0 else None)
-        # rows of the marker bodies in the world's states: markers inside a batch come from
-        # the batch's states (World.last_clean_q), so a batch need not end at a marker step
+        # the marker bodies' rows in a batch's Trajectory.q: a batch need not end at a marker
         self._marker_rows = (None if self.markers is None else np.array(
             [self.world.model.body_names.index(n) for n in self.markers.body_names],
             dtype=np.intp))
@@ -163,13 +137,8 @@ class SimLoop:
         self.steps = 0
         self.not_converged = 0
         self.max_batch = MAX_BATCH
+        self._trajectory = Trajectory()     # the rows of each batch (World.step)
         self._warned_disabled: set[str] = set()
-
-    def _scene_effort_limits(self) -> dict[str, float]:
-        limits = getattr(self.world, 'effort_limits', None)    # N m or N, actuated order
-        if limits is None:
-            return {}
-        return {j: float(v) for j, v in zip(self.actuated, limits)}
 
     @property
     def time_ns(self) -> int:
@@ -185,9 +154,10 @@ class SimLoop:
             self.apply_commands()
             limit = self._batch_limit(n - taken) if not force_publish else 1
             if limit >= 2:
-                count, times, angles, velocities = self.world.step_clean(limit)
+                self.world.step(limit, self._trajectory)
+                count = self._trajectory.count
                 if count:
-                    self._after_batch(count, times, angles, velocities)
+                    self._after_batch(self._trajectory)
                     taken += count
                     if count == limit or self.paused:
                         continue
@@ -199,9 +169,7 @@ class SimLoop:
         return taken
 
     def _batch_limit(self, remaining: int) -> int:
-        """Steps the next batch may take: up to the next boundary that needs the world or
-        the command buffer (a command timeout, diagnostics due). Markers do not end a batch:
-        they are built from the batch's states."""
+        """Steps the next batch may take: up to the next command timeout or diagnostics."""
         if remaining < 2 or self.output.world_each_step:
             return 1
         limit = min(remaining, self.max_batch)
@@ -242,23 +210,22 @@ class SimLoop:
             return False
         self.fault = None
         self.steps += 1
-        if not getattr(report, 'converged', True):
+        if not report.converged:
             self.not_converged += 1
             self.output.log('warn', f'Newton did not converge at t={self.world.time:.6f} s '
                             f'({report.newton_iterations} iterations)', key='not converged')
-        for text in getattr(report, 'warnings', ()) or ():
+        for text in report.warnings:
             self.output.log('warn', f'step: {text}', key='step warning')
         self.publish_state(force=force_publish)
         return self.fault is None
 
-    def _after_batch(self, count: int, times, angles, velocities) -> None:
+    def _after_batch(self, batch) -> None:
+        count, times = batch.count, batch.times
+        angles, velocities, states = batch.positions, batch.velocities, batch.q
         self.fault = None
         self.steps += count
         last = count - 1
-        if isinstance(times, np.ndarray):
-            times = times.tolist()
         out = self.output
-        states = self.world.last_clean_q
         stamps = self._batch_stamps(times)
         # the efforts of every joint state in the batch: no command changes inside it
         effort = np.asarray(self.world.applied_efforts(), dtype=float).tolist()
@@ -266,17 +233,13 @@ class SimLoop:
         try:
             i = 0
             while i < count:
-                # Steps that publish only /clock go out in one `clocks` call; `publish_state`
-                # takes the next step that has more to publish (the same messages in the
-                # same order as one publish_state per step).
+                # steps that publish only /clock: one `clocks` call
                 k = self._next_busy_step(stamps, i) if stamps is not None else i
                 if k > i:
                     out.clocks(stamps[i:k])
                     i = k
                     if i == count:
                         break
-                # Only the batch's last step is the world's current one; the markers of the
-                # others come from the batch's states.
                 self.publish_state(t=times[i], position=angles[i], velocity=velocities[i],
                                    current=i == last, states=states[i], effort=effort)
                 if self.fault:              # the publish guard stopped it: say so once
@@ -300,8 +263,7 @@ class SimLoop:
 
     def _next_busy_step(self, stamps: list, i: int) -> int:
         """The first step from `i` on at which `publish_state` publishes more than /clock
-        (a joint state, markers or diagnostics due): each schedule's next stamp, found by
-        bisection in the batch's increasing stamps; len(stamps) if none."""
+        (a joint state, markers or diagnostics due); len(stamps) if none."""
         k = bisect.bisect_left(stamps, self.publish_schedule.next_ns, i)
         if self.markers is not None:
             k = min(k, bisect.bisect_left(stamps, self.marker_schedule.next_ns, i))
@@ -318,8 +280,7 @@ class SimLoop:
             if value != 0.0 and not self.world.effort_enabled(joint) \
                     and joint not in self._warned_disabled:
                 self._warned_disabled.add(joint)
-                types = getattr(self.world, 'joint_types', None)
-                sliding = types is not None and types[self.world.joint_names.index(joint)] == 'prismatic'
+                sliding = self.world.joint_types[self.joint_names.index(joint)] == 'prismatic'
                 what, unit = ('force', 'N') if sliding else ('torque', 'N m')
                 # Throttled too: a sender toggling the enable would re-arm it each time.
                 self.output.log(
@@ -347,10 +308,9 @@ class SimLoop:
                       position=None, velocity=None, current: Optional[bool] = None,
                       states=None, effort: Optional[list] = None) -> None:
         """/clock after every step, markers and the joint state when due; never a non-finite
-        value. A batch passes each step's time, joint angles and velocities, whether it is
-        the world's current step (by default the world's current), the body states (B, 12)
-        of that step and the efforts as a list (the world's applied torques, computed once
-        per batch: no command changes inside one)."""
+        value. A batch passes each step's time, joint positions and velocities, whether it
+        is the world's current step, its body states (B, 12) and the efforts (a list, the
+        same for the whole batch)."""
         out = self.output
         if t is None:
             t = self.world.time
@@ -452,7 +412,7 @@ class SimLoop:
                            real_time_factor_achieved: float, recording: bool,
                            recording_error: str = '') -> dict[str, Any]:
         """The ``/diagnostics`` values (:data:`DIAGNOSTIC_KEYS`) of the last step."""
-        last = getattr(self.world, 'last_step', None)
+        last = self.world.last_step
         values = {
             'sim_time': float(self.world.time),
             'steps': self.steps,
@@ -460,12 +420,12 @@ class SimLoop:
             'time_step': float(self.world.dt),
             'real_time_factor_requested': float(real_time_factor_requested),
             'real_time_factor_achieved': float(real_time_factor_achieved),
-            'newton_iterations': getattr(last, 'newton_iterations', 0),
-            'line_search_iterations': getattr(last, 'line_search_iterations', 0),
-            'converged': bool(getattr(last, 'converged', True)),
+            'newton_iterations': last.newton_iterations,
+            'line_search_iterations': last.line_search_iterations,
+            'converged': bool(last.converged),
             'not_converged_steps_total': self.not_converged,
-            'max_joint_separation': float(getattr(last, 'max_joint_separation', 0.0)),
-            'substeps': getattr(last, 'substeps', 1),
+            'max_joint_separation': float(last.max_joint_separation),
+            'substeps': last.substeps,
             'recording': bool(recording),
             'fault': self.fault or '',
             'recording_error': recording_error or '',
@@ -477,8 +437,7 @@ class SimLoop:
         """A ``DiagnosticArray`` with :meth:`diagnostics_values` (kwargs) for status `name`:
         ERROR after a fault, WARN on solver warnings, else OK."""
         values = self.diagnostics_values(**kwargs)
-        last = getattr(self.world, 'last_step', None)
-        ok = values['converged'] and not (getattr(last, 'warnings', None) or [])
+        ok = values['converged'] and not self.world.last_step.warnings
         if self.fault:
             level, message = convert.ERROR, f'stopped: {self.fault}'
         else:

@@ -1,36 +1,11 @@
-"""The bodies as ``visualization_msgs/msg/MarkerArray``, for RViz and Foxglove (live and in the
-bag). Used by sim_node and by the headless recorder (``tools/sim.py``), so both publish and
-record the same markers.
-
-What is drawn, per body, in scene order:
-
-* its ``BodySpec.visuals`` (URDF ``<visual>``), one marker per visual: box -> ``CUBE``,
-  sphere -> ``SPHERE``, cylinder -> ``CYLINDER`` (axis along z, as in URDF), mesh ->
-  ``MESH_RESOURCE`` with the visual's URI and scale;
-* else its own shape (box, sphere, cylinder of the scene);
-* else (an ``inertial:`` body without visuals) the box of equal inertia: with the principal
-  moments I1, I2, I3 of the inertia about the COM and the mass m, a box of sides
-  a_i = sqrt(6 (I_j + I_k - I_i) / m) has the same inertia; it is centred at the COM and
-  aligned with the principal axes.
-
-Pose. A body's state is affine, x = A x̄ + p, and A is not exactly a rotation. A marker is
-posed by the rotation nearest to A (in the Frobenius norm, with det +1): with the SVD
-A = U S Vᵀ, R = U diag(1, 1, det(U Vᵀ)) Vᵀ (the orthogonal polar factor of A, its sign
-fixed so R is proper). A visual with origin (t, R_v) in the body frame sits at
-position A t + p (where that body point really is) with orientation R R_v.
-
-Optional joint axes: one ``ARROW`` per joint from the joint's first to its second point
-(``p0``, ``p1`` of the scene), carried by the parent body (x = A x̄ + p). A URDF robot's
-``p1`` is ``p0`` + the unit axis, 1 m long whatever the robot's size, so its arrows start
-at the joint origin with length L = 0.2 x the extent of the robot (the diagonal of the box
-around its joint origins and body origins), clipped to [0.05, 1] m.
-
-Ids and namespaces are stable for a scene: namespace ``bodies/<body>`` with id = the
-visual's index in that body; namespace ``joint_axes`` with id = the joint's index. Every
-array carries every marker in full (action ADD, lifetime 0 = until replaced, frame_locked
-false): ADD and MODIFY are the same value in visualization_msgs, a "pose only" update does
-not exist, and so each message replaces the previous one in RViz and Foxglove alike
-(docs/bag-format.md has the size this costs).
+"""The bodies as ``visualization_msgs/msg/MarkerArray`` for RViz and Foxglove, built alike
+by sim_node and the headless recorder (``tools/sim.py``). What is drawn and how it is posed
+(URDF visuals, else the scene's shape, else the box of equal inertia; the rotation nearest
+to A): docs/viewing.md. Joint axes (optional): one ``ARROW`` per joint from ``p0`` to ``p1``
+carried by the parent body; a URDF robot's start at the joint origin, 0.2 x the robot's
+extent long (clipped to [0.05, 1] m). Namespaces ``bodies/<body>`` (id = the visual's index)
+and ``joint_axes`` (id = the joint's index); every array carries every marker in full
+(action ADD), so each message replaces the previous one (docs/bag-format.md).
 """
 from __future__ import annotations
 
@@ -47,6 +22,15 @@ PALETTE = ((0.20, 0.47, 0.80, 1.0), (0.90, 0.50, 0.10, 1.0), (0.25, 0.65, 0.30, 
 FIXED_COLOUR = (0.55, 0.55, 0.55, 1.0)
 AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 
+
+def _scale(M, kind: str, size) -> tuple:
+    """(marker type, scale) of a box (sides), sphere (radius) or cylinder (radius, length)."""
+    if kind == 'box':
+        return M.CUBE, tuple(size)
+    if kind == 'sphere':
+        return M.SPHERE, (2 * size[0],) * 3
+    r, length = size
+    return M.CYLINDER, (2 * r, 2 * r, length)
 
 
 def equal_inertia_box(mass: float, inertia: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -115,9 +99,8 @@ class MarkerBuilder:
                 q1 = np.asarray(joint.p1, dtype=float)
                 if length is not None:
                     q1 = q0 + length * (q1 - q0) / np.linalg.norm(q1 - q0)
-                a = R0.T @ (q0 - p0)
-                b = R0.T @ (q1 - p0)
-                self.axes.append((j, joint.name, joint.parent, a, b))
+                self.axes.append((j, joint.name, joint.parent, R0.T @ (q0 - p0),
+                                  R0.T @ (q1 - p0)))
         self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
         self._cdr: Optional[Any] = None    # build_serialized's cdr.Template
@@ -134,14 +117,8 @@ class MarkerBuilder:
                 rgba = v.rgba if v.rgba is not None else colour
                 R_v = rpy_matrix(v.origin_rpy)
                 size = tuple(float(s) for s in v.size)
-                if v.kind == 'box':
-                    parts.append(_Part(body.name, i, M.CUBE, size, rgba, v.origin_xyz, R_v))
-                elif v.kind == 'sphere':
-                    parts.append(_Part(body.name, i, M.SPHERE, (2 * size[0],) * 3, rgba,
-                                       v.origin_xyz, R_v))
-                elif v.kind == 'cylinder':
-                    r, length = size
-                    parts.append(_Part(body.name, i, M.CYLINDER, (2 * r, 2 * r, length), rgba,
+                if v.kind in ('box', 'sphere', 'cylinder'):
+                    parts.append(_Part(body.name, i, *_scale(M, v.kind, size), rgba,
                                        v.origin_xyz, R_v))
                 elif v.kind == 'mesh':
                     scale = size if len(size) == 3 else (1.0, 1.0, 1.0)
@@ -152,15 +129,8 @@ class MarkerBuilder:
                                      f"{v.kind!r} (box, sphere, cylinder or mesh)")
             return parts
         s = body.shape
-        if s.kind == 'box':
-            return [_Part(body.name, 0, M.CUBE, s.size, colour, (0, 0, 0), eye)]
-        if s.kind == 'sphere':
-            return [_Part(body.name, 0, M.SPHERE, (2 * s.size[0],) * 3, colour, (0, 0, 0),
-                          eye)]
-        if s.kind == 'cylinder':
-            r, length = s.size
-            return [_Part(body.name, 0, M.CYLINDER, (2 * r, 2 * r, length), colour,
-                          (0, 0, 0), eye)]
+        if s.kind in ('box', 'sphere', 'cylinder'):
+            return [_Part(body.name, 0, *_scale(M, s.kind, s.size), colour, (0, 0, 0), eye)]
         sides, axes = equal_inertia_box(s.mass, s.inertia)
         return [_Part(body.name, 0, M.CUBE, sides, colour, s.com, axes)]
 
@@ -191,11 +161,8 @@ class MarkerBuilder:
     def build(self, stamp_ns: int, pose) -> Optional[Any]:
         """The MarkerArray at `stamp_ns` with body poses from `pose(name) -> (p, A)`
         (``World.body_pose``), or from the (bodies, 12) states [p, A] of `body_names` in
-        that order; None if a pose is not finite (nothing to draw honestly).
-
-        The same message object is refilled by every call (as sim_node does with its
-        JointState): publish or serialise it before the next call.
-        """
+        that order; None if a pose is not finite. The same message object is refilled by
+        every call: publish or serialise it before the next."""
         values = self._values(pose)
         if values is None:
             return None
@@ -219,14 +186,10 @@ class MarkerBuilder:
         """:meth:`build` as serialized CDR bytes (what ``serialize_message`` gives for it,
         trimmed as the bag stores it, padding zeroed: ``cdr.without_padding``), for
         ``Publisher.publish(bytes)`` and ``BagWriter.write_serialized``; None if a pose is
-        not finite.
-
-        A MarkerArray of a scene has a fixed layout: only the stamps, poses and arrow points
-        change, so the array is serialised once and those fields are packed into it
-        (``cdr.Template``; converting and serialising the whole message costs far more than
-        computing the poses). The first call checks the packed bytes against
-        ``serialize_message`` of :meth:`build`; should they differ, every call serialises
-        :meth:`build` instead."""
+        not finite. The array is serialised once and only the stamps, poses and arrow
+        points are packed into it (``cdr.Template``); the first call checks the packed bytes
+        against ``serialize_message`` of :meth:`build`, and should they differ every call
+        serialises :meth:`build` instead."""
         from abd_joint_sim.record import cdr
         if self._cdr is None:
             msg = self.build(stamp_ns, pose)
@@ -255,21 +218,15 @@ class MarkerBuilder:
 
     def _values(self, pose) -> Optional[tuple[list, list]]:
         """([(x, y, z, qx, qy, qz, qw) per body part], [(x0, y0, z0, x1, y1, z1) per joint
-        arrow]) of the current poses, plain floats; None if a pose is not finite. All parts
-        at once, compiled (smallmat.frame_poses): position A t + p, orientation R R_v
-        (module docstring). `pose`: World.body_pose, or the (bodies, 12) states [p, A] of
-        `body_names` in that order (a step inside sim_node's batches)."""
+        arrow]) of the current poses (`pose` as in `build`), plain floats, all parts at once
+        (smallmat.frame_poses); None if a pose is not finite."""
         if isinstance(pose, np.ndarray):
             P = np.ascontiguousarray(pose[:, :3], dtype=float)
             A = np.ascontiguousarray(pose[:, 3:12], dtype=float).reshape(-1, 3, 3)
         else:
-            ps, As = [], []
-            for name in self.body_names:
-                p, A = pose(name)
-                ps.append(p)
-                As.append(A)
-            P = np.asarray(ps, dtype=float)
-            A = np.asarray(As, dtype=float)
+            poses = [pose(name) for name in self.body_names]
+            P = np.asarray([p for p, _ in poses], dtype=float)
+            A = np.asarray([a for _, a in poses], dtype=float)
         if self._stacked is None:
             index = self._index
             ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)

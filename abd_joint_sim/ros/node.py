@@ -1,21 +1,12 @@
 """sim_node: runs the simulation loop (:mod:`.loop`) and talks ROS 2 (docs/topics.md).
 
-The node is ROS plumbing only: parameters come from :mod:`.params`; subscription callbacks
-hand commands to the loop's :class:`~.commands.CommandBuffer` (validated, clamped, pending);
-services call the loop (pause, step, reset); the step timer calls ``loop.advance(n)``, which
-applies pending commands at the step boundary, steps (in batches) and hands clock, joint
-states, markers, applied commands and parameter changes to :class:`_NodeOutput`, which
-publishes and records them. Topics, types and QoS come from :mod:`.topics`.
-
-Stepping in real time (``real_time_factor`` > 0): `main` starts a thread of its own for it
-(:meth:`SimNode.start_stepping_thread`), paced by sleeping to each step's wall time, so the
-executor wakes only for commands, services, parameters and two slow timers; each executor
-round costs ~0.7 ms of Python, and a round per 1 ms step held a real-time node at two thirds
-of a core (docs/speed.md). As fast as possible the step timer steps in 20 ms rounds, as it
-always did. The thread and every callback hold ``SimNode._lock`` while they touch the loop,
-so a callback never overlaps a step and the command buffer sees one caller at a time. A node
-made in another program (tests, embedding) steps from its step timer unless that program
-starts the thread.
+ROS plumbing only: parameters from :mod:`.params`, topics and QoS from :mod:`.topics`;
+callbacks hand commands to the loop's :class:`~.commands.CommandBuffer`; services call the
+loop; ``loop.advance(n)`` steps and hands its outputs to :class:`_NodeOutput`, which
+publishes and records them. In real time `main` steps in a thread of its own
+(:meth:`SimNode.start_stepping_thread`, docs/decisions.md), as fast as possible the step
+timer steps in 20 ms rounds; the thread and every callback hold ``SimNode._lock`` while they
+touch the loop, so a callback never overlaps a step.
 """
 from __future__ import annotations
 
@@ -66,16 +57,11 @@ def _qos(spec: TopicSpec) -> QoSProfile:
 DIAGNOSTICS_PERIOD = 1.0      # s of wall time
 AFAP_BATCH_WALL = 0.02        # s of stepping between callback rounds when as fast as possible
 BATCH_STEPS = 16              # most steps per timer round between wall-clock checks
-# As fast as possible, commands wait for the end of the AFAP_BATCH_WALL round anyway, so the
-# wall clock is checked less often: fewer, longer compiled calls (the loop still ends a batch
-# at every boundary that needs one), each of about a quarter of the round at the wall time
-# per step measured so far (SimNode._afap_steps), at most AFAP_BATCH_STEPS.
-AFAP_BATCH_STEPS = 256
+AFAP_BATCH_STEPS = 256        # most steps per `_advance` as fast as possible (_afap_steps)
 MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anchor and warn
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 MAX_LOG_LINE = 500            # characters of a logged warning (the rest is counted)
-THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (paused, or as fast as
-#                               possible, where the step timer steps; a change wakes it)
+THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (a change wakes it)
 
 
 def _locked(method):
@@ -97,14 +83,11 @@ class SimNode(Node):
         self._stepper_quit = threading.Event()
         self._stepper_wake = threading.Event()
         self.stepper_error: Optional[BaseException] = None
-        # Parameters -> config (read once; live ones re-applied by the post-set callback).
         values = self._declare_parameters()
         self._check_parameter_sources(kwargs)       # before a bad value ends the start
         self.config = config_from_values(values)
 
-        # Scene, and the loop that owns the world (ros/loop.py, shared with the headless
-        # tools). Imported here so that `--help`-like failures stay cheap.
-        from abd_joint_sim.scene import Scene
+        from abd_joint_sim.scene import Scene     # (here: `--help`-like failures stay cheap)
         self.scene = self._load_scene(Scene)
         self._output = _NodeOutput(self)
         self.loop = SimLoop(self.scene, self.config, output=self._output, clamp=True,
@@ -117,8 +100,7 @@ class SimNode(Node):
         self.live = self._start_live()      # the live view (docs/live.md), live_port > 0
 
         self.recording_error: Optional[str] = None
-        self._anchor_wall = time.monotonic()
-        self._anchor_sim = self.world.time
+        self._reanchor()
         self._stats_wall = time.monotonic()
         self._stats_steps = 0
         self._throttle: dict = {}
@@ -129,21 +111,16 @@ class SimNode(Node):
         self.joint_state_pub = self._publisher(JointState, TOPIC_JOINT_STATES)
         self.clock_pub = self._publisher(Clock, TOPIC_CLOCK)
         self.clock_encoder = convert.ClockEncoder()      # /clock as checked CDR bytes
-        # What clock_pub.publish(bytes) calls, without its per-call type dispatch and handle
-        # guard (the publisher lives as long as the node; only this node's executor thread
-        # publishes): /clock goes out after every step.
+        # publish(bytes) without its per-call type dispatch and handle guard (the publisher
+        # lives as long as the node)
         self.clock_publish_raw = self.clock_pub.handle.publish_raw
-        # /joint_states as checked CDR bytes too (fixed names and frame_id: read-only).
         self.joint_state_encoder = convert.JointStateEncoder(self.joint_names,
                                                              self.config.frame_id)
         self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
-        # Body markers (ros/markers.py) at marker_rate; built only when someone listens or
-        # the run is recorded.
-        self.marker_pub = None
-        if self.markers is not None:
-            from visualization_msgs.msg import MarkerArray
-            self.marker_pub = self._publisher(MarkerArray, TOPIC_MARKERS)
+        from visualization_msgs.msg import MarkerArray
+        self.marker_pub = (None if self.markers is None
+                           else self._publisher(MarkerArray, TOPIC_MARKERS))
 
         # Subscriptions: only actuated joints get command topics.
         self.command_subs = [
@@ -152,12 +129,11 @@ class SimNode(Node):
             self._subscription(JointState, TOPIC_JOINT_COMMANDS, self._on_joint_commands),
         ]
         for joint in self.actuated:
-            self.command_subs.append(self._subscription(
-                Float64, TOPIC_TORQUE_JOINT, lambda msg, j=joint: self._on_torque_joint(j, msg),
-                joint))
-            self.command_subs.append(self._subscription(
-                Bool, TOPIC_ENABLE_JOINT, lambda msg, j=joint: self._on_enable_joint(j, msg),
-                joint))
+            self.command_subs += [
+                self._subscription(Float64, TOPIC_TORQUE_JOINT,
+                                   lambda msg, j=joint: self._on_torque_joint(j, msg), joint),
+                self._subscription(Bool, TOPIC_ENABLE_JOINT,
+                                   lambda msg, j=joint: self._on_enable_joint(j, msg), joint)]
 
         # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
         self.service_handles = [
@@ -175,9 +151,8 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._vet_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        # Timers: stepping (period from dt and the real-time factor) and diagnostics (wall).
-        # Both run on the steady clock: on the node's clock they would follow /clock under
-        # use_sim_time, which only moves when this node steps, so it would never step.
+        # Timers on the steady clock: under use_sim_time the node's clock follows /clock,
+        # which only moves when this node steps.
         self._wall_clock = RclpyClock(clock_type=ClockType.STEADY_TIME)
         self.step_timer = None
         self._make_step_timer()
@@ -200,8 +175,6 @@ class SimNode(Node):
                       lambda self, value: setattr(self.loop, 'paused', bool(value)))
     fault = property(lambda self: self.loop.fault)
     steps = property(lambda self: self.loop.steps)
-    publish_schedule = property(lambda self: self.loop.publish_schedule)
-    marker_schedule = property(lambda self: self.loop.marker_schedule)
 
     def _publisher(self, msg_type, name: str):
         """A publisher for a row of the topic table (its QoS from there)."""
@@ -209,14 +182,11 @@ class SimNode(Node):
 
     def _subscription(self, msg_type, name: str, callback, joint: Optional[str] = None):
         """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
-        spec = TOPICS_BY_NAME[name]
-        topic = name.format(joint=joint) if joint is not None else name
-        if joint is None:
-            return self.create_subscription(msg_type, topic, callback, _qos(spec))
         from rclpy.exceptions import InvalidTopicNameException
         try:
-            return self.create_subscription(msg_type, topic, callback, _qos(spec))
-        except InvalidTopicNameException:
+            return self.create_subscription(msg_type, name.format(joint=joint), callback,
+                                            _qos(TOPICS_BY_NAME[name]))
+        except InvalidTopicNameException:     # (only a joint's name can make one invalid)
             shown = joint if len(joint) <= 80 else f'{joint[:80]}... ({len(joint)} characters)'
             raise ValueError(
                 f'joint {shown!r} cannot name its command topic {name!r}: a ROS topic name '
@@ -244,18 +214,14 @@ class SimNode(Node):
     def _declare_parameters(self) -> dict[str, Any]:
         values = {}
         for spec in PARAMS:
-            default = spec.default
-            if spec.name == 'scene':
-                default = default_scene_path()
-            dynamic = not isinstance(default, (str, bool))
+            default = default_scene_path() if spec.name == 'scene' else spec.default
             descriptor = ParameterDescriptor(description=spec.description,
                                              read_only=spec.read_only,
-                                             dynamic_typing=dynamic)
+                                             dynamic_typing=not isinstance(default, (str, bool)))
             try:
                 param = self.declare_parameter(spec.name, default, descriptor)
             except InvalidParameterTypeException:
-                # a string or bool parameter given a value of another YAML type: one line
-                # naming it, not rclpy's traceback
+                # (a string or bool parameter given another YAML type: one line, no traceback)
                 given = (getattr(self, '_parameter_overrides', None) or {}).get(spec.name)
                 given = getattr(given, 'value', given)
                 kind = 'true or false' if isinstance(default, bool) else 'a string'
@@ -266,9 +232,7 @@ class SimNode(Node):
         return values
 
     def _warn_undeclared_parameters(self) -> None:
-        """Warn about parameters given at start that this node does not have: a typo such
-        as real_time_factr would otherwise be ignored without a word (a warning, not a
-        refusal: docs/parameters.md)."""
+        """Warn about parameters given at start that this node does not have (typos)."""
         overrides = getattr(self, '_parameter_overrides', None) or {}
         names = [n for n in undeclared_parameters(overrides) if not self.has_parameter(n)]
         declared = sorted(getattr(self, '_parameters', None) or PARAMS_BY_NAME)
@@ -280,9 +244,8 @@ class SimNode(Node):
                 f'its parameters: {", ".join(PARAMS_BY_NAME)} (docs/parameters.md)')
 
     def _check_parameter_sources(self, kwargs: dict) -> None:
-        """Warn about a parameter given more than once with different values (e.g. `-p
-        record:=bag` and a --params-file with `record: ""`: only one of them is in
-        effect)."""
+        """Warn about a parameter given more than once with different values (`-p
+        record:=bag` and a --params-file with `record: ""`)."""
         argv = list(kwargs.get('cli_args') or [])
         if kwargs.get('use_global_arguments', True):
             argv = list(sys.argv[1:]) + argv
@@ -318,11 +281,8 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------- timing ----
     def _make_step_timer(self) -> None:
-        """The step timer at the period `real_time_factor` asks for; with the stepping thread
-        running and a real-time factor > 0, a slow one that only notices a SIGINT/SIGTERM
-        (the thread steps). As fast as possible the timer steps in both cases: its 20 ms
-        rounds leave the executor's rounds at ~3 % of the time, and a thread was measured no
-        faster there (docs/speed.md)."""
+        """The step timer at the period `real_time_factor` asks for; while the stepping thread
+        steps (real_time_factor > 0), a slow one that only notices a SIGINT/SIGTERM."""
         if self.step_timer is not None:
             self.destroy_timer(self.step_timer)
         rtf = self.config.real_time_factor
@@ -371,17 +331,18 @@ class SimNode(Node):
             rclpy.try_shutdown(context=self.context)
 
     def _pace(self) -> float:
-        """One round of the stepping thread (the lock held): the steps due now in real time
-        x real_time_factor, at most BATCH_STEPS; returns the wall seconds until the next step
-        is due (0: look again at once). Idle while paused and as fast as possible (the step
-        timer steps then)."""
+        """One round of real-time stepping (the thread's, or the step timer's without it; the
+        lock held): the steps due now in real time x real_time_factor, at most BATCH_STEPS;
+        returns the wall seconds until the next step is due (0: look again at once). Idle
+        while paused and as fast as possible."""
         rtf = self.config.real_time_factor
         if (self._closed or self.paused or rtf == 0.0 or _STOP_SIGNAL['received']
                 or not self.context.ok()):
             return THREAD_IDLE
         now = time.monotonic()
         dt = self.world.dt
-        due = self._steps_behind(self._real_time_target(rtf, now))
+        # whole steps to real time x rtf (1e-6 of a step to spare)
+        due = int((self._real_time_target(rtf, now) - self.world.time) / dt + 1e-6)
         if due >= 1:
             self._advance(min(due, BATCH_STEPS))
             return 0.0
@@ -398,10 +359,6 @@ class SimNode(Node):
                 MAX_LAG_WALL * rtf + dt:
             self._warn_lagging(rtf, dt)
         return self._anchor_sim + rtf * (now - self._anchor_wall)
-
-    def _steps_behind(self, target: float) -> int:
-        """Whole steps from the simulation's time to `target` (1e-6 of a step to spare)."""
-        return int((target - self.world.time) / self.world.dt + 1e-6)
 
     def _warn_lagging(self, rtf: float, dt: float) -> None:
         """Real time x rtf ran ahead of the simulation by more than MAX_LAG_WALL: say so
@@ -453,17 +410,11 @@ class SimNode(Node):
                 now, before = time.monotonic(), now
                 self._wall_per_step = (now - before) / taken
             return
-        now = time.monotonic()
-        dt = self.world.dt
-        target = self._real_time_target(rtf, now)
-        # Step while the end of the next step is not ahead of real time x rtf, and give the
-        # executor back after AFAP_BATCH_WALL so commands and services are never starved.
-        deadline = now + AFAP_BATCH_WALL
-        while (not self.paused and self.world.time + dt * (1.0 - 1e-6) <= target
-               and time.monotonic() < deadline and not _STOP_SIGNAL['received']
-               and self.context.ok()):
-            if not self._advance(max(1, min(self._steps_behind(target), BATCH_STEPS))):
-                break
+        # the stepping thread's rounds, until none is due or after AFAP_BATCH_WALL (the
+        # executor's turn: commands and services are never starved)
+        deadline = time.monotonic() + AFAP_BATCH_WALL
+        while self._pace() == 0.0 and time.monotonic() < deadline:
+            pass
 
     # -------------------------------------------------------------------- steps ----
     def _afap_steps(self) -> int:
@@ -518,8 +469,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------ subscriptions ----
     def _warn_throttled(self, key, text: str) -> None:
-        """Warn at most once per LOG_THROTTLE s per key (rclpy throttles per call site,
-        which would hide a second joint's or a second reason's message)."""
+        """Warn at most once per LOG_THROTTLE s per key (rclpy's throttle is per call site)."""
         now = time.monotonic()
         last, suppressed = self._throttle.get(key, (-math.inf, 0))
         if now - last < LOG_THROTTLE:
@@ -533,10 +483,8 @@ class SimNode(Node):
         self.get_logger().warn(text)
 
     def _report(self, form: str, rejections, clamps) -> None:
-        """Throttled per command form (array, joint torque, enable), joint and reason: the
-        first rejection of each kind of command shows at once, whatever came before. Entries
-        naming joints the scene does not have are one line per message and reason, throttled
-        per reason (a flood of fresh names is one kind of refusal, not one per name)."""
+        """Warn of rejections and clamps, throttled per command form, joint and reason;
+        entries naming joints the scene does not have are one line per message and reason."""
         joints = self._scene_joints
         unknown: dict[str, list] = {}
         for r in rejections:
@@ -584,14 +532,18 @@ class SimNode(Node):
         self.commands.command_enable_all(msg.data)
 
     # ----------------------------------------------------------------- services ----
+    @staticmethod
+    def _answer(response, success: bool, message: str):
+        response.success, response.message = success, message
+        return response
+
     @_locked
     def _srv_pause(self, request, response):
         was = self.paused
         self.paused = True
         self._flush_recorder()
-        response.success = True
-        response.message = f'paused at t={self.world.time:.6f} s' + (' (already)' if was else '')
-        return response
+        return self._answer(response, True, f'paused at t={self.world.time:.6f} s'
+                            + (' (already)' if was else ''))
 
     @_locked
     def _srv_unpause(self, request, response):
@@ -599,21 +551,15 @@ class SimNode(Node):
         self.paused = False
         self._reanchor()
         self._wake_stepper()
-        response.success = True
-        response.message = (f'running from t={self.world.time:.6f} s'
+        return self._answer(response, True, f'running from t={self.world.time:.6f} s'
                             + ('' if was else ' (was not paused)'))
-        return response
 
     @_locked
     def _srv_step(self, request, response):
         if not self.paused:
-            response.success = False
-            response.message = 'not paused: call ~/pause first'
-            return response
+            return self._answer(response, False, 'not paused: call ~/pause first')
         ok = self._step_once(force_publish=True)
-        response.success = ok
-        response.message = f't={self.world.time:.6f} s'
-        return response
+        return self._answer(response, ok, f't={self.world.time:.6f} s')
 
     @_locked
     def _srv_reset(self, request, response):
@@ -622,9 +568,7 @@ class SimNode(Node):
         self._wake_stepper()
         self._live_refresh(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
-        response.success = True
-        response.message = f'reset to t={self.world.time:.6f} s'
-        return response
+        return self._answer(response, True, f'reset to t={self.world.time:.6f} s')
 
     # ---------------------------------------------------------------- live view ----
     def _start_live(self):
@@ -644,9 +588,8 @@ class SimNode(Node):
             live = LiveServer(
                 self.scene, self.joint_names, self.config.live_port, self.config.live_host,
                 world_frame=self.config.marker_frame_id, name=self.get_fully_qualified_name(),
-                services={'pause': trigger(self._srv_pause),
-                          'unpause': trigger(self._srv_unpause),
-                          'step': trigger(self._srv_step), 'reset': trigger(self._srv_reset)},
+                services={name: trigger(getattr(self, f'_srv_{name}'))
+                          for name in ('pause', 'unpause', 'step', 'reset')},
                 log=lambda level, text: getattr(self.get_logger(), level)(text)).start()
         except LiveError as exc:
             self.get_logger().error(f'{exc}; the simulation runs without the live view')
@@ -751,11 +694,20 @@ class SimNode(Node):
 
 
 class _NodeOutput(LoopOutput):
-    """The loop's output in the node: publishers, the recorder and the log."""
+    """The loop's output in the node: publishers, the recorder and the log. /clock and
+    /joint_states are serialised once (convert.ClockEncoder, JointStateEncoder), published
+    and recorded as the same bytes; in a batch the recording holds /clock back and writes it
+    in one call (Recording.clock)."""
+
+    markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
 
     def __init__(self, node: SimNode):
         self.node = node
         self._clock_subscribed = True
+
+    def _record(self, what: str, *args) -> None:
+        if self.node.recorder is not None:
+            getattr(self.node.recorder, what)(*args)
 
     @property
     def markers_wanted(self) -> bool:
@@ -763,11 +715,7 @@ class _NodeOutput(LoopOutput):
         return node.marker_pub is not None and (
             node.recorder is not None or node.marker_pub.get_subscription_count() > 0)
 
-    def clock(self, t_ns: int) -> None:
-        # /clock after every step: 12 bytes of CDR published and recorded as they are
-        # (convert.ClockEncoder), serialised once instead of once per use. In a batch the
-        # recording holds them back and writes them in one call (Recording.clock), the same
-        # bytes in the same order.
+    def clock(self, t_ns: int) -> None:     # (after every step: no `_record` call)
         node = self.node
         clock = node.clock_encoder.encode(t_ns)
         if self._clock_subscribed:          # (always outside a batch: see batch_begin)
@@ -776,9 +724,6 @@ class _NodeOutput(LoopOutput):
             node.recorder.clock(t_ns, clock)
 
     def clocks(self, stamps_ns: list) -> None:
-        # A run of a batch's steps with nothing but /clock to publish: encoded at once,
-        # published one by one (only when someone subscribes: see batch_begin) and recorded
-        # as `clock` records them.
         node = self.node
         if not self._clock_subscribed and node.recorder is None:
             return                          # nobody receives them, nothing records them
@@ -787,54 +732,36 @@ class _NodeOutput(LoopOutput):
             publish = node.clock_publish_raw
             for data in datas:
                 publish(data)
-        if node.recorder is not None:
-            node.recorder.clocks(stamps_ns, datas)
+        self._record('clocks', stamps_ns, datas)
 
     def batch_begin(self) -> None:
-        node = self.node
-        if node.recorder is not None:
-            node.recorder.batch_begin()
-        # /clock is best effort with depth 1 (what Gazebo does): a message nobody receives
-        # is lost whenever it is sent, so a batch's /clock is published only when a
-        # subscriber is matched as the batch begins (the count is asked once per batch, not
-        # per step; outside batches every /clock is sent). A subscriber matched during a
-        # batch gets /clock from the next one: the same as if its discovery had taken a few
-        # milliseconds longer.
-        self._clock_subscribed = node.clock_pub.get_subscription_count() > 0
+        self._record('batch_begin')
+        # /clock is best effort with depth 1 (as Gazebo's): a batch's /clock is published
+        # only when a subscriber is matched as the batch begins (asked once per batch); one
+        # matched during a batch gets /clock from the next, as if discovery took longer.
+        self._clock_subscribed = self.node.clock_pub.get_subscription_count() > 0
 
     def batch_end(self) -> None:
         self._clock_subscribed = True
-        if self.node.recorder is not None:
-            self.node.recorder.batch_end()
+        self._record('batch_end')
 
     def joint_state(self, t_ns: int, position, velocity, effort) -> None:
-        # Serialised once (convert.JointStateEncoder), published and recorded as these bytes.
-        node = self.node
-        data = node.joint_state_encoder.encode(t_ns, position, velocity, effort)
-        node.joint_state_publish_raw(data)
-        if node.recorder is not None:
-            node.recorder.joint_state(t_ns, data)
-
-    markers_serialized = True       # MarkerBuilder.build_serialized: bytes, as above
+        data = self.node.joint_state_encoder.encode(t_ns, position, velocity, effort)
+        self.node.joint_state_publish_raw(data)
+        self._record('joint_state', t_ns, data)
 
     def markers(self, t_ns: int, data) -> None:
-        node = self.node
-        node.marker_pub.publish(data)
-        if node.recorder is not None:
-            node.recorder.markers(t_ns, data)
+        self.node.marker_pub.publish(data)
+        self._record('markers', t_ns, data)
 
     def applied(self, applied) -> None:
-        if self.node.recorder is not None:
-            self.node.recorder.applied(applied)
+        self._record('applied', applied)
 
     def restarted(self) -> None:
-        if self.node.recorder is not None:
-            self.node.recorder.restarted()          # log times keep increasing
+        self._record('restarted')           # log times keep increasing
 
     def parameters(self, t_ns: int, changes) -> None:
-        # Applies from the next step boundary on: log time = the current sim time.
-        if self.node.recorder is not None:
-            self.node.recorder.parameters(t_ns, changes)
+        self._record('parameters', t_ns, changes)   # log time: the current sim time
 
     def log(self, level: str, text: str, key=None) -> None:
         if key is not None and level == 'warn':
@@ -852,47 +779,34 @@ _STOP_SIGNAL = {'received': False}
 
 def _shutdown_on_signal(signum, frame):
     """SIGINT/SIGTERM: only note it; the node's timers shut the ROS context down at their next
-    call (`SimNode._stop_requested`), and spin() returns between callbacks.
-
-    Not KeyboardInterrupt (rclpy's own handler chains to Python's, which raises it): Python
-    runs a signal handler between any two bytecodes, so an exception could land inside a
-    bag write and leave the MCAP writer half updated (e.g. its statistics counting a
-    message its chunk never got). Not `rclpy.try_shutdown()` here either: it takes the
-    context's non-reentrant lock, which the interrupted code may be holding (inside
-    `Context.ok()`, called between steps), and the node would hang for good. Repeated signals
-    are ignored for the same reasons; SIGKILL still ends a hung node.
-    """
+    call (`SimNode._stop_requested`), and spin() returns between callbacks (docs/decisions.md:
+    neither KeyboardInterrupt nor rclpy.try_shutdown() here)."""
     _STOP_SIGNAL['received'] = True
 
 
 def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optional[str]]:
-    """Move ``-p robot_description:=<URDF text>`` into a temporary params file.
-
-    rcl parses every ``-p`` value as YAML, and URDF text rarely survives that (``: `` and
-    `` #`` in comments or attributes end it), so ``-p robot_description:="$(cat r.urdf)"``, as
-    users pass it to robot_state_publisher, would fail before the node starts. The same value,
-    quoted by a YAML writer in a params file at the same place in the arguments, is read as
-    the string it is. Returns (new args, the file to delete after rclpy.init, or None)."""
+    """Move ``-p robot_description:=<URDF text>`` into a temporary params file at the same
+    place in the arguments (rcl parses ``-p`` values as YAML, which URDF text rarely survives;
+    a YAML writer quotes it). Returns (new args, the file to delete after rclpy.init, or
+    None)."""
     import tempfile
     import yaml
+    key = 'robot_description:='
     out: list[str] = []
     path = None
     i = 0
     while i < len(args):
-        a = args[i]
-        value = None
-        if a in ('-p', '--param') and i + 1 < len(args) \
-                and args[i + 1].startswith('robot_description:='):
-            value, i = args[i + 1][len('robot_description:='):], i + 2
-        if value is None:
-            out.append(a)
-            i += 1
-            continue
-        with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
-                                         delete=False) as f:
-            yaml.safe_dump({'/**': {'ros__parameters': {'robot_description': value}}}, f)
+        if args[i] in ('-p', '--param') and args[i + 1:i + 2] and args[i + 1].startswith(key):
+            with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
+                                             delete=False) as f:
+                yaml.safe_dump({'/**': {'ros__parameters': {
+                    'robot_description': args[i + 1][len(key):]}}}, f)
             path = f.name
-        out += ['--params-file', path]
+            out += ['--params-file', path]
+            i += 2
+        else:
+            out.append(args[i])
+            i += 1
     return out, path
 
 

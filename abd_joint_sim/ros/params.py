@@ -1,20 +1,17 @@
-"""The parameter table of sim_node and its validation, in plain Python.
+"""The parameter table of sim_node and its validation, in plain Python (no DDS).
 
-One row per parameter: name, default, description, read_only. The node declares every row
-with a ``ParameterDescriptor`` (so ``ros2 param describe`` explains it), reads the values
-once into a :class:`SimConfig` through :func:`config_from_values`, and vets live changes
-with :func:`check_live_value`. Nothing here needs DDS.
-
-Numeric parameters are declared with dynamic typing and coerced here, so ``-p
-real_time_factor:=0`` (an integer on the command line) works as well as ``0.0``; any other
-type is refused with a message naming the parameter.
+One row per parameter: name, default, description, read_only, and the function that
+validates and normalises a value (numbers are declared with dynamic typing and coerced, so
+``-p real_time_factor:=0`` works as well as ``0.0``). The node declares every row with a
+``ParameterDescriptor``, reads the values once into a :class:`SimConfig`
+(:func:`config_from_values`) and vets live changes with :func:`check_live_value`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import field, make_dataclass
 import math
 import os
-from typing import Any, NamedTuple, Optional, Sequence
+from typing import Any, Callable, NamedTuple, Optional, Sequence
 
 NODE_NAME = 'abd_joint_sim'
 PACKAGE_NAME = 'abd_joint_sim'
@@ -25,152 +22,7 @@ class ParamSpec(NamedTuple):
     default: Any
     description: str
     read_only: bool
-
-
-PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('scene', '',
-              'Scene YAML file or URDF file (.urdf). Empty = the packaged default scene (a '
-              'fixed base with a two-link arm, joints shoulder and elbow); a bare name such '
-              'as "hinge" or "demo_arm" picks a packaged scene or robot.', True),
-    ParamSpec('robot_description', '',
-              'URDF XML text, as robot_state_publisher takes it. Non-empty = this robot is '
-              'the scene (default options, docs/urdf.md; a scene YAML with a robot: block '
-              'sets options); `scene` is then ignored.', True),
-    ParamSpec('time_step', 0.0,
-              'Time step h [s]. 0 = the scene\'s dt.', True),
-    ParamSpec('real_time_factor', 1.0,
-              'Simulated seconds per wall-clock second. 0 = as fast as possible. Live.',
-              False),
-    ParamSpec('publish_rate', 100.0,
-              'Rate of /joint_states [Hz of simulated time]. 0 = after every step. Live.',
-              False),
-    ParamSpec('start_paused', False,
-              'Start paused; resume with the ~/unpause service or advance with ~/step.', True),
-    ParamSpec('command_timeout', 0.0,
-              'Simulated seconds after the last torque command of a joint at which its '
-              'torque returns to 0 (logged once per joint). 0 = off. Live.', False),
-    ParamSpec('effort_limits', [],
-              'Torque limits [N m], one per joint of `joints`, in that order; commands '
-              'beyond are clamped (and a throttled warning says so). Empty = no limits. '
-              'Live.', False),
-    ParamSpec('joints', [],
-              'Joint order of the array command on joint_torque_commands (and of '
-              'effort_limits). Empty = all actuated joints in scene order.', True),
-    ParamSpec('record', '',
-              'rosbag2 (MCAP) bag directory to record the run into; must not exist yet. '
-              'Empty = no recording.', True),
-    ParamSpec('frame_id', '',
-              'header.frame_id of the published joint states.', True),
-    ParamSpec('marker_rate', 30.0,
-              'Rate of the body markers on `markers` (visualization_msgs/MarkerArray) [Hz of '
-              'simulated time], never more than one per step; recorded too. 0 = off.', True),
-    ParamSpec('marker_frame_id', 'world',
-              'header.frame_id of the markers: the fixed frame to set in RViz.', True),
-    ParamSpec('marker_joint_axes', False,
-              'Also draw each joint axis as an arrow marker (namespace joint_axes).', True),
-    ParamSpec('live_port', 0,
-              'Port of the live view (Foxglove WebSocket; the browser page on the next port; '
-              'docs/live.md), 1..65535. 0 = off. Needs foxglove-sdk (requirements-live.txt).',
-              True),
-    ParamSpec('live_host', '127.0.0.1',
-              'Address the live view binds. Anything but loopback lets whoever reaches it '
-              'watch and pause the run (a warning says so).', True),
-)
-
-PARAMS_BY_NAME = {p.name: p for p in PARAMS}
-
-@dataclass
-class SimConfig:
-    """Validated parameter values (units as in :data:`PARAMS`)."""
-
-    scene: str
-    robot_description: str = ''
-    time_step: float = 0.0
-    real_time_factor: float = 1.0
-    publish_rate: float = 100.0
-    start_paused: bool = False
-    command_timeout: float = 0.0
-    effort_limits: list[float] = field(default_factory=list)
-    joints: list[str] = field(default_factory=list)
-    record: str = ''
-    frame_id: str = ''
-    marker_rate: float = 30.0
-    marker_frame_id: str = 'world'
-    marker_joint_axes: bool = False
-    live_port: int = 0
-    live_host: str = '127.0.0.1'
-
-    def as_dict(self) -> dict[str, Any]:
-        return {p.name: getattr(self, p.name) for p in PARAMS}
-
-
-def world_dt(time_step: float) -> Optional[float]:
-    """World's ``dt`` argument for the ``time_step`` parameter: 0 means the scene's dt
-    (None); the one place that rule is written."""
-    return float(time_step) if time_step else None
-
-
-def packaged_scenes_dir() -> str:
-    """Directory of the packaged scenes: beside the Python package, else the ament share."""
-    here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'scenes')
-    if os.path.isdir(here):
-        return here
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        return os.path.join(get_package_share_directory(PACKAGE_NAME), 'scenes')
-    except Exception:  # noqa: BLE001 - not installed through ament: keep the package path
-        return here
-
-
-def default_scene_path() -> str:
-    return os.path.join(packaged_scenes_dir(), 'default.yaml')
-
-
-def packaged_scenes() -> list[str]:
-    """Names of the packaged scenes (what a bare `scene` value may be)."""
-    try:
-        return sorted(f[:-5] for f in os.listdir(packaged_scenes_dir()) if f.endswith('.yaml'))
-    except OSError:
-        return []
-
-
-def packaged_robots_dir() -> str:
-    """Directory of the packaged URDF robots (``robots/`` beside ``scenes/``)."""
-    return os.path.join(os.path.dirname(packaged_scenes_dir()), 'robots')
-
-
-def packaged_robots() -> list[str]:
-    """Names of the packaged URDF robots (a bare `scene` value may name one too)."""
-    try:
-        return sorted(f[:-5] for f in os.listdir(packaged_robots_dir()) if f.endswith('.urdf'))
-    except OSError:
-        return []
-
-
-def resolve_scene(value: str) -> str:
-    """Scene parameter -> file path ('' = default scene, bare name = packaged scene).
-
-    A bare name that is no packaged scene raises SceneError listing them (and the closest
-    name): ``scene:=hinj`` is a typo, and "No such file" would not say of what."""
-    value = value.strip()
-    if not value:
-        return default_scene_path()
-    if os.sep not in value and not value.endswith(('.yaml', '.yml', '.urdf')):
-        robot = os.path.join(packaged_robots_dir(), value + '.urdf')
-        scene = os.path.join(packaged_scenes_dir(), value + '.yaml')
-        if os.path.isfile(scene):
-            return scene
-        if os.path.isfile(robot):
-            return robot
-        import difflib
-        from abd_joint_sim.errors import SceneError
-        names = packaged_scenes() + packaged_robots()
-        close = difflib.get_close_matches(value, names, n=1)
-        hint = f'did you mean {close[0]!r}? ' if close else ''
-        raise SceneError(
-            f'parameter \'scene\': {value!r} is no packaged scene ({hint}packaged: '
-            f'{", ".join(names) or "none found"}; or give the path of a .yaml or .urdf file)')
-    return os.path.abspath(os.path.expanduser(value))
+    coerce: Callable[[str, Any], Any]
 
 
 def _as_float(name: str, value: Any) -> float:
@@ -182,16 +34,14 @@ def _as_float(name: str, value: Any) -> float:
     return value
 
 
-RANGES = {
-    # name: (lowest, highest) of a non-zero value; 0 means "off"/"auto"/"every step".
-    # Beyond them a value is a typo, not a wish, and the arithmetic on it overflows
-    # (1e9 / publish_rate ns, dt / real_time_factor s, ...).
+RANGES = {      # name: (lowest, highest) of a non-zero value (0: off, auto, every step)
     'time_step': (1e-6, 1.0),                  # s, as a scene's dt
     'real_time_factor': (1e-4, 1e4),
     'publish_rate': (1e-6, 1e9),               # Hz of simulated time; 1e9 = every ns
     'command_timeout': (1e-6, 1e6),            # s of simulated time
 }
-"""Sane ranges of the numeric parameters (refused beyond, at start and live)."""
+"""Sane ranges of the numeric parameters, refused beyond at start and live: a typo, and the
+arithmetic on it (1e9 / publish_rate ns, dt / real_time_factor s) would overflow."""
 
 MAX_EFFORT_LIMIT = 1e9
 """[N m] Largest effort limit (= commands.MAX_ABS_TORQUE, the largest accepted torque)."""
@@ -208,36 +58,24 @@ def _as_nonneg(name: str, value: Any) -> float:
     return value
 
 
-def _as_float_list(name: str, value: Any) -> list[float]:
-    if value is None:
+def _as_list(name: str, value: Any, what: str, ok: Callable[[Any], bool]) -> list:
+    """A list parameter's items (an empty list is declared as an empty byte array)."""
+    if value is None or (isinstance(value, bytes) and not value):
         return []
-    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-        # A byte array is what an empty list is declared as: accept it only when empty.
-        if isinstance(value, bytes) and not value:
-            return []
-        raise ValueError(f'parameter {name!r}: expected a list of numbers, got {value!r}')
-    out = []
-    for v in value:
-        if isinstance(v, bytes):
-            raise ValueError(f'parameter {name!r}: expected a list of numbers, got {value!r}')
-        out.append(_as_float(name, v))
-    return out
+    if (isinstance(value, (str, bytes)) or not isinstance(value, Sequence)
+            or not all(map(ok, value))):
+        raise ValueError(f'parameter {name!r}: expected a list of {what}, got {value!r}')
+    return list(value)
+
+
+def _as_float_list(name: str, value: Any) -> list[float]:
+    return [_as_float(name, v) for v in
+            _as_list(name, value, 'numbers', lambda v: not isinstance(v, bytes))]
 
 
 def _as_str_list(name: str, value: Any) -> list[str]:
-    if value is None:
-        return []
-    if isinstance(value, str) or not isinstance(value, Sequence):
-        raise ValueError(f'parameter {name!r}: expected a list of strings, got {value!r}')
-    out = []
-    for v in value:
-        if not isinstance(v, str):
-            if isinstance(v, bytes) and not value:
-                continue
-            raise ValueError(f'parameter {name!r}: expected a list of strings, got {value!r}')
-        if v.strip():
-            out.append(v.strip())
-    return out
+    return [v.strip() for v in _as_list(name, value, 'strings', lambda v: isinstance(v, str))
+            if v.strip()]
 
 
 def _as_str(name: str, value: Any) -> str:
@@ -267,26 +105,6 @@ def _check_limits(limits: list[float]) -> list[float]:
     return limits
 
 
-_COERCE = {
-    'scene': _as_str,
-    'robot_description': _as_str,
-    'time_step': _as_nonneg,
-    'real_time_factor': _as_nonneg,
-    'publish_rate': _as_nonneg,
-    'start_paused': _as_bool,
-    'command_timeout': _as_nonneg,
-    'effort_limits': lambda n, v: _check_limits(_as_float_list(n, v)),
-    'joints': _as_str_list,
-    'record': _as_str,
-    'frame_id': _as_str,
-    'marker_rate': _as_nonneg,
-    'marker_frame_id': lambda n, v: _as_frame(n, v),
-    'marker_joint_axes': _as_bool,
-    'live_port': lambda n, v: _as_port(n, v),
-    'live_host': lambda n, v: _as_str(n, v).strip() or '127.0.0.1',
-}
-
-
 def _as_port(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
         raise ValueError(f'parameter {name!r}: expected a whole number 1..65535 (0 = off), '
@@ -297,6 +115,14 @@ def _as_port(name: str, value: Any) -> int:
     return int(value)
 
 
+def _as_limits(name: str, value: Any) -> list[float]:
+    return _check_limits(_as_float_list(name, value))
+
+
+def _as_host(name: str, value: Any) -> str:
+    return _as_str(name, value).strip() or '127.0.0.1'
+
+
 def _as_frame(name: str, value: Any) -> str:
     value = _as_str(name, value).strip()
     if not value:
@@ -305,9 +131,142 @@ def _as_frame(name: str, value: Any) -> str:
     return value
 
 
+PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('scene', '',
+              'Scene YAML file or URDF file (.urdf). Empty = the packaged default scene (a '
+              'fixed base with a two-link arm, joints shoulder and elbow); a bare name such '
+              'as "hinge" or "demo_arm" picks a packaged scene or robot.', True, _as_str),
+    ParamSpec('robot_description', '',
+              'URDF XML text, as robot_state_publisher takes it. Non-empty = this robot is '
+              'the scene (default options, docs/urdf.md; a scene YAML with a robot: block '
+              'sets options); `scene` is then ignored.', True, _as_str),
+    ParamSpec('time_step', 0.0,
+              'Time step h [s]. 0 = the scene\'s dt.', True, _as_nonneg),
+    ParamSpec('real_time_factor', 1.0,
+              'Simulated seconds per wall-clock second. 0 = as fast as possible. Live.',
+              False, _as_nonneg),
+    ParamSpec('publish_rate', 100.0,
+              'Rate of /joint_states [Hz of simulated time]. 0 = after every step. Live.',
+              False, _as_nonneg),
+    ParamSpec('start_paused', False,
+              'Start paused; resume with the ~/unpause service or advance with ~/step.', True,
+              _as_bool),
+    ParamSpec('command_timeout', 0.0,
+              'Simulated seconds after the last torque command of a joint at which its '
+              'torque returns to 0 (logged once per joint). 0 = off. Live.', False, _as_nonneg),
+    ParamSpec('effort_limits', [],
+              'Torque limits [N m], one per joint of `joints`, in that order; commands '
+              'beyond are clamped (and a throttled warning says so). Empty = no limits. '
+              'Live.', False, _as_limits),
+    ParamSpec('joints', [],
+              'Joint order of the array command on joint_torque_commands (and of '
+              'effort_limits). Empty = all actuated joints in scene order.', True, _as_str_list),
+    ParamSpec('record', '',
+              'rosbag2 (MCAP) bag directory to record the run into; must not exist yet. '
+              'Empty = no recording.', True, _as_str),
+    ParamSpec('frame_id', '',
+              'header.frame_id of the published joint states.', True, _as_str),
+    ParamSpec('marker_rate', 30.0,
+              'Rate of the body markers on `markers` (visualization_msgs/MarkerArray) [Hz of '
+              'simulated time], never more than one per step; recorded too. 0 = off.', True,
+              _as_nonneg),
+    ParamSpec('marker_frame_id', 'world',
+              'header.frame_id of the markers: the fixed frame to set in RViz.', True, _as_frame),
+    ParamSpec('marker_joint_axes', False,
+              'Also draw each joint axis as an arrow marker (namespace joint_axes).', True,
+              _as_bool),
+    ParamSpec('live_port', 0,
+              'Port of the live view (Foxglove WebSocket; the browser page on the next port; '
+              'docs/live.md), 1..65535. 0 = off. Needs foxglove-sdk (requirements-live.txt).',
+              True, _as_port),
+    ParamSpec('live_host', '127.0.0.1',
+              'Address the live view binds. Anything but loopback lets whoever reaches it '
+              'watch and pause the run (a warning says so).', True, _as_host),
+)
+
+PARAMS_BY_NAME = {p.name: p for p in PARAMS}
+
+SimConfig = make_dataclass('SimConfig', [('scene', str)] + [
+    (p.name, type(p.default), field(default_factory=list) if p.default == []
+     else field(default=p.default)) for p in PARAMS[1:]],
+    namespace={'as_dict': lambda self: {p.name: getattr(self, p.name) for p in PARAMS}})
+SimConfig.__module__ = __name__
+SimConfig.__doc__ = """Validated parameter values: a field per row of PARAMS (units there)."""
+
+
+def world_dt(time_step: float) -> Optional[float]:
+    """World's ``dt`` argument for the ``time_step`` parameter: 0 means the scene's dt
+    (None); the one place that rule is written."""
+    return float(time_step) if time_step else None
+
+
+def packaged_scenes_dir() -> str:
+    """Directory of the packaged scenes: beside the Python package, else the ament share."""
+    here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'scenes')
+    if os.path.isdir(here):
+        return here
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return os.path.join(get_package_share_directory(PACKAGE_NAME), 'scenes')
+    except Exception:  # noqa: BLE001 - not installed through ament: keep the package path
+        return here
+
+
+def default_scene_path() -> str:
+    return os.path.join(packaged_scenes_dir(), 'default.yaml')
+
+
+def _names(folder: str, ext: str) -> list[str]:
+    try:
+        return sorted(f[:-len(ext)] for f in os.listdir(folder) if f.endswith(ext))
+    except OSError:
+        return []
+
+
+def packaged_scenes() -> list[str]:
+    """Names of the packaged scenes (what a bare `scene` value may be)."""
+    return _names(packaged_scenes_dir(), '.yaml')
+
+
+def packaged_robots_dir() -> str:
+    """Directory of the packaged URDF robots (``robots/`` beside ``scenes/``)."""
+    return os.path.join(os.path.dirname(packaged_scenes_dir()), 'robots')
+
+
+def packaged_robots() -> list[str]:
+    """Names of the packaged URDF robots (a bare `scene` value may name one too)."""
+    return _names(packaged_robots_dir(), '.urdf')
+
+
+def resolve_scene(value: str) -> str:
+    """Scene parameter -> file path ('' = default scene, bare name = packaged scene).
+
+    A bare name that is no packaged scene raises SceneError listing them (and the closest
+    name): ``scene:=hinj`` is a typo, and "No such file" would not say of what."""
+    value = value.strip()
+    if not value:
+        return default_scene_path()
+    if os.sep not in value and not value.endswith(('.yaml', '.yml', '.urdf')):
+        robot = os.path.join(packaged_robots_dir(), value + '.urdf')
+        scene = os.path.join(packaged_scenes_dir(), value + '.yaml')
+        if os.path.isfile(scene):
+            return scene
+        if os.path.isfile(robot):
+            return robot
+        import difflib
+        from abd_joint_sim.errors import SceneError
+        names = packaged_scenes() + packaged_robots()
+        close = difflib.get_close_matches(value, names, n=1)
+        hint = f'did you mean {close[0]!r}? ' if close else ''
+        raise SceneError(
+            f'parameter \'scene\': {value!r} is no packaged scene ({hint}packaged: '
+            f'{", ".join(names) or "none found"}; or give the path of a .yaml or .urdf file)')
+    return os.path.abspath(os.path.expanduser(value))
+
+
 def coerce(name: str, value: Any) -> Any:
     """Validate and normalise one parameter value; raise ValueError naming it."""
-    return _COERCE[name](name, value)
+    return PARAMS_BY_NAME[name].coerce(name, value)
 
 
 def config_from_values(values: dict[str, Any], resolve: bool = True) -> SimConfig:
@@ -316,9 +275,7 @@ def config_from_values(values: dict[str, Any], resolve: bool = True) -> SimConfi
     `resolve`: turn `scene` into a file path (the node); a replay passes False, since its
     scene comes from the bag and the stored value is only a label (a packaged scene's name, a
     file's base name, or `robot_description`)."""
-    kwargs = {}
-    for spec in PARAMS:
-        kwargs[spec.name] = coerce(spec.name, values.get(spec.name, spec.default))
+    kwargs = {p.name: p.coerce(p.name, values.get(p.name, p.default)) for p in PARAMS}
     if resolve:
         kwargs['scene'] = resolve_scene(kwargs['scene'])
     return SimConfig(**kwargs)
@@ -348,9 +305,7 @@ FOREIGN_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'
 
 def undeclared_parameters(overrides: Sequence[str]) -> list[str]:
     """Names among the start-up overrides (``-p``, ``--params-file``, launch) that are no
-    parameter of the node: typos such as ``real_time_factr``, reported by the node with a
-    warning and otherwise ignored (docs/parameters.md: a shared params file may carry
-    parameters for other nodes, so this is not a refusal)."""
+    parameter of the node (typos such as ``real_time_factr``: the node warns)."""
     return sorted(n for n in overrides if n not in PARAMS_BY_NAME
                   and n not in FOREIGN_PARAMETERS and not n.startswith('qos_overrides.'))
 

@@ -1,35 +1,9 @@
-"""What sim_node publishes when, and what it records: one set of rules for the node
-(``ros/node.py``) and the headless tools (``tools/sim.py``: ``run_headless``,
-``replay_check``), so a node bag and a headless bag have the same layout and a replay
-re-creates exactly what the node published.
-
-* Topic names are given as the node declares them (``joint_states`` is relative and follows
-  the node's namespace; ``/clock`` is absolute). ``resolve`` turns them into the fully
-  qualified names that appear on the graph and in the bag: the node passes
-  ``Node.resolve_topic_name``, the headless tools :func:`resolve_root` (namespace ``/``).
-* :class:`PublishSchedule`: ``/joint_states`` at ``publish_rate`` Hz of simulated time, on
-  the grid ``k / publish_rate`` (so a state is published at the first step at or after each
-  grid point), after every step for rate 0, and always when forced (start, reset, single
-  step).
-* :func:`record_applied`: commands as they took effect at a step boundary, in the order a
-  replay must apply them (per-joint enables, the array command, then per-joint torques that
-  superseded it).
-* :func:`parameter_event_msg`: a live parameter change, as an ``rcl_interfaces/msg/
-  ParameterEvent`` on ``/parameter_events`` (the topic and type every ROS 2 node publishes
-  its changes on), stamped and logged at the simulated time from which it applies, so a
-  replay can honour e.g. a live change of ``command_timeout``.
-* :func:`bag_custom_data` and :func:`add_node_topics`: the bag's custom data, attachments and
-  topic list.
-* :class:`Recording`: the bag of a run, written in that layout by the node and by the
-  headless recorder alike (``/clock`` held back in a batch, commands as applied, parameter
-  changes).
-* :func:`markers_due`: the body markers (``ros/markers.py``) at ``marker_rate`` Hz of
-  simulated time on their own grid, at most once per step, and at start and reset.
-
-The rules are plain functions over a ``write(topic, stamp_ns, msg)`` callable;
-:class:`Recording` is the one writer both use: a failed write stops the node's recording
-(``on_error``) and ends a headless run (raised).
-"""
+"""What sim_node publishes when and records how: one set of rules for the node and the
+headless tools (``tools/sim.py``), so their bags share one layout and a replay re-creates what
+the node published. Topic names are as the node declares them; ``resolve`` qualifies them
+(``Node.resolve_topic_name``, or :func:`resolve_root` headless). :class:`Recording` is the
+one bag writer: a failed write stops the node's recording (``on_error``) and ends a headless
+run (raised)."""
 from __future__ import annotations
 
 import os
@@ -108,19 +82,12 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
     """Register every recorded topic of the node's table (``ros/topics.py``) on `writer` (a
     ``BagWriter``), with the QoS the node publishes it with; a ``{joint}`` topic once per
     actuated joint; `markers`: the body markers too (``marker_rate`` > 0)."""
-    actuated = list(actuated)
     specs = [t for t in TOPICS if t.recorded and (markers or t.name != TOPIC_MARKERS)]
-    for spec in [t for t in specs if '{joint}' not in t.name]:
-        if spec.name != TOPIC_MARKERS:
-            writer.add_topic(resolve(spec.name), spec.type, qos=spec.reliability,
-                             depth=spec.depth)
-    per_joint = [t for t in specs if '{joint}' in t.name]
-    for joint in actuated:
-        for spec in per_joint:
-            writer.add_topic(resolve(spec.name.format(joint=joint)), spec.type,
-                             qos=spec.reliability, depth=spec.depth)
-    for spec in [t for t in specs if t.name == TOPIC_MARKERS]:
-        writer.add_topic(resolve(spec.name), spec.type, qos=spec.reliability, depth=spec.depth)
+    names = [(t, t.name) for t in specs if '{joint}' not in t.name and t.name != TOPIC_MARKERS]
+    names += [(t, t.name.format(joint=j)) for j in actuated for t in specs if '{joint}' in t.name]
+    names += [(t, t.name) for t in specs if t.name == TOPIC_MARKERS]
+    for spec, name in names:
+        writer.add_topic(resolve(name), spec.type, qos=spec.reliability, depth=spec.depth)
 
 
 def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
@@ -131,12 +98,9 @@ def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
 
 
 def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
-    """Commands as they took effect (log time = simulated time of the step boundary).
-
-    Same-time messages are written in the order a replay must apply them: per-joint
-    enables, then the array command, then per-joint torques that superseded it. Timeouts
-    are not written: they follow from ``command_timeout`` (and its recorded changes).
-    """
+    """Commands as they took effect (log time = simulated time of the step boundary), in the
+    order a replay must apply them: per-joint enables, the array command, per-joint torques
+    that superseded it, joint_commands. Timeouts follow from ``command_timeout``."""
     t_ns = convert.seconds_to_ns(applied.time)
     for joint, flag in applied.enables.items():
         write(resolve(TOPIC_ENABLE_JOINT.format(joint=joint)), t_ns, convert.bool_msg(flag))
@@ -146,8 +110,7 @@ def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
         if applied.sources.get(joint) == 'joint':
             write(resolve(TOPIC_TORQUE_JOINT.format(joint=joint)), t_ns,
                   convert.float64_msg(value))
-    # joint_commands as applied: one message with the efforts (after clamping), one with
-    # the driving aims; each joint's final value only, so the order among them is free.
+    # joint_commands: one message with the efforts (clamped), one with the driving aims
     efforts = {j: v for j, v in applied.torques.items()
                if applied.sources.get(j) == 'joint_state'}
     for kind, values in (('effort', efforts), ('position', applied.aims)):
@@ -168,23 +131,18 @@ def joint_command_msg(t_ns: int, names, position=(), effort=()):
 
 
 class Recording:
-    """The bag of a run in sim_node's layout (``ros/topics.py``): what the node and the
-    headless recorder (``tools/sim.py``) hand it, written through one ``BagWriter``.
-
-    In a batch of steps ``/clock`` (one per step) is held back and written with one
-    ``BagWriter.write_serialized_many`` call before any other message and at the batch's
-    end, so the bag gets the order and the bytes of one write per message; `counts` tells how many messages each topic got. A failed write closes
-    the bag and calls ``on_error(why)``, or raises when there is none. Open one with
-    :meth:`open`.
-    """
+    """The bag of a run in sim_node's layout, written through one ``BagWriter`` (open one
+    with :meth:`open`). In a batch ``/clock`` is held back and written in one call before any
+    other message and at the batch's end: the same order and bytes as one write per message.
+    `counts`: messages per topic. A failed write closes the bag and calls ``on_error(why)``,
+    or raises when there is none."""
 
     def __init__(self, writer: Any, resolve: Resolve, node_fqn: str,
                  on_error: Optional[Callable[[str], None]] = None,
                  zero_padding: bool = False) -> None:
         self.writer = writer            #: an open BagWriter with the node's topics; None: closed
-        #: messages serialised here get their alignment padding zeroed (cdr.without_padding):
-        #: the serialiser leaves its buffer's bytes there, so bags that must compare equal
-        #: byte for byte (sweep cases) ask for it
+        #: zero the alignment padding of messages serialised here (cdr.without_padding), for
+        #: bags that must compare equal byte for byte (sweep cases)
         self.zero_padding = zero_padding
         self.resolve = resolve
         self.node_fqn = node_fqn
@@ -328,12 +286,9 @@ class Recording:
 
 
 class PublishSchedule:
-    """When ``/joint_states`` is due: ``publish_rate`` Hz of simulated time (0 = every step).
-
-    The grid is ``k * period``: after a publish at ``t``, the next one is due at the first
-    grid point after ``t``. :meth:`restart` (reset, a change of ``publish_rate``) makes the
-    next call due at once.
-    """
+    """When ``/joint_states`` (or the markers) are due: ``rate`` Hz of simulated time on the
+    grid ``k * period`` (0 = every step), and always when forced (start, reset, single step);
+    after :meth:`restart` the next call is due at once."""
 
     def __init__(self) -> None:
         self.next_ns = 0

@@ -1,9 +1,9 @@
 """sim_node's cost per step and its real-time factor: the default scene, the packaged
 demo_arm URDF and (with pybullet_data) the KUKA iiwa URDF, dt 1 ms.
 
-Three tables: the node's batched `_advance` against `World.step_clean` in one process (what
-the node adds per step, with and without recording); sim_node end to end in its own process
-over DDS (loopback), as fast as possible, with the real-time factor it reports on
+Three tables: the node's batched `_advance` against `World.step(n, trajectory)` in one
+process (what the node adds per step, with and without recording); sim_node end to end in its
+own process over DDS (loopback), as fast as possible, with the real-time factor it reports on
 /diagnostics (no subscriber, a subscriber on /clock and /joint_states, recording); and its
 share of a core in real time (real_time_factor 1). `--other PATH` times another checkout's
 node beside this tree's, alternating.
@@ -42,7 +42,7 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
     `_advance` as fast as possible (the loop's batches of up to AFAP_BATCH_STEPS steps between
     the boundaries that need one; /clock every step, /joint_states at the default 100 Hz, the
     markers at 30 Hz when recording), without and with recording, against
-    `World.step_clean` (the compiled batch: the RTF ceiling) on the same trajectory: every
+    `World.step(n, trajectory)` (the compiled batch: the RTF ceiling) on the same trajectory: every
     round starts from the state after `start_steps` steps (nothing commanded: the arms have
     fallen into their joint limits and stay there, as in the end-to-end runs). No subscriber,
     no spinning. CPU time of this process (DDS threads included), rounds interleaved, minimum
@@ -78,6 +78,17 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
             node._advance(batch)
         start = node.world.state              # (a World's state is never written in place)
 
+        try:                    # this tree's World: a batch fills a caller-owned Trajectory
+            from abd_joint_sim.world import Trajectory
+            rows = Trajectory()
+
+            def clean_batch(n):
+                node.world.step(n, rows)
+                return rows.count
+        except ImportError:     # --other: a checkout whose World has step_clean
+            def clean_batch(n):
+                return node.world.step_clean(n)[0]
+
         def run(key):
             node.recorder = recorder if key == 'node_recording' else None
             node.world.state = start
@@ -86,8 +97,7 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
             gc.disable()
             t0, k = time.process_time(), 0
             while k < steps:
-                k += (node.world.step_clean(batch)[0] if key == 'world'
-                      else node._advance(batch))
+                k += clean_batch(batch) if key == 'world' else node._advance(batch)
             t = (time.process_time() - t0) / k
             gc.enable()
             return t
@@ -259,14 +269,15 @@ def node_section(quick, kuka_path=None, other=None):
     scenes = node_scenes(kuka_path)
     steps = 1000 if quick else 4000
     print(f'\nsim_node per step in one process, {steps} steps from t = 1 s (CPU time, min of 7 '
-          "rounds; the node's `_advance` as fast as possible against `World.step_clean`, the "
+          "rounds; the node's `_advance` as fast as possible against the compiled batch "
+          "`World.step(n, trajectory)`, the "
           'same trajectory; each tree in its own process' + (f', this tree and {other} '
                                                              'alternating' if other else '')
           + '):')
-    head = ['scene', 'World.step_clean µs/step (RTF ceiling at dt 1 ms)', 'node µs/step',
+    head = ['scene', 'World.step batch µs/step (RTF ceiling at dt 1 ms)', 'node µs/step',
             'node overhead', 'recording µs/step', 'recording overhead']
     if other:
-        head += ['other: World.step_clean', 'other: node', 'other: overhead', 'other: recording',
+        head += ['other: World.step batch', 'other: node', 'other: overhead', 'other: recording',
                  'other: recording overhead']
     print('| ' + ' | '.join(head + ['load']) + ' |')
     print('|' + '---|' * (len(head) + 1))
