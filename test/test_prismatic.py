@@ -14,8 +14,9 @@ from abd_joint_sim import Scene, World, compile_scene
 from abd_joint_sim.errors import SceneError
 from abd_joint_sim.solver import model_data
 from abd_joint_sim.terms import angle as angles
-from abd_joint_sim.terms import (damping, prismatic, prismatic_damping, prismatic_driving,
+from abd_joint_sim.terms import (prismatic, prismatic_damping, prismatic_driving,
                                  prismatic_limit)
+from abd_joint_sim.terms import reference_shape
 from abd_joint_sim.terms.context import StepContext
 
 from physics_helpers import box, prismatic_generalized_force, random_rotation
@@ -63,7 +64,8 @@ Q_PREV = _state(99, scale=0.1)          # the bodies one step back (BDF2 damping
 def _ctx(on=True):
     J, D = MODEL.joint_count, len(MODEL.drive_joints) + len(MODEL.prismatic_drive_joints)
     assert D == 1
-    ref = prismatic_damping.references(DATA, Q_PREV, START, 0.01, True, np.zeros(damping.reference_shape(MODEL)))
+    ref = prismatic_damping.references(DATA, MODEL.body_q0, Q_PREV, START, 0.01, True,
+                                       np.empty(angles.ANGLE_WORK_SHAPE), np.zeros(reference_shape(MODEL)))
     return StepContext(0.01, 1.0, MODEL.body_q0.copy(), START.copy(), TARGETS.copy(), np.full(D, on),
                        np.empty(angles.ANGLE_WORK_SHAPE), ref)
 

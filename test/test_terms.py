@@ -9,8 +9,9 @@ from numba import njit
 import oracle
 from abd_joint_sim import Scene, compile_scene
 from abd_joint_sim.terms import angle as angles
-from abd_joint_sim.solver import model_data
+from abd_joint_sim.solver import model_data, newton
 from abd_joint_sim.terms import damping, driving, inertia, limit, ortho, revolute, torque
+from abd_joint_sim.terms import reference_shape
 from abd_joint_sim.terms.context import StepContext
 
 from physics_helpers import box, generalized_force, random_rotation, theta_and_slope_at, theta_derivatives
@@ -60,12 +61,11 @@ def _ctx(q_tilde=None, on=True, angle_start=None):
 
 
 def _angle_ref(start, bdf2=False):
-    """StepContext.angle_ref: the limits' rows (limit.references) and the dampers' (damping.
-    references, linearised at Q_START)."""
+    """StepContext.angle_ref (newton.references): the limits' rows and the dampers'
+    (linearised at Q_START)."""
     start = np.asarray(start, float)
-    ref = np.empty(damping.reference_shape(MODEL))
-    damping.references(DATA, Q_START, Q_PREV, start, 0.01, bdf2, np.empty(angles.ANGLE_WORK_SHAPE), ref)
-    return limit.references(DATA, start, ref)
+    return newton.references(DATA, Q_START, Q_PREV, start, 0.01, bdf2,
+                             np.empty(angles.ANGLE_WORK_SHAPE), np.empty(reference_shape(MODEL)))
 
 
 def _oracle_energy(name, q, ctx):
@@ -958,10 +958,11 @@ def _term_calls(source, function):
 
 
 def _list_disagreements(source):
-    """How newton.py's `potential` and `assemble` disagree with terms.ENERGY_TERMS: every energy
-    term called once in potential (`energy`) and in the main path of assemble (`accumulate`,
-    or `accumulate_gradient` for a CONSTANT_HESSIAN term), in the list's order, a term that a
-    scene may lack (its first field is its joints) only under a test of that field's size."""
+    """How newton.py's `potential`, `assemble` and `references` disagree with the list of terms:
+    every energy term called once in potential (`energy`) and in the main path of assemble
+    (`accumulate`, or `accumulate_gradient` for a CONSTANT_HESSIAN term), every term of
+    REFERENCE_TERMS once in references, in the list's order, a term that a scene may lack (its
+    first field is its joints) only under a test of that field's size."""
     from abd_joint_sim.terms import ENERGY_TERMS
     wanted = [t.__name__.rsplit('.', 1)[1] for t in ENERGY_TERMS]
     bad = []
@@ -971,13 +972,18 @@ def _list_disagreements(source):
     main = [c for c in _term_calls(source, 'assemble') if not c[2].startswith('not ')]   # (not k >= 0: another s)
     if [c[0] for c in main] != wanted:
         bad.append(('assemble', main))
+    from abd_joint_sim.terms import REFERENCE_TERMS
+    references = _term_calls(source, 'references')
+    if [c[0] for c in references] != [t.__name__.rsplit('.', 1)[1] for t in REFERENCE_TERMS] \
+            or {c[1] for c in references} != {'references'}:
+        bad.append(('references', references))
     for term in ENERGY_TERMS:
         name = term.__name__.rsplit('.', 1)[1]
         kind = 'accumulate_gradient' if term.CONSTANT_HESSIAN else 'accumulate'
         if any(c[0] == name and c[1] != kind for c in main):
             bad.append(('assemble calls', name))
         optional = term.FIELDS and term.FIELDS[0][0].endswith('_joints')
-        for calls in (potential, main):
+        for calls in (potential, main, references):
             guards = [c[2] for c in calls if c[0] == name]
             if optional and not all(f'm.{term.FIELDS[0][0]}.size' in g for g in guards):
                 bad.append(('guard', name, guards))
@@ -986,14 +992,16 @@ def _list_disagreements(source):
 
 def test_newtons_sums_follow_the_list_of_terms():
     """newton.potential and newton.assemble call exactly terms.ENERGY_TERMS, in its order, each
-    as its CONSTANT_HESSIAN says, each optional term under its guard."""
+    as its CONSTANT_HESSIAN says, newton.references terms.REFERENCE_TERMS, each optional term
+    under its guard."""
     import inspect
     from abd_joint_sim.solver import newton
     assert _list_disagreements(inspect.getsource(newton)) == []
 
 
 def test_the_list_check_can_fail():
-    """A term left out, two swapped, and a guard missing are each reported."""
+    """A term left out, two swapped, a guard missing and a reference left out are each
+    reported."""
     import inspect
     from abd_joint_sim.solver import newton
     source = inspect.getsource(newton)
@@ -1003,7 +1011,9 @@ def test_the_list_check_can_fail():
                              'E = ortho.energy(q, m, ctx)\n    E += inertia.energy(q, m, ctx)')
     unguarded = source.replace('    if m.damping_joints.size:\n        E += damping.accumulate(',
                                '    if True:\n        E += damping.accumulate(')
-    for broken in (dropped, swapped, unguarded):
+    no_reference = source.replace('        limit.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)',
+                                  '        pass')
+    for broken in (dropped, swapped, unguarded, no_reference):
         assert broken != source
         assert _list_disagreements(broken) != []
 

@@ -11,7 +11,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from ..jit import flat, refcounts
-from ..terms import TERMS, inertia, revolute
+from ..terms import ENERGY_TERMS, TERMS, inertia, revolute
 from . import linsolve, retraction
 from .bdf import BETA_BDF2
 
@@ -54,6 +54,8 @@ BASE_FIELDS = (
     ('free_mass', '[kg] Σ m over free bodies (Newton energy tolerance)'),
     ('constant_diag', '(B,12,12) the constant Hessian blocks (UID 18) Newton starts from'),
     ('constant_pair', '(J,12,12) the same, off the diagonal'),
+    ('pair_constant', 'bool: the joint blocks are constant_pair (no term the model uses adds '
+                      'to them: `pair_constant`)'),
     ('inertia_scales', '(2,) the inertia term\'s scales s: 1 (BDF1) and 1/β (BDF2)'),
     ('constant_diag_inertia', '(2,B,12,12) constant_diag + s M per inertia_scales entry'),
 )
@@ -125,6 +127,13 @@ def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints, d
     return budget
 
 
+def pair_constant(model) -> bool:
+    """Whether Newton's joint blocks are the constant ones: no joint term (its first field
+    lists its joints) without a constant Hessian is used by the model."""
+    return not any(t.used(model) for t in ENERGY_TERMS if not t.CONSTANT_HESSIAN
+                   and t.FIELDS and t.FIELDS[0][0].endswith('_joints'))
+
+
 def build(model, force_dense: bool = False) -> ModelData:
     """The ModelData of a Model (raises ValueError for a linear system too large to solve
     densely that is not a forest; see linsolve.structure)."""
@@ -166,6 +175,7 @@ def build(model, force_dense: bool = False) -> ModelData:
                                                           m.damping_joints), np.float64)
     for term in TERMS:
         values.update(term.build(m, values))
+    values['pair_constant'] = pair_constant(m)
     (values['constant_diag'], values['constant_pair'], values['inertia_scales'],
      values['constant_diag_inertia']) = constant_blocks(values, m.body_count, m.joint_count)
     data = ModelData(*(values[name] for name, _ in FIELDS))

@@ -55,6 +55,20 @@ def potential(q, m, ctx):
 
 
 @kernel
+def references(m, q0, q_prev, angle_start, h, bdf2, work, ref):
+    """The step's rows of StepContext.angle_ref (ref), each term of terms.REFERENCE_TERMS
+    writing its own: the limits' margins at the step's start, the dampers' linearisations
+    at Newton's start q0 (and, with bdf2, q_prev). Returns ref."""
+    if m.limit_joints.size:
+        limit.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)          # UID 670
+    if m.damping_joints.size:
+        damping.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)        # joint damping
+    if m.prismatic_damping_joints.size:
+        prismatic_damping.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)
+    return ref
+
+
+@kernel
 def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into diag; returns (joint blocks, Π(q)
     with `potential`'s bits). The joint blocks are `pair`, or m.constant_pair itself when no
@@ -69,8 +83,7 @@ def assemble(q, m, ctx, grad, diag, pair):
     else:                                   # another s (a caller's own context)
         flat.copy(diag, m.constant_diag)
         E = inertia.accumulate(q, m, ctx, grad, diag, pair, True)
-    if m.drive_joints.size == 0 and m.limit_joints.size == 0 and m.damping_joints.size == 0 \
-            and m.prismatic_joints.size == 0:
+    if m.pair_constant:
         pair = m.constant_pair              # read only: no term below adds to it
     else:
         flat.copy(pair, m.constant_pair)

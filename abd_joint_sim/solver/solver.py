@@ -17,12 +17,12 @@ import numpy as np
 
 from ..errors import SimulationError
 from ..state import Control, State
-from ..terms import TERMS, angle, damping, limit, prismatic, prismatic_damping
+from ..terms import TERMS, angle, prismatic, reference_shape
 from ..terms.damping import axis_inertia
 from ..terms.context import StepContext
 from ..terms.revolute import SEPARATION_FAULT, SEPARATION_WARN, joint_separation
 from ..terms.torque import SINGULAR_RATIO
-from . import model_data, step as compiled, workspace
+from . import model_data, newton, step as compiled, workspace
 from .report import STATUS_BY_CODE, Status, StepReport
 from .resident import Resident
 
@@ -156,13 +156,9 @@ class Solver:
 
     def _angle_ref(self, state: State, start, h):
         """StepContext.angle_ref of a BDF1 step from `state` (the dampers linearised there)."""
-        ref = np.empty(damping.reference_shape(self.model))
-        if len(self.model.damping_joints):
-            damping.references(self.data, state.q, state.q_prev, start, float(h), False,
-                               np.empty(angle.ANGLE_WORK_SHAPE), ref)
-        if len(self.model.prismatic_damping_joints):
-            prismatic_damping.references(self.data, state.q_prev, start, float(h), False, ref)
-        return limit.references(self.data, start, ref)
+        return newton.references(self.data, state.q, state.q_prev, start, float(h), False,
+                                 np.empty(angle.ANGLE_WORK_SHAPE),
+                                 np.empty(reference_shape(self.model)))
 
     # -- one step, with recovery ---------------------------------------------------------
     def step(self, state: State, control: Control) -> tuple[State, StepReport]:

@@ -20,8 +20,7 @@ import math
 import numpy as np
 
 from ..jit import flat, kernel, refcounts, subnormals
-from ..terms import (angle, damping, gravity, limit, prismatic, prismatic_damping, prismatic_driving, prismatic_force,
-                     revolute, torque)
+from ..terms import angle, damping, gravity, prismatic, prismatic_driving, prismatic_force, revolute, torque
 from . import bdf, newton
 
 # columns of a step's outcome row
@@ -185,11 +184,7 @@ def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_pr
                 else:
                     w = 2.0 * w - warm_start_prev[b, r]
             q_new[b, r] = q_tilde[b, r] + cw * w
-    if m.damping_joints.size:
-        damping.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
-    limit.references(m, angle_start, ws.angle_ref)
-    if m.prismatic_damping_joints.size:
-        prismatic_damping.references(m, q_prev, angle_start, h, bdf2, ws.angle_ref)
+    newton.references(m, q_new, q_prev, angle_start, h, bdf2, ws.angle_work, ws.angle_ref)
     ctx = refcounts.struct(ws.ctx)          # (built here, it would be copied into every term call)
     ctx.h, ctx.scale = h, scale
     drive_on = ctx.drive_on

@@ -9,7 +9,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from ..jit import refcounts
-from ..terms import angle, damping
+from ..terms import angle, reference_shape
 from ..terms.context import StepContext
 from . import linsolve
 
@@ -22,7 +22,7 @@ FIELDS = (
     ('q_alt', "(B,12) Newton's other start: q̃ + c h² warm_start, not extrapolated"),
     ('angle_start', '(J,) joint angle at the start of the step minus init_angle'),
     ('drive_target', '(D + Ds,) UID 19 targets, then UID 21\'s'),
-    ('angle_ref', '(L + P + Ps, 3 or damping.ROW) StepContext.angle_ref'),
+    ('angle_ref', 'StepContext.angle_ref, terms.reference_shape'),
     ('grad', '(B,12) ∇Π'),
     ('diag', '(B,12,12) diagonal blocks of ∇²Π'),
     ('pair', '(J,12,12) joint blocks of ∇²Π'),
@@ -62,7 +62,7 @@ def build(model, data) -> Workspace:
     F = int(data.free_bodies.size)
     n = 12 * F if data.solve_kind == linsolve.DENSE else 0
     shapes = dict(q_force=(B, 12), acc=(B, 12), q_tilde=(B, 12), q_new=(B, 12), q_alt=(B, 12),
-                  angle_start=(J,), drive_target=(D,), angle_ref=damping.reference_shape(model),
+                  angle_start=(J,), drive_target=(D,), angle_ref=reference_shape(model),
                   grad=(B, 12), diag=(B, 12, 12), pair=(J, 12, 12), dq=(B, 12), trial=(B, 12),
                   tree_X=(F, 12, 12), tree_y=(F, 12), tree_inv_d=(F, 12), dense_H=(n, n),
                   dense_x=(n,), zero=(B, 12), torque_axes=(len(model.torque_joints) + 2, 3),

@@ -33,3 +33,15 @@ ENERGY_TERMS = (inertia, ortho, revolute, driving, limit, damping, prismatic, pr
 FORCE_TERMS = (gravity, torque, prismatic_force)
 #: every term
 TERMS = ENERGY_TERMS + FORCE_TERMS
+#: the terms that write rows of StepContext.angle_ref once per step (`references`, called by
+#: solver/newton.py `references`), in the order of their rows
+REFERENCE_TERMS = tuple(t for t in ENERGY_TERMS if hasattr(t, 'references'))
+
+
+def reference_shape(model) -> tuple:
+    """Shape of StepContext.angle_ref for a Model: a row per joint of each term in
+    REFERENCE_TERMS (its first field lists its joints), as many columns as the widest
+    of those the model uses (at least 3)."""
+    used = [t for t in REFERENCE_TERMS if t.used(model)]
+    rows = sum(len(getattr(model, t.FIELDS[0][0])) for t in used)
+    return rows, max([3] + [t.REFERENCE_COLUMNS for t in used])

@@ -11,7 +11,9 @@ Fields:
 - drive_target [rad] (D,) UID 19 target relative to init_angle (the aim, or angle_start
   when passive); drive_on (D,) bool;
 - angle_work: scratch of angle.ANGLE_WORK_SHAPE the drives and limits work in;
-- angle_ref (L + P, ≥ 3): row k < L limit.references, row L + k damping.references.
+- angle_ref (terms.reference_shape): rows each term of terms.REFERENCE_TERMS writes once per
+  step (solver/newton.py `references`): the L limits' first, then the P dampers', then the
+  prismatic dampers'.
 """
 from __future__ import annotations
 

@@ -87,6 +87,7 @@ BDF2_RATE = 2.0 / 3.0       # c of BDF2: θ̇ = (3θ − 4θⁿ + θⁿ⁻¹)/(2
 #: a damper's row of `references`: K, θ₀ − θ*, ∇θ₀·q₀, ∇θ₀ over [vec A_parent, vec A_child],
 #: θ*; damper k's is row L + k of StepContext.angle_ref, after the L limits' rows
 ROW = 3 + 18 + 1
+REFERENCE_COLUMNS = ROW     #: the columns of its rows of StepContext.angle_ref
 TARGET = ROW - 1
 #: how far the linearised angle may miss the answer's own, as a share of the damper's turn in
 #: the step (θ − θ*) or of the rotation Newton's tolerance allows (transrate_tol h), whichever
@@ -94,13 +95,6 @@ TARGET = ROW - 1
 LINEAR_TOL = 1e-3
 #: at most this many such repeats in a step (the second linearisation is at Newton's answer)
 RELINEARISE_MAX = 3
-
-
-def reference_shape(model):
-    """Shape of StepContext.angle_ref for a Model: a row per limit (3 columns), per damper and
-    per prismatic damper (terms/prismatic_damping.py, after them)."""
-    L, P = len(model.limit_joints), len(model.damping_joints)
-    return (L + P + len(model.prismatic_damping_joints), ROW if P else 3)
 
 
 @kernel

@@ -86,10 +86,12 @@ def angle_of(c, s, start):
 
 #: [rad] `inside` answers "inside" only this far within both bounds (x's rounding is ~1e-12)
 INSIDE_SAFETY = 1e-9
+#: the columns of its rows of StepContext.angle_ref (`references`)
+REFERENCE_COLUMNS = 3
 
 
 @kernel
-def references(m, angle_start, ref):
+def references(m, q0, q_prev, angle_start, h, bdf2, work, ref):
     """ref (≥ L, ≥ 3) for `inside`, per limit k (row k): cos x₀, sin x₀ of its joint's angle at the step's
     start x₀ = angle_start[j], and an upper bound T of cos μ, μ = min(x₀ − l, u − x₀) −
     INSIDE_SAFETY the start's margin inside [l, u]: T = 1 − μ²/2 + μ⁴/24 (≥ cos μ for every

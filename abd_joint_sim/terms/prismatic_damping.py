@@ -28,6 +28,7 @@ FIELDS = (
     ('prismatic_damping_coeff', '[N s/m] (Ps,) their damping coefficients c'),
 )
 BDF2_RATE = 2.0 / 3.0       # c_I of BDF2: ḋ = (3d − 4dⁿ + dⁿ⁻¹)/(2h) = (d − d*)/(c_I h)
+REFERENCE_COLUMNS = 2       #: the columns of its rows of StepContext.angle_ref: K, d*
 
 
 def used(model) -> bool:
@@ -65,7 +66,7 @@ def first_row(m):
 
 
 @kernel
-def references(m, q_prev, angle_start, h, bdf2, out):
+def references(m, q0, q_prev, angle_start, h, bdf2, work, out):
     """Rows first_row + k of out (angle_ref): K = h c / c_I and d* of damper k, from
     angle_start (dⁿ) and, with bdf2, q_prev (dⁿ⁻¹). Returns out."""
     joints, c = m.prismatic_damping_joints, m.prismatic_damping_coeff
