@@ -12,7 +12,7 @@ from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
 from abd_joint_sim.scene import load_yaml
 from abd_joint_sim.smallmat import nearest_rotation_in, quaternion_in
-from abd_joint_sim.terms import angle, prismatic_force, torque
+from abd_joint_sim.terms import angle, prismatic, prismatic_force, torque
 
 SCENES = Path(__file__).resolve().parents[1] / 'abd_joint_sim' / 'scenes'
 
@@ -171,3 +171,23 @@ def theta_and_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j):
     """(wrapped θ, ∇θ(q)·d) of joint j along the direction d = d_plus − d_minus in q[3:12]."""
     c, s, slope = angle.cos_sin_slope_at(q, d_plus, d_minus, parent, child, nbar, bbar, j)
     return math.atan2(s, c), slope
+
+
+@njit
+def forward_block(L, inv_d, X, ncol):
+    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor): the loop form
+    linsolve.forward_vector12 and forward_block12 are compared with, bit for bit."""
+    for i in range(12):
+        for k in range(i):
+            lik = L[i, k]
+            for c in range(ncol):
+                X[i, c] -= lik * X[k, c]
+        di = inv_d[i]
+        for c in range(ncol):
+            X[i, c] *= di
+
+
+@njit
+def prismatic_distance(q, m, j):
+    """d(q) of joint j (a prismatic joint), relative to its creation. [m]"""
+    return prismatic.distance_at(q, m.joint_parent[j], m.joint_child[j], m.prismatic_frame, m.prismatic_slot[j])

@@ -19,7 +19,7 @@ from abd_joint_sim import Scene, SimulationError, World
 from abd_joint_sim.smallmat import eigh_ql, jacobi_eigh, svd3
 from abd_joint_sim.solver import linsolve
 
-from physics_helpers import box, chain_dict, hinge_dict, random_rotation, scene_dict
+from physics_helpers import box, chain_dict, forward_block, hinge_dict, random_rotation, scene_dict
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -1173,13 +1173,13 @@ def test_vectorised_block_kernels_give_the_bits_of_plain_loops():
             forward(W[None], 0, d[None], X[None], 0, X[None], 0, False)      # in place
             outs.append(X)
         X = 0.0 + X0
-        linsolve.forward_block(W, d, X, 12)
+        forward_block(W, d, X, 12)
         for out in outs:
             assert np.array_equal(out, X) and not np.signbit(out[out == 0.0]).any()
         y0 = X0[:, 0].copy()
         y1, y2 = y0.copy(), y0.copy()
         linsolve.forward_vector12(W[None], 0, d[None], y1[None], 0)
-        linsolve.forward_block(W, d, y2.reshape((12, 1)), 1)
+        forward_block(W, d, y2.reshape((12, 1)), 1)
         assert np.array_equal(y1, y2)
         D0, y, b0 = rng.standard_normal((12, 12)), rng.standard_normal(12), rng.standard_normal(12)
         results = []

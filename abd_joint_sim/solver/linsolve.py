@@ -198,24 +198,10 @@ def factor_block(blocks, b, inv_ds, slot):
 
 
 @kernel
-def forward_block(L, inv_d, X, ncol):
-    """X[:, :ncol] = L⁻¹ X[:, :ncol] (L the 12x12 lower factor): the loop form the tests
-    compare forward_vector12 and forward_block12 with, bit for bit."""
-    for i in range(12):
-        for k in range(i):
-            lik = L[i, k]
-            for c in range(ncol):
-                X[i, c] -= lik * X[k, c]
-        di = inv_d[i]
-        for c in range(ncol):
-            X[i, c] *= di
-
-
-@kernel
 def forward_vector12(blocks, b, inv_ds, ys, slot):
     """y = L⁻¹ y for the 12-vector y = ys[slot], L = blocks[b] factored by factor_block (its
-    inv_ds[slot]): forward_block(L, inv_d, y.reshape((12, 1)), 1) with the loop bounds known
-    to the compiler (~4x faster); the same operations in the same order."""
+    inv_ds[slot]): the loop form (test/physics_helpers.py `forward_block`) with the loop
+    bounds known to the compiler (~4x faster); the same operations in the same order."""
     L, inv_d, y = blocks[b], inv_ds[slot], ys[slot]
     for i in range(12):
         acc = y[i]
@@ -227,9 +213,9 @@ def forward_vector12(blocks, b, inv_ds, ys, slot):
 @kernel
 def forward_block12(blocks, b, inv_ds, Xs, slot, src, j, transposed):
     """X = L⁻¹ U into X = Xs[slot], U = src[j] (or its transpose; src may be Xs, j = slot),
-    L = blocks[b], inv_d = inv_ds[slot]: the copy (0.0 + U) and forward_block(L, inv_d, X, 12)
-    in one pass, their bits (test_solver.py). Row i in 12 locals: the SLP vectoriser
-    (jit/slp.py) makes each run of 4 columns one vector operation."""
+    L = blocks[b], inv_d = inv_ds[slot]: the copy (0.0 + U) and the loop form (`forward_block`
+    with 12 columns) in one pass, their bits (test_solver.py). Row i in 12 locals: the SLP
+    vectoriser (jit/slp.py) makes each run of 4 columns one vector operation."""
     L, inv_d, X, U = blocks[b], inv_ds[slot], Xs[slot], src[j]
     for i in range(12):
         if transposed:

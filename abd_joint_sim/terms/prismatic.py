@@ -173,12 +173,6 @@ def distance_at(q, i_body, j_body, fr, k):
 
 
 @kernel
-def distance(q, m, j):
-    """d(q) of joint j (a prismatic joint), relative to its creation. [m]"""
-    return distance_at(q, m.joint_parent[j], m.joint_child[j], m.prismatic_frame, m.prismatic_slot[j])
-
-
-@kernel
 def distance_and_rate(q, v, i_body, j_body, fr, k, W):
     """(d, ḋ = ∇d·v) of prismatic joint k at q, velocities v (B,12); W (16,3) work. [m, m/s]"""
     frames(q, i_body, j_body, fr, k, W)
