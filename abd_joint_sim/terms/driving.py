@@ -30,18 +30,19 @@ def used(model) -> bool:
     return len(model.drive_joints) > 0
 
 
-def from_scene(scene, model) -> dict:
-    """The Model's fields of this term: drive_joints (n,), the joints with UID 19;
-    drive_K [kg] (γ (m_i + m_j)), drive_aim0 [rad], _passive0 and _enabled0, (n,)."""
-    ks = select.joints(scene, model, False, lambda j: j.driving is not None)
+def from_scene(scene, model, prefix='drive_', sliding=False, aim='aim_angle') -> dict:
+    """The Model's fields of this term (prismatic_driving's with its `prefix`, on the sliding
+    joints, aim `aim_distance`): the joints with a drive, (n,); their K [kg] (γ (m_i + m_j)),
+    aim0 (rad, or m sliding), passive0 and enabled0, (n,)."""
+    ks = select.joints(scene, model, sliding, lambda j: j.driving is not None)
     spec = [scene.joints[k].driving for k in ks]
     mass, parent, child = model.body_mass, model.joint_parent, model.joint_child
-    return dict(drive_joints=ks,
-                drive_K=np.array([stiffness(s.strength_ratio, mass[parent[k]], mass[child[k]])
-                                     for s, k in zip(spec, ks)], float),
-                drive_aim0=np.array([s.aim_angle for s in spec], float),
-                drive_passive0=np.array([s.passive for s in spec], bool),
-                drive_enabled0=np.array([s.enabled for s in spec], bool))
+    return {prefix + 'joints': ks,
+            prefix + 'K': np.array([stiffness(s.strength_ratio, mass[parent[k]], mass[child[k]])
+                                    for s, k in zip(spec, ks)], float),
+            prefix + 'aim0': np.array([getattr(s, aim) for s in spec], float),
+            prefix + 'passive0': np.array([s.passive for s in spec], bool),
+            prefix + 'enabled0': np.array([s.enabled for s in spec], bool)}
 
 
 def build(model, data) -> dict:

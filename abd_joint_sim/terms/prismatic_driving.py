@@ -14,8 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import flat, kernel
-from . import prismatic, select
-from .revolute import stiffness
+from . import driving, prismatic
 
 NAME = 'prismatic_driving'  #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
@@ -31,17 +30,7 @@ def used(model) -> bool:
 
 
 def from_scene(scene, model) -> dict:
-    """The Model's fields of this term: prismatic_drive_joints (n,), the joints with UID 21;
-    prismatic_drive_K [kg] (γ (m_i + m_j)), prismatic_drive_aim0 [m], _passive0 and _enabled0, (n,)."""
-    ks = select.joints(scene, model, True, lambda j: j.driving is not None)
-    spec = [scene.joints[k].driving for k in ks]
-    mass, parent, child = model.body_mass, model.joint_parent, model.joint_child
-    return dict(prismatic_drive_joints=ks,
-                prismatic_drive_K=np.array([stiffness(s.strength_ratio, mass[parent[k]], mass[child[k]])
-                                     for s, k in zip(spec, ks)], float),
-                prismatic_drive_aim0=np.array([s.aim_distance for s in spec], float),
-                prismatic_drive_passive0=np.array([s.passive for s in spec], bool),
-                prismatic_drive_enabled0=np.array([s.enabled for s in spec], bool))
+    return driving.from_scene(scene, model, 'prismatic_drive_', True, 'aim_distance')
 
 
 def build(model, data) -> dict:
