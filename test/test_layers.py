@@ -28,7 +28,7 @@ LAYERS = (
     ('scene', ('scene',)),
     ('model', ('model',)),
     ('state', ('state',)),
-    ('solver', ('solver', 'jit.warmup')),   # the warm-up runs the solver's kernels   # the warm-up runs the solver's kernels
+    ('solver', ('solver', 'jit.warmup')),   # the warm-up runs the solver's kernels
     ('world', ('world', '')),          # '': the package's __init__, which re-exports World
     ('record', ('record',)),
     ('ros', ('ros', 'runtime', 'live')),   # live: the live view, served by the node and the tools

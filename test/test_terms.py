@@ -930,92 +930,51 @@ def test_damping_is_the_implicit_torque_with_the_angle_linearised_at_newtons_sta
 
 
 # -- the list of terms, once ------------------------------------------------------------------
-def _term_calls(source, function):
-    """[(module, attribute, guard)] of the `<module>.<attribute>(...)` calls of terms/ modules in
-    `function` of `source`, in source order; guard: the names of the `if` tests around it."""
-    import ast
-    tree = next(n for n in ast.walk(ast.parse(source)) if isinstance(n, ast.FunctionDef) and n.name == function)
-    from abd_joint_sim.terms import TERMS as ALL
-    names = {t.__name__.rsplit('.', 1)[1] for t in ALL}
-    out = []
-
-    def visit(node, guards):
-        if isinstance(node, ast.If):
-            inner = guards + (ast.unparse(node.test),)
-            for child in node.body:
-                visit(child, inner)
-            for child in node.orelse:
-                visit(child, guards + ('not ' + ast.unparse(node.test),))
-            return
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) \
-                and isinstance(node.func.value, ast.Name) and node.func.value.id in names:
-            out.append((node.func.value.id, node.func.attr, ' and '.join(guards)))
-        for child in ast.iter_child_nodes(node):
-            visit(child, guards)
-    for statement in tree.body:
-        visit(statement, ())
-    return out
-
-
-def _list_disagreements(source):
-    """How newton.py's `potential`, `assemble` and `references` disagree with the list of terms:
-    every energy term called once in potential (`energy`) and in the main path of assemble
-    (`accumulate`, or `accumulate_gradient` for a CONSTANT_HESSIAN term), every term of
-    REFERENCE_TERMS once in references, in the list's order, a term that a scene may lack (its
-    first field is its joints) only under a test of that field's size."""
-    from abd_joint_sim.terms import ENERGY_TERMS
-    wanted = [t.__name__.rsplit('.', 1)[1] for t in ENERGY_TERMS]
+def _sums_disagree(data, model, ctx, q, q_prev):
+    """How newton's `potential`, `assemble` and `references` disagree, on one model and state,
+    with the list of terms: Π must be the terms' energies added in ENERGY_TERMS' order (those
+    on joints the model has), assemble's Π potential's, and references' rows those each term
+    of REFERENCE_TERMS writes, in the list's order. Returns (disagreements, terms summed)."""
+    from abd_joint_sim.solver import newton
+    from abd_joint_sim.terms import ENERGY_TERMS, REFERENCE_TERMS, joints
+    used = [t for t in ENERGY_TERMS if joints(t) is None or getattr(data, joints(t)).size]
+    E = 0.0
+    for term in used:
+        E += term.energy(q, data, ctx)
     bad = []
-    potential = _term_calls(source, 'potential')
-    if [c[0] for c in potential] != wanted or {c[1] for c in potential} != {'energy'}:
-        bad.append(('potential', potential))
-    main = [c for c in _term_calls(source, 'assemble') if not c[2].startswith('not ')]   # (not k >= 0: another s)
-    if [c[0] for c in main] != wanted:
-        bad.append(('assemble', main))
-    from abd_joint_sim.terms import REFERENCE_TERMS
-    references = _term_calls(source, 'references')
-    if [c[0] for c in references] != [t.__name__.rsplit('.', 1)[1] for t in REFERENCE_TERMS] \
-            or {c[1] for c in references} != {'references'}:
-        bad.append(('references', references))
-    for term in ENERGY_TERMS:
-        name = term.__name__.rsplit('.', 1)[1]
-        kind = 'accumulate_gradient' if term.CONSTANT_HESSIAN else 'accumulate'
-        if any(c[0] == name and c[1] != kind for c in main):
-            bad.append(('assemble calls', name))
-        optional = term.FIELDS and term.FIELDS[0][0].endswith('_joints')
-        for calls in (potential, main, references):
-            guards = [c[2] for c in calls if c[0] == name]
-            if optional and not all(f'm.{term.FIELDS[0][0]}.size' in g for g in guards):
-                bad.append(('guard', name, guards))
-    return bad
+    if newton.potential(q, data, ctx) != E:
+        bad.append(('potential', newton.potential(q, data, ctx), E))
+    B, J = model.body_count, model.joint_count
+    _, assembled = newton.assemble(q, data, ctx, np.zeros((B, 12)), np.zeros((B, 12, 12)),
+                                   np.zeros((J, 12, 12)))
+    if assembled != E:
+        bad.append(('assemble', assembled, E))
+    args = (data, q, q_prev, ctx.angle_start, 0.01, True, np.empty(angles.ANGLE_WORK_SHAPE))
+    expected = np.zeros(reference_shape(model))
+    for term in REFERENCE_TERMS:
+        if getattr(data, joints(term)).size:
+            term.references(*args, expected)
+    if not np.array_equal(newton.references(*args, np.zeros(reference_shape(model))), expected):
+        bad.append(('references',))
+    return bad, used
 
 
 def test_newtons_sums_follow_the_list_of_terms():
-    """newton.potential and newton.assemble call exactly terms.ENERGY_TERMS, in its order, each
-    as its CONSTANT_HESSIAN says, newton.references terms.REFERENCE_TERMS, each optional term
-    under its guard."""
-    import inspect
-    from abd_joint_sim.solver import newton
-    assert _list_disagreements(inspect.getsource(newton)) == []
-
-
-def test_the_list_check_can_fail():
-    """A term left out, two swapped, a guard missing and a reference left out are each
-    reported."""
-    import inspect
-    from abd_joint_sim.solver import newton
-    source = inspect.getsource(newton)
-    dropped = source.replace('        E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)\n',
-                             '        pass\n')
-    swapped = source.replace('E = inertia.energy(q, m, ctx)\n    E += ortho.energy(q, m, ctx)',
-                             'E = ortho.energy(q, m, ctx)\n    E += inertia.energy(q, m, ctx)')
-    unguarded = source.replace('    if m.damping_joints.size:\n        E += damping.accumulate(',
-                               '    if True:\n        E += damping.accumulate(')
-    no_reference = source.replace('        limit.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)',
-                                  '        pass')
-    for broken in (dropped, swapped, unguarded, no_reference):
-        assert broken != source
-        assert _list_disagreements(broken) != []
+    """newton's potential, assemble and references, written out from the lists of terms, sum
+    exactly the list's terms in its order, on the revolute family's model here and the sliding
+    family's (test_prismatic), every energy term active in one of them."""
+    import test_prismatic as slide
+    from abd_joint_sim.terms import ENERGY_TERMS
+    summed = set()
+    for model, data, state, ctx, q_prev in (
+            (MODEL, DATA, _state, lambda: _ctx(angle_start=[0.1, -0.2]), Q_PREV),
+            (slide.MODEL, slide.DATA, slide._state, slide._ctx, slide.Q_PREV)):
+        for seed in range(4):
+            q, c = state(seed), ctx()
+            bad, used = _sums_disagree(data, model, c, q, q_prev)
+            assert bad == []
+            summed |= {t for t in used if t.energy(q, data, c) > 0.0}
+    assert summed == set(ENERGY_TERMS)
 
 
 def test_each_term_builds_its_model_fields_from_the_scene():

@@ -24,7 +24,8 @@ import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1]
-#: where the compiled kernels live; the files among them that define any (`@kernel`) make the
+#: where the compiled kernels live; the files among them that define any (`@kernel`) and the
+#: packages' __init__ (terms/__init__.py lists the terms jit/unroll.py writes out) make the
 #: cache stamp, so editing pure-Python modules there does not force a recompile
 KERNEL_SOURCES = ('smallmat.py', 'terms', 'solver', 'jit')
 #: the compiler devices' switches: NAME=0 in the environment compiles that device out (for
@@ -45,7 +46,7 @@ def sources_hash() -> str:
         files = sorted(path.glob('*.py')) if path.is_dir() else [path]
         for f in files:
             text = f.read_bytes()
-            if b'@kernel' in text:
+            if b'@kernel' in text or f.name == '__init__.py':
                 h.update(f.relative_to(PACKAGE).as_posix().encode())
                 h.update(text)
     h.update(' '.join(f'{name}=0' for name in SWITCHES if not switch(name)).encode())

@@ -11,7 +11,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from ..jit import flat, refcounts
-from ..terms import ENERGY_TERMS, TERMS, inertia, revolute
+from ..terms import ENERGY_TERMS, TERMS, inertia, joints, revolute
 from . import linsolve, retraction
 from .bdf import BETA_BDF2
 
@@ -109,15 +109,18 @@ class ModelData(structref.StructRefProxy):
 structref.define_proxy(ModelData, ModelDataType, [name for name, _ in FIELDS])
 
 
-def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints, damping_joints=()):
+def joint_angle_budget(model, Mbar) -> np.ndarray:
     """(J,) per joint, min over its free bodies b of ANGLE_EXACT_SHARE μ_min(M̄_b) / n_b, n_b
-    the angle terms on b's joints; inf between fixed bodies, 0 beside a body without inertia."""
+    the angle terms (ANGLE_BUDGET) on b's joints; inf between fixed bodies, 0 beside a body
+    without inertia."""
+    fixed, parent, child = model.body_fixed, model.joint_parent, model.joint_child
     B, J = len(fixed), len(parent)
     mu = inertia.min_eigenvalue(Mbar)
     count = np.zeros(B)
-    for j in list(drive_joints) + list(limit_joints) + list(damping_joints):
-        count[parent[j]] += 1
-        count[child[j]] += 1
+    for t in ENERGY_TERMS:
+        for j in getattr(model, joints(t)) if getattr(t, 'ANGLE_BUDGET', False) else ():
+            count[parent[j]] += 1
+            count[child[j]] += 1
     budget = np.full(J, np.inf)
     for j in range(J):
         for b in (parent[j], child[j]):
@@ -128,10 +131,9 @@ def joint_angle_budget(Mbar, fixed, parent, child, drive_joints, limit_joints, d
 
 
 def pair_constant(model) -> bool:
-    """Whether Newton's joint blocks are the constant ones: no joint term (its first field
-    lists its joints) without a constant Hessian is used by the model."""
-    return not any(t.used(model) for t in ENERGY_TERMS if not t.CONSTANT_HESSIAN
-                   and t.FIELDS and t.FIELDS[0][0].endswith('_joints'))
+    """Whether Newton's joint blocks are the constant ones: no joint term without a constant
+    Hessian is used by the model."""
+    return not any(t.used(model) for t in ENERGY_TERMS if not t.CONSTANT_HESSIAN and joints(t))
 
 
 def build(model, force_dense: bool = False) -> ModelData:
@@ -170,9 +172,7 @@ def build(model, force_dense: bool = False) -> ModelData:
         max_step_rotation=float(m.newton.max_step_rotation),
         free_mass=float(np.sum(m.body_mass[free])),     # (np.sum's order, whatever the layout)
     )
-    values['joint_angle_budget'] = arr(joint_angle_budget(Mbar, fixed, m.joint_parent, m.joint_child,
-                                                          m.drive_joints, m.limit_joints,
-                                                          m.damping_joints), np.float64)
+    values['joint_angle_budget'] = arr(joint_angle_budget(m, Mbar), np.float64)
     for term in TERMS:
         values.update(term.build(m, values))
     values['pair_constant'] = pair_constant(m)

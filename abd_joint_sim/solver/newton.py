@@ -10,17 +10,16 @@ bounding-box corners move less than velocity_tol·h, max |Δq[3:12]| ≤ transra
 the decrement −½∇ΠᵀΔq ≤ s·½Σm(velocity_tol·h)²; or a decrement below ROUNDOFF·|Π|. Max
 iterations, a failed line search and a non-finite value are returned as a status.
 
-`potential` and `assemble` call terms.ENERGY_TERMS one by one in the list's order (numba
-cannot loop over modules); test_terms.py checks them against the list.
+`potential`, `assemble` and `references` loop over the lists of terms (terms/__init__.py),
+written out before compiling (jit/unroll.py).
 """
 from __future__ import annotations
 
 import math
 
-
 from ..jit import flat, kernel
-from ..terms import (damping, driving, inertia, limit, ortho, prismatic, prismatic_damping, prismatic_driving,
-                     prismatic_limit, revolute)
+from ..jit.unroll import unrolled
+from ..terms import ENERGY_TERMS, REFERENCE_TERMS, inertia, joints
 from . import linsolve
 from .retraction import retract
 
@@ -30,45 +29,31 @@ CONVERGED, MAX_ITERATIONS, LINE_SEARCH_FAILED, NONFINITE = 0, 1, 2, 3
 
 
 @kernel
+@unrolled
 def potential(q, m, ctx):
-    """Π(q)."""
-    E = inertia.energy(q, m, ctx)
-    E += ortho.energy(q, m, ctx)            # UID 1, shape
-    if m.revolute_joints.size:
-        E += revolute.energy(q, m, ctx)     # UID 18
-    # a term the model lacks is not called (the call costs reference counts, docs/speed.md)
-    if m.drive_joints.size:
-        E += driving.energy(q, m, ctx)      # UID 19
-    if m.limit_joints.size:
-        E += limit.energy(q, m, ctx)        # UID 670 (0 inside the limits)
-    if m.damping_joints.size:
-        E += damping.energy(q, m, ctx)      # joint damping (not a libuipc term)
-    if m.prismatic_joints.size:
-        E += prismatic.energy(q, m, ctx)    # UID 20
-    if m.prismatic_drive_joints.size:
-        E += prismatic_driving.energy(q, m, ctx)    # UID 21
-    if m.prismatic_limit_joints.size:
-        E += prismatic_limit.energy(q, m, ctx)      # UID 669 (0 inside the limits)
-    if m.prismatic_damping_joints.size:
-        E += prismatic_damping.energy(q, m, ctx)    # prismatic joint damping
+    """Π(q): the terms' energies summed in ENERGY_TERMS' order."""
+    E = 0.0
+    for term in ENERGY_TERMS:
+        # a term the model lacks is not called (the call costs reference counts, docs/speed.md)
+        if joints(term) is None or getattr(m, joints(term)).size:
+            E += term.energy(q, m, ctx)
     return E
 
 
 @kernel
+@unrolled
 def references(m, q0, q_prev, angle_start, h, bdf2, work, ref):
     """The step's rows of StepContext.angle_ref (ref), each term of terms.REFERENCE_TERMS
     writing its own: the limits' margins at the step's start, the dampers' linearisations
     at Newton's start q0 (and, with bdf2, q_prev). Returns ref."""
-    if m.limit_joints.size:
-        limit.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)          # UID 670
-    if m.damping_joints.size:
-        damping.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)        # joint damping
-    if m.prismatic_damping_joints.size:
-        prismatic_damping.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)
+    for term in REFERENCE_TERMS:
+        if getattr(m, joints(term)).size:
+            term.references(m, q0, q_prev, angle_start, h, bdf2, work, ref)
     return ref
 
 
 @kernel
+@unrolled
 def assemble(q, m, ctx, grad, diag, pair):
     """∇Π into grad (B,12) and the PSD-projected ∇²Π into diag; returns (joint blocks, Π(q)
     with `potential`'s bits). The joint blocks are `pair`, or m.constant_pair itself when no
@@ -87,23 +72,12 @@ def assemble(q, m, ctx, grad, diag, pair):
         pair = m.constant_pair              # read only: no term below adds to it
     else:
         flat.copy(pair, m.constant_pair)
-    E += ortho.accumulate(q, m, ctx, grad, diag, pair, True)          # UID 1
-    if m.revolute_joints.size:
-        E += revolute.accumulate_gradient(q, m, ctx, grad)            # UID 18 (Hessian: constant_*)
-    if m.drive_joints.size:
-        E += driving.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 19
-    if m.limit_joints.size:
-        E += limit.accumulate(q, m, ctx, grad, diag, pair, True)      # UID 670
-    if m.damping_joints.size:
-        E += damping.accumulate(q, m, ctx, grad, diag, pair, True)    # joint damping
-    if m.prismatic_joints.size:
-        E += prismatic.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 20
-    if m.prismatic_drive_joints.size:
-        E += prismatic_driving.accumulate(q, m, ctx, grad, diag, pair, True)  # UID 21
-    if m.prismatic_limit_joints.size:
-        E += prismatic_limit.accumulate(q, m, ctx, grad, diag, pair, True)    # UID 669
-    if m.prismatic_damping_joints.size:
-        E += prismatic_damping.accumulate(q, m, ctx, grad, diag, pair, True)  # prismatic damping
+    for term in ENERGY_TERMS:
+        if term is not inertia and (joints(term) is None or getattr(m, joints(term)).size):
+            if term.CONSTANT_HESSIAN:
+                E += term.accumulate_gradient(q, m, ctx, grad)
+            else:
+                E += term.accumulate(q, m, ctx, grad, diag, pair, True)
     return pair, E
 
 

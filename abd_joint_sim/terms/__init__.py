@@ -19,9 +19,9 @@ Hessian (Newton's; the tests also check the raw one). angle.py's joint angle and
 prismatic.py's distance are shared by the angle and prismatic terms; select.py picks
 the joints a term is on.
 
-numba cannot loop over modules: solver/newton.py `potential` and `assemble` call the energy
-terms one by one, in ENERGY_TERMS' order (the order Π is summed in), and
-test_terms.py checks them against this list.
+solver/newton.py's `potential`, `assemble` and `references` loop over ENERGY_TERMS and
+REFERENCE_TERMS; the loops are written out before compiling (jit/unroll.py), a term whose
+joints (`joints`) a model lacks left uncalled. A term in the lists is thereby in Newton's sums.
 """
 from . import (damping, driving, gravity, inertia, limit, ortho, prismatic, prismatic_damping,
                prismatic_driving, prismatic_force, prismatic_limit, revolute, torque)
@@ -38,10 +38,17 @@ TERMS = ENERGY_TERMS + FORCE_TERMS
 REFERENCE_TERMS = tuple(t for t in ENERGY_TERMS if hasattr(t, 'references'))
 
 
+def joints(term) -> str | None:
+    """The field listing the joints a term is on (its first, by convention), or None for a
+    term on every body (inertia, shape)."""
+    name = term.FIELDS[0][0] if term.FIELDS else ''
+    return name if name.endswith('_joints') else None
+
+
 def reference_shape(model) -> tuple:
     """Shape of StepContext.angle_ref for a Model: a row per joint of each term in
-    REFERENCE_TERMS (its first field lists its joints), as many columns as the widest
+    REFERENCE_TERMS (`joints`), as many columns as the widest
     of those the model uses (at least 3)."""
     used = [t for t in REFERENCE_TERMS if t.used(model)]
-    rows = sum(len(getattr(model, t.FIELDS[0][0])) for t in used)
+    rows = sum(len(getattr(model, joints(t))) for t in used)
     return rows, max([3] + [t.REFERENCE_COLUMNS for t in used])

@@ -34,6 +34,7 @@ DAMPING_RATIO_MAX = 1e15
 NAME = 'joint_damping'      #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
+ANGLE_BUDGET = True          #: shares its bodies' inertia (model_data.joint_angle_budget)
 FIELDS = (
     ('damping_joints', '(P,) joints with viscous damping'),
     ('damping_coeff', '[N m s/rad] (P,) their damping coefficients d'),

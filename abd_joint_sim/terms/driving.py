@@ -20,6 +20,7 @@ from .revolute import stiffness
 NAME = 'driving'            #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
+ANGLE_BUDGET = True          #: shares its bodies' inertia (model_data.joint_angle_budget)
 FIELDS = (
     ('drive_joints', '(D,) joints with UID 19'),
     ('drive_K', '(D,) UID 19 stiffness γ (m_i + m_j)'),

@@ -22,6 +22,7 @@ from . import angle, select
 NAME = 'limit'              #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
+ANGLE_BUDGET = True          #: shares its bodies' inertia (model_data.joint_angle_budget)
 FIELDS = (
     ('limit_joints', '(L,) joints with UID 670'),
     ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),
