@@ -1206,17 +1206,17 @@ import numpy as np
 import pybullet_data
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
-from abd_joint_sim.jit.warmup import _loop_scene, _tiny_scene
+from abd_joint_sim.jit.warmup import _loop_scene, _terms_scene
 scenes = {
     'chain': Scene.from_dict(chain_scene(6, torque=0.8)),
-    'bdf2 drives limits': _tiny_scene(),
+    'every term, bdf2': _terms_scene(),
     'loop (dense solve)': _loop_scene(),
     'kuka': Scene.from_urdf(os.path.join(pybullet_data.getDataPath(), 'kuka_iiwa', 'model.urdf')),
 }
 for name, scene in scenes.items():
     w = World(scene)
     for k, j in enumerate(w.actuated_joint_names):
-        w.set_torque(j, (-1.0) ** k * 2.0)
+        w.set_effort(j, (-1.0) ** k * 2.0)
     w.step(150)
     h = hashlib.sha256()
     for a in (w.state.q, w.state.v, w.state.warm_start, w.joint_angles(), w.joint_velocities()):
@@ -1230,7 +1230,7 @@ def test_a_build_without_the_vectoriser_steps_bit_identically(tmp_path):
     """The kernels are compiled with LLVM's SLP vectoriser (jit/slp.py), which numba
     keeps off because it once miscompiled. A build with ABD_SLP=0 (every kernel scalar,
     compiled afresh into its own cache) steps four scenes (tree and dense solves, BDF1 and
-    BDF2, drives, limits, gravity, the KUKA arm into its limits) to the same bits."""
+    BDF2, every term of both joint families, gravity, the KUKA arm into its limits) to the same bits."""
     def run(extra):
         env = dict(os.environ, **extra)
         out = subprocess.run([sys.executable, '-c', _SLP_PROBE], env=env, capture_output=True,

@@ -156,11 +156,11 @@ def test_the_helpers_kernels_are_the_ones_the_step_loads(tmp_path):
 
 def test_the_warm_up_scenes_use_every_term():
     """Every term of terms.TERMS is used by a warm-up scene, so a compile reaches its kernels
-    (a term added to the list and not to a scene fails here)."""
+    (the terms scene puts each joint term's EXAMPLE on a joint; a joint term added to the list
+    without one fails here)."""
     from abd_joint_sim.jit import warmup
     from abd_joint_sim.model import compile_scene
     from abd_joint_sim.terms import TERMS
-    models = [compile_scene(s) for s in (warmup._tiny_scene(), warmup._loop_scene(),
-                                          warmup._slide_scene())]
+    models = [compile_scene(s) for s in (warmup._terms_scene(), warmup._loop_scene())]
     unused = [t.__name__ for t in TERMS if not any(t.used(m) for m in models)]
     assert unused == []

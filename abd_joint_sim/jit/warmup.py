@@ -41,14 +41,20 @@ def _scene(names, joints, **settings):
     return Scene.from_dict(dict(dt=0.01, bodies=bodies, joints=joints, **settings))
 
 
-def _tiny_scene():
-    return _scene('ab', [
-        dict(name='j1', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05],
-             external_torque=dict(torque=1.0, enabled=True),
-             driving=dict(aim_angle=0.5, enabled=True), limit=dict(lower=-0.1, upper=0.1)),
-        dict(name='j2', parent='a', child='b', p0=[0.3, 0, -0.05], p1=[0.3, 0, 0.05],
-             external_torque=dict(torque=-1.0, enabled=True), damping=0.1)],
-        gravity=[0.0, 0.0, -9.81], integrator='bdf2')
+def _terms_scene():
+    """A joint per term of terms.TERMS that has an EXAMPLE, in a chain from the base, with the
+    term's keys (a hinge about z, or a slide along x), gravity and BDF2: every term is used."""
+    from ..terms import TERMS
+    terms = [t for t in TERMS if hasattr(t, 'EXAMPLE')]
+    names = ['base'] + [f'b{k}' for k in range(len(terms))]
+    joints = []
+    for k, term in enumerate(terms):
+        x = 0.2 * k + 0.1
+        ends = ([x, 0, 0], [x + 0.1, 0, 0]) if term.EXAMPLE.get('type') == 'prismatic' else \
+            ([x, 0, -0.05], [x, 0, 0.05])
+        joints.append(dict(name=term.__name__.rsplit('.', 1)[1], parent=names[k],
+                           child=names[k + 1], p0=ends[0], p1=ends[1], **term.EXAMPLE))
+    return _scene(names[1:], joints, gravity=[0.0, 0.0, -9.81], integrator='bdf2')
 
 
 def _loop_scene():
@@ -58,16 +64,6 @@ def _loop_scene():
                           for p, c in [('base', 'a'), ('a', 'b'), ('b', 'c'), ('c', 'a')]])
 
 
-def _slide_scene():
-    """A prismatic joint with its force, drive and limit beside a revolute one (BDF2)."""
-    return _scene('ab', [
-        dict(name='hinge', parent='base', child='a', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05]),
-        dict(name='slide', type='prismatic', parent='a', child='b', p0=[0.3, 0, 0], p1=[0.4, 0, 0],
-             external_force=dict(force=1.0, enabled=True),
-             driving=dict(aim_distance=0.01, enabled=True),
-             limit=dict(lower=-0.01, upper=0.01), damping=0.5)], integrator='bdf2')
-
-
 def _run_kernels():
     """Call every kernel entry point the simulator calls from Python, on both linear solves."""
     import numpy as np
@@ -75,8 +71,8 @@ def _run_kernels():
     from ..solver.resident import Resident
     from ..solver.solver import Solver
     from ..state import Control, State
-    from ..terms import driving, limit, ortho, prismatic, prismatic_driving, prismatic_limit, revolute, torque
-    for scene in (_tiny_scene(), _loop_scene(), _slide_scene()):
+    from ..terms import ENERGY_TERMS, prismatic, revolute, torque
+    for scene in (_terms_scene(), _loop_scene()):
         model = compile_scene(scene)
         solver = Solver(model)
         state, control = State.initial(model), Control.initial(model)
@@ -90,8 +86,9 @@ def _run_kernels():
         revolute.max_separation(state.q, solver.data)
         prismatic.check_separations(state.q, solver.data)
         ctx = solver.context(state, control, model.dt)
-        for term in (ortho, revolute, driving, limit, prismatic, prismatic_driving, prismatic_limit):
-            term.energy(state.q, solver.data, ctx)
+        for term in ENERGY_TERMS:                            # World.mechanical_energy
+            if term.STORED:
+                term.energy(state.q, solver.data, ctx)
         _helper_wait()
         resident = Resident(model.body_count, model.joint_count)
         resident.set(state)
@@ -131,7 +128,7 @@ def _helper_kernels(go) -> None:
     from ..solver.resident import Resident
     from ..solver.solver import Solver
     from ..state import Control, State
-    model = compile_scene(_tiny_scene())
+    model = compile_scene(_terms_scene())
     solver = Solver(model)
     state, control = State.initial(model), Control.initial(model)
     _late_subtrees().compile((typeof(state.q), typeof(solver.data), typeof(solver.work)))

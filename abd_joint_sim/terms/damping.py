@@ -35,6 +35,8 @@ NAME = 'joint_damping'      #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
 ANGLE_BUDGET = True          #: shares its bodies' inertia (model_data.joint_angle_budget)
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(damping=0.1)
 FIELDS = (
     ('damping_joints', '(P,) joints with viscous damping'),
     ('damping_coeff', '[N m s/rad] (P,) their damping coefficients d'),

@@ -21,6 +21,8 @@ NAME = 'driving'            #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
 ANGLE_BUDGET = True          #: shares its bodies' inertia (model_data.joint_angle_budget)
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(driving=dict(aim_angle=0.5, enabled=True))
 FIELDS = (
     ('drive_joints', '(D,) joints with UID 19'),
     ('drive_K', '(D,) UID 19 stiffness γ (m_i + m_j)'),

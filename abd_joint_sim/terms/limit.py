@@ -23,6 +23,8 @@ NAME = 'limit'              #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
 ANGLE_BUDGET = True          #: shares its bodies' inertia (model_data.joint_angle_budget)
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(limit=dict(lower=-0.1, upper=0.1))
 FIELDS = (
     ('limit_joints', '(L,) joints with UID 670'),
     ('limit_lower', '[rad] (L,) lower bound relative to init_angle'),

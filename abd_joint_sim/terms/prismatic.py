@@ -26,6 +26,8 @@ STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
 SEPARATION_WARN = 0.01      # the same rule as UID 18's (revolute.py)
 SEPARATION_FAULT = 1e3
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(type='prismatic')
 FIELDS = (
     ('prismatic_joints', '(S,) the prismatic joints (UID 20)'),
     ('prismatic_slot', '(J,) k of joint j in prismatic_joints, -1 for a revolute joint'),

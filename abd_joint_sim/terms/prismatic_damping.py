@@ -23,6 +23,8 @@ from .damping import DAMPING_RATIO_MAX
 NAME = 'prismatic_damping'  #: in Solver.terms
 STORED = False              #: dissipative: no stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(type='prismatic', damping=0.5)
 FIELDS = (
     ('prismatic_damping_joints', '(Ps,) prismatic joints with viscous damping'),
     ('prismatic_damping_coeff', '[N s/m] (Ps,) their damping coefficients c'),

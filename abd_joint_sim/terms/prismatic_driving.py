@@ -19,6 +19,8 @@ from . import driving, prismatic
 NAME = 'prismatic_driving'  #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(type='prismatic', driving=dict(aim_distance=0.01, enabled=True))
 FIELDS = (
     ('prismatic_drive_joints', '(Ds,) joints with UID 21'),
     ('prismatic_drive_K', '[kg] (Ds,) UID 21 stiffness γ (m_i + m_j)'),

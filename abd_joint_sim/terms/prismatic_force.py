@@ -22,6 +22,8 @@ from ..jit import flat, kernel
 from . import select
 
 NAME = 'external_force'     #: in Solver.terms
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(type='prismatic', external_force=dict(force=1.0, enabled=True))
 FIELDS = (
     ('prismatic_force_joints', '(F,) joints with UID 667'),
 )

@@ -11,6 +11,8 @@ from . import limit, prismatic
 NAME = 'prismatic_limit'    #: in Solver.terms
 STORED = True               #: E/h² is stored energy (World.mechanical_energy)
 CONSTANT_HESSIAN = False
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(type='prismatic', limit=dict(lower=-0.01, upper=0.01))
 FIELDS = (
     ('prismatic_limit_joints', '(Ls,) joints with UID 669'),
     ('prismatic_limit_lower', '[m] (Ls,) lower bound relative to init_distance'),

@@ -29,6 +29,8 @@ CONSTANT_HESSIAN = True     #: Newton adds only the gradient (accumulate_gradien
 # UID 18 is stiff enough to make that a valid state, so the step fails.
 SEPARATION_WARN = 0.01
 SEPARATION_FAULT = 1e3
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict()
 FIELDS = (
     ('revolute_joints', '(R,) the revolute joints (UID 18; the others are prismatic, UID 20)'),
     ('joint_x_bar', '[m] (J,2,2,3) anchors x̄: [joint, side (i, j), anchor (P0, P1), xyz]'),

@@ -23,6 +23,8 @@ from ..smallmat import adjugate3
 from . import select
 
 NAME = 'external_torque'    #: in Solver.terms
+#: a scene joint's keys that put the term on it (jit/warmup.py's scenes)
+EXAMPLE = dict(external_torque=dict(torque=1.0, enabled=True))
 FIELDS = (
     ('torque_joints', '(T,) joints with UID 668'),
     ('torque_bodies', '(Tb,) bodies of the UID 668 joints, ascending'),
