@@ -40,13 +40,10 @@ def point_jacobian(xbar) -> np.ndarray:
 def matrix_rpy(R) -> tuple:
     """(roll, pitch, yaw) with ``rpy_matrix(rpy) == R`` (pitch in [-pi/2, pi/2])."""
     R = np.asarray(R, dtype=float)
-    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
-    if math.hypot(R[0, 0], R[1, 0]) > 1e-9:
-        roll = math.atan2(R[2, 1], R[2, 2])
-        yaw = math.atan2(R[1, 0], R[0, 0])
-    else:                                   # gimbal lock: only roll -/+ yaw is defined
-        roll, yaw = 0.0, math.atan2(-R[0, 1], R[1, 1])
-    return (roll, pitch, yaw)
+    c = math.hypot(R[0, 0], R[1, 0])
+    if not c > 1e-9:                        # gimbal lock: only roll -/+ yaw is defined
+        return (0.0, math.atan2(-R[2, 0], c), math.atan2(-R[0, 1], R[1, 1]))
+    return (math.atan2(R[2, 1], R[2, 2]), math.atan2(-R[2, 0], c), math.atan2(R[1, 0], R[0, 0]))
 
 
 def axis_rotation(axis, angle) -> np.ndarray:

@@ -29,22 +29,16 @@ def mass_properties(body):
     com = np.zeros(3)
     if s.kind == 'box':
         a, b, c = s.size
-        vol = a * b * c
-        m = rho * vol
-        S = m * np.diag([a * a, b * b, c * c]) / 12.0
-        half = np.array([a, b, c]) / 2
+        m = rho * (vol := a * b * c)
+        S, half = m * np.diag([a * a, b * b, c * c]) / 12.0, np.array([a, b, c]) / 2
     elif s.kind == 'sphere':
         (R,) = s.size
-        vol = 4.0 / 3.0 * math.pi * R ** 3
-        m = rho * vol
-        S = m * R * R / 5.0 * np.eye(3)
-        half = np.full(3, R)
+        m = rho * (vol := 4.0 / 3.0 * math.pi * R ** 3)
+        S, half = m * R * R / 5.0 * np.eye(3), np.full(3, R)
     elif s.kind == 'cylinder':             # axis along the body's z, as in URDF
         R, L = s.size
-        vol = math.pi * R * R * L
-        m = rho * vol
-        S = np.diag([m * R * R / 4, m * R * R / 4, m * L * L / 12])
-        half = np.array([R, R, L / 2])
+        m = rho * (vol := math.pi * R * R * L)
+        S, half = np.diag([m * R * R / 4, m * R * R / 4, m * L * L / 12]), np.array([R, R, L / 2])
     else:                                   # rigid data: inertia about the COM
         m, com = s.mass, np.array(s.com, dtype=float)
         vol = s.volume if s.volume > 0 else m / 1000.0
@@ -66,16 +60,6 @@ def mass_matrix(m, com, S) -> np.ndarray:
         M[3 + 3 * k:6 + 3 * k, k] = m * com
         M[3 + 3 * k:6 + 3 * k, 3 + 3 * k:6 + 3 * k] = S
     return M
-
-
-def joint_basis(t):
-    """(n, b) orthonormal to the unit axis t, with b = t × n (docs/physics.md "Joint angle")."""
-    test = np.array([0.0, 1.0, 0.0]) if abs(t[0]) > 0.9 else np.array([1.0, 0.0, 0.0])
-    n = np.cross(t, test)
-    n /= np.linalg.norm(n)
-    b = np.cross(t, n)
-    b /= np.linalg.norm(b)
-    return n, b
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,47 +116,44 @@ def compile_scene(scene: Scene, dt: float | None = None) -> Model:
     """Turn a validated Scene into a Model; `dt` overrides the scene's step size (checked as
     the scene's own: SceneError outside 1e-6 to 1 s, or if not a finite number)."""
     index = {b.name: k for k, b in enumerate(scene.bodies)}
-    mass, com, M, Minv, vol, corners, q0, v0, R0 = [], [], [], [], [], [], [], [], []
+    mass, com, S, vol, half = zip(*map(mass_properties, scene.bodies))
+    M = np.array([mass_matrix(*p) for p in zip(mass, com, S)])
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-    for b in scene.bodies:
-        m, c, S, v, half = mass_properties(b)
-        Mb = mass_matrix(m, c, S)
-        R = rpy_matrix(b.rpy)
-        mass.append(m), com.append(c), M.append(Mb), Minv.append(np.linalg.inv(Mb)), vol.append(v)
-        centre = c if b.shape.kind == 'inertial' else np.zeros(3)
-        corners.append(centre + signs * half)
-        q0.append(np.concatenate([b.position, R.ravel()]))
-        # x = A x̄ + p with dA/dt = [ω]x A: a rigid motion with angular velocity ω about p.
-        v0.append(np.concatenate([b.velocity, (skew(b.angular_velocity) @ R).ravel()]))
-        R0.append(R)
-    corners = np.array(corners)
+    corners = np.array([c + signs * h for c, h in zip(com, half)])   # com 0 unless 'inertial'
+    R0 = [rpy_matrix(b.rpy) for b in scene.bodies]
+    q0 = np.array([np.concatenate([b.position, R.ravel()]) for b, R in zip(scene.bodies, R0)])
+    # x = A x̄ + p with dA/dt = [ω]x A: a rigid motion with angular velocity ω about p.
+    v0 = np.array([np.concatenate([b.velocity, (skew(b.angular_velocity) @ R).ravel()])
+                   for b, R in zip(scene.bodies, R0)])
     size = np.linalg.norm(corners.max(axis=1) - corners.min(axis=1), axis=1)
 
-    J = len(scene.joints)
     parent = np.array([index[j.parent] for j in scene.joints], dtype=np.int64)
     child = np.array([index[j.child] for j in scene.joints], dtype=np.int64)
-    anchor0, anchor1 = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
-    nbar, bbar = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
-    K = np.zeros(J)
+    anchor0, anchor1, nbar, bbar = (np.zeros((len(scene.joints), 2, 3)) for _ in range(4))
     for k, j in enumerate(scene.joints):
         P0, P1 = np.array(j.p0), np.array(j.p1)
         t = (P1 - P0) / np.linalg.norm(P1 - P0)
-        n, bvec = joint_basis(t)
+        # (n, b) orthonormal to the axis t, b = t × n (docs/physics.md "Joint angle")
+        n = np.cross(t, np.array([0.0, 1.0, 0.0]) if abs(t[0]) > 0.9 else np.array([1.0, 0.0, 0.0]))
+        n /= np.linalg.norm(n)
+        bvec = np.cross(t, n)
+        bvec /= np.linalg.norm(bvec)
         for side, body in enumerate((parent[k], child[k])):
             R, p = R0[body], q0[body][:3]
             anchor0[k, side] = R.T @ (P0 - p)       # x̄ = T⁻¹ P for a rigid initial pose
             anchor1[k, side] = R.T @ (P1 - p)
             nbar[k, side], bbar[k, side] = R.T @ n, R.T @ bvec
-        K[k] = stiffness(j.strength_ratio, mass[parent[k]], mass[child[k]])
+    K = np.array([stiffness(j.strength_ratio, mass[p], mass[c])
+                  for j, p, c in zip(scene.joints, parent, child)], float)
 
     model = Model(
         dt=scene.dt if dt is None else check_dt(dt, 'dt argument'), gravity=np.array(scene.gravity, float),
         integrator=scene.integrator, newton=scene.newton,
         body_names=scene.body_names, body_fixed=np.array([b.fixed for b in scene.bodies], bool),
-        body_mass=np.array(mass), body_com=np.array(com), body_M=np.array(M),
-        body_Minv=np.array(Minv), body_volume=np.array(vol),
+        body_mass=np.array(mass), body_com=np.array(com), body_M=M,
+        body_Minv=np.linalg.inv(M), body_volume=np.array(vol),
         body_kappa=np.array([b.kappa for b in scene.bodies], float), body_corners=corners,
-        body_size=size, body_q0=np.array(q0), body_v0=np.array(v0),
+        body_size=size, body_q0=q0, body_v0=v0,
         joint_names=scene.joint_names, joint_parent=parent, joint_child=child,
         joint_anchor0=anchor0, joint_anchor1=anchor1, joint_K=K,
         joint_nbar=nbar, joint_bbar=bbar,

@@ -1,7 +1,4 @@
-"""The sane range of every number a scene carries: beyond it, a SceneError (docs/robustness.md).
-
-Shared by the scene parser and the URDF reader, below both.
-"""
+"""The sane range of every number a scene carries: beyond it, a SceneError (docs/robustness.md)."""
 
 RANGES = {
     # name: (lowest, highest, unit); positive quantities must lie in [lowest, highest],

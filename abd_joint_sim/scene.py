@@ -24,8 +24,7 @@ from .ranges import RANGES
 INTEGRATORS = ('bdf1', 'bdf2')
 
 
-_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
-"""yaml.safe_dump's dumper, with libyaml's emitter when PyYAML has it (the same text)."""
+_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)     # safe_dump's, libyaml's if present
 MAX_YAML_BYTES = 8 << 20
 """Largest scene file read [bytes] (the packaged scenes are ~2 KB; a generated scene of
 20 000 bodies and joints ~7 MB). Schedules pass their own bound (tools/schedule.py)."""
@@ -34,8 +33,7 @@ ALIAS_EXPANSION = 10
 """A document may hold at most max(MAX_YAML_NODES, ALIAS_EXPANSION x its own nodes) values
 once every alias is expanded: reuse through aliases is fine, a billion-laughs file (~1 KB
 of text, ~100 nodes, 1e9 or more expanded) is refused before anything walks it."""
-MAX_YAML_DEPTH = 64
-"""Deepest nesting of lists/mappings (a scene needs 4-5)."""
+MAX_YAML_DEPTH = 64                 # deepest nesting of lists/mappings (a scene needs 4-5)
 
 
 class SceneText:
@@ -120,9 +118,9 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def _expanded_size(root) -> int:
-    """Nodes of the document with every alias expanded (memoised over the shared nodes);
-    YAMLLimitError beyond the bound of ALIAS_EXPANSION or for a node that contains itself."""
+def _expanded_size(root) -> None:
+    """YAMLLimitError if the document, every alias expanded (memoised over the shared nodes),
+    holds more nodes than ALIAS_EXPANSION allows, or if a node contains itself."""
     sizes: dict[int, tuple] = {}            # id -> (expanded size, node), in post-order
     active: set[int] = set()
     stack = [(root, False)]                 # iterative: keep Python's stack out
@@ -150,7 +148,6 @@ def _expanded_size(root) -> int:
             raise YAMLLimitError(
                 f'more than {limit} values once aliases (*name) are expanded, from '
                 f'{len(sizes)} in the text (an alias bomb?)', node.start_mark)
-    return sizes[id(root)][0]
 
 
 for _tag, _regexp, _first in (
@@ -201,8 +198,6 @@ def read_yaml_file(path, error: type[Exception], what: str, max_bytes: int = MAX
         where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
         problem = getattr(exc, 'problem', None) or str(exc)
         raise error(f'{path}: not valid YAML{where}: {problem}') from None
-    except RecursionError:
-        raise error(f'{path}: not valid YAML: nested too deeply') from None
     except ValueError as exc:     # e.g. an integer of more than 4300 digits
         raise error(f'{path}: not valid YAML: {exc}') from None
 
@@ -212,8 +207,7 @@ MAX_ABS_AIM = RANGES['angle'][1]
 node's joint_commands): beyond it the drive's (θ − aim)² loses θ to rounding (an aim of 1e300
 held the joint still)."""
 
-MAX_SUBSTEP_DEPTH = 10
-"""A failed step is retried as up to 2**depth sub-steps (1024 at the bound)."""
+MAX_SUBSTEP_DEPTH = 10      # a failed step is retried as up to 2**depth sub-steps (1024 here)
 
 MAX_ITERATIONS = 10_000
 
@@ -513,13 +507,11 @@ class _Parser:
         name = d.get('name', '')
         if not isinstance(name, str):
             self.fail('name', f'must be a string, got {name!r}')
-        if robot is not None:       # the lowered scene: replayable without the URDF
-            source_text = SceneText(data)
-        return Scene(dt=dt, gravity=gravity, integrator=integrator, newton=newton,
-                     bodies=bodies, joints=joints, name=name, source=self.source,
-                     _text=source_text,
-                     robot_description=robot[0] if robot else '',
-                     warnings=tuple(robot[1]) if robot else ())
+        urdf_text, notes = robot or (None, ())
+        return Scene(dt=dt, gravity=gravity, integrator=integrator, newton=newton, bodies=bodies,
+                     joints=joints, name=name, source=self.source, warnings=tuple(notes),
+                     robot_description=urdf_text or '',   # a robot's _text: the lowered scene
+                     _text=source_text if urdf_text is None else SceneText(data))
 
     def robot(self, data):
         """A `robot:` block (docs/urdf.md): the URDF lowered to bodies and joints, merged
@@ -589,21 +581,19 @@ class _Parser:
         shape = self.inertial(w, d[kind]) if kind == 'inertial' else None
         density = (self.number(f'{where}.density', d['density'], positive=True, bound='density')
                    if 'density' in d else 0.0)
-        if kind == 'inertial':
-            if density and shape.volume == 0.0:
-                shape = dataclasses.replace(shape, volume=shape.mass / density)
-        elif kind == 'box':
+        if kind == 'box':
             shape = ShapeSpec('box', self.vector(w, d[kind], positive=True, bound='length'))
         elif kind == 'sphere':
-            r = d[kind]
-            if isinstance(r, dict):
-                r = self.mapping(w, r, ('radius',), ('radius',))['radius']
+            r = (self.mapping(w, d[kind], ('radius',), ('radius',))['radius']
+                 if isinstance(d[kind], dict) else d[kind])
             shape = ShapeSpec('sphere', (self.number(w, r, positive=True, bound='length'),))
-        else:
+        elif kind == 'cylinder':
             c = self.mapping(w, d[kind], ('radius', 'length'), ('radius', 'length'))
             shape = ShapeSpec('cylinder', (
                 self.number(f'{w}.radius', c['radius'], positive=True, bound='length'),
                 self.number(f'{w}.length', c['length'], positive=True, bound='length')))
+        elif density and shape.volume == 0.0:           # inertial
+            shape = dataclasses.replace(shape, volume=shape.mass / density)
         return BodySpec(
             name=name, shape=shape, density=density,
             kappa=self.number(f'{where}.kappa', d.get('kappa', 1.0e8), positive=True, bound='kappa'),
@@ -632,11 +622,11 @@ class _Parser:
             uri = v.get('mesh_uri', '')
             if not isinstance(uri, str):
                 self.fail(f'{w}.mesh_uri', f'must be a string, got {uri!r}')
-            rgba = v.get('rgba')
-            out.append(VisualSpec(kind=kind, size=size, mesh_uri=uri,
-                                  origin_xyz=self.vector(f'{w}.origin_xyz', v.get('origin_xyz', [0, 0, 0])),
-                                  origin_rpy=self.vector(f'{w}.origin_rpy', v.get('origin_rpy', [0, 0, 0])),
-                                  rgba=None if rgba is None else self.vector(f'{w}.rgba', rgba, 4)))
+            out.append(VisualSpec(
+                kind=kind, size=size, mesh_uri=uri,
+                origin_xyz=self.vector(f'{w}.origin_xyz', v.get('origin_xyz', [0, 0, 0])),
+                origin_rpy=self.vector(f'{w}.origin_rpy', v.get('origin_rpy', [0, 0, 0])),
+                rgba=None if v.get('rgba') is None else self.vector(f'{w}.rgba', v['rgba'], 4)))
         return tuple(out)
 
     def inertial(self, where, value):
@@ -702,8 +692,7 @@ class _Parser:
                 self.fail(f'{where}.{key}', f'unknown body {d[key]!r}; bodies: {", ".join(sorted(body_names))}')
         if d['parent'] == d['child']:
             self.fail(f'{where}.child', f'joint {name!r} connects body {d["child"]!r} to itself')
-        p0 = self.vector(f'{where}.p0', d['p0'], bound='position')
-        p1 = self.vector(f'{where}.p1', d['p1'], bound='position')
+        p0, p1 = (self.vector(f'{where}.{k}', d[k], bound='position') for k in ('p0', 'p1'))
         if math.dist(p0, p1) < 1e-9:
             self.fail(f'{where}.p1', f'must differ from p0 (the axis is p0 -> p1), both are {list(p0)}')
         unit = POSITION_UNIT[jtype]

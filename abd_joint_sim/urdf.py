@@ -80,8 +80,7 @@ class _Link:
     __slots__ = ('name', 'mass', 'com', 'inertia', 'visuals')
 
     def __init__(self, name):
-        self.name = name
-        self.mass = 0.0
+        self.name, self.mass = name, 0.0
         self.com = np.zeros(3)          # in the link frame
         self.inertia = np.zeros((3, 3))  # about the COM, in the link frame
         self.visuals = []               # (kind, size, uri, T (4x4) in the link frame, rgba)
@@ -94,9 +93,7 @@ class _Joint:
     def __init__(self, name, jtype, parent, child, origin, axis):
         self.name, self.type, self.parent, self.child = name, jtype, parent, child
         self.origin, self.axis = origin, axis
-        self.lower = self.upper = None
-        self.effort = self.velocity = None
-        self.mimic = None
+        self.lower = self.upper = self.effort = self.velocity = self.mimic = None
         self.damping = self.friction = 0.0     # <dynamics>
 
 
@@ -133,8 +130,7 @@ class _Reader:
         return T
 
     def parse(self, text: str):
-        # (docs/urdf.md "Parser safety": no DTD; NUL bytes after the document and white space
-        # before its <?xml ...?> ignored, the error lines kept true)
+        # no DTD; trailing NULs and white space before <?xml?> ignored: docs/urdf.md
         if re.search(r'<!\s*(DOCTYPE|ENTITY)', text):
             self.fail('DOCTYPE/ENTITY declarations are not accepted in a URDF (entity '
                       'expansion is refused); remove the <!DOCTYPE ...> block')
@@ -169,31 +165,29 @@ class _Reader:
                               '(xacro robot.urdf.xacro > robot.urdf)')
         materials = {}
         for m in root.findall('material'):
-            rgba = self.material_rgba(m, materials, f'<material name={m.get("name")!r}>')
-            if m.get('name') and rgba is not None:
-                materials[m.get('name')] = rgba
+            self.material(m, materials, f'<material name={m.get("name")!r}>')
         links, joints = {}, {}
-        for el in root.findall('link'):
-            link = self.link(el, materials)
-            if link.name in links:
-                self.fail(f'link {link.name!r} defined twice')
-            links[link.name] = link
-        for el in root.findall('joint'):
-            joint = self.joint(el, links)
-            if joint.name in joints:
-                self.fail(f'joint {joint.name!r} defined twice')
-            joints[joint.name] = joint
+        for tag, found, read, known in (('link', links, self.link, materials),
+                                        ('joint', joints, self.joint, links)):
+            for el in root.findall(tag):
+                item = read(el, known)
+                if item.name in found:
+                    self.fail(f'{tag} {item.name!r} defined twice')
+                found[item.name] = item
         if not links:
             hint = (' (the file declares the xacro namespace: a macro file, which xacro expands '
                     'into the robot that uses it)' if 'xmlns:xacro' in text else '')
             self.fail('no <link> in the robot' + hint)
         return root.get('name', ''), links, joints
 
-    def material_rgba(self, m, materials, where):
-        c = m.find('color')
-        if c is not None:
-            return tuple(self.floats(c, 'rgba', 4, f'{where} <color>').tolist())
-        return materials.get(m.get('name'))
+    def material(self, m, materials, where):
+        """rgba of a <material>: its <color>, else the named one's; remembered by name."""
+        c, name = m.find('color'), m.get('name')
+        rgba = (tuple(self.floats(c, 'rgba', 4, f'{where} <color>').tolist()) if c is not None
+                else materials.get(name))
+        if name and rgba is not None:
+            materials[name] = rgba
+        return rgba
 
     def link(self, el, materials):
         name = el.get('name')
@@ -232,14 +226,9 @@ class _Reader:
             size = tuple(x for attr, n in _VISUAL_SIZE[kind] for x in self.floats(
                 shape, attr, n, w, [1, 1, 1] if kind == 'mesh' else None).tolist())
             uri = shape.get('filename', '') if kind == 'mesh' else ''
-            mat = vis.find('material')
-            rgba, mname = None, None if mat is None else mat.get('name')
-            if mname and mname in materials:        # colours as urdfdom: docs/urdf.md
-                rgba = materials[mname]
-            elif mat is not None:
-                rgba = self.material_rgba(mat, materials, f'{where} <material>')
-                if mname and rgba is not None:
-                    materials[mname] = rgba
+            mat = vis.find('material')          # colours as urdfdom: docs/urdf.md
+            rgba = None if mat is None else (materials.get(mat.get('name')) or
+                                             self.material(mat, materials, f'{where} <material>'))
             link.visuals.append((kind, size, uri, self.origin(vis, f'{where} <visual>'), rgba))
         return link
 
@@ -318,8 +307,7 @@ def _check_inertia(source, link) -> tuple[np.ndarray, str]:
         return mean * np.eye(3), (f'principal moments {_fmt(eig)} break the triangle '
                                   f'inequality: set to their mean {mean:.4g} kg m^2 '
                                   '(MuJoCo balanceinertia)')
-    # a flat body (docs/urdf.md): its smallest second moment S_k = ½ tr(I) − I_k raised to
-    # FLAT_RATIO of the largest
+    # a flat body (docs/urdf.md): the smallest S_k = ½ tr(I) − I_k raised to FLAT_RATIO of the max
     s = 0.5 * eig.sum() - eig
     floor = FLAT_RATIO * float(s.max())
     if s.min() < floor:
@@ -386,9 +374,7 @@ class _Options:
             for key, sub in over.items():
                 if isinstance(sub, dict):
                     for k, x in sub.items():
-                        if k in ('enabled', 'passive'):
-                            continue
-                        if not _finite_number(x):
+                        if k not in ('enabled', 'passive') and not _finite_number(x):
                             self.fail(f'joints.{name}.{key}.{k}', f'must be a finite number, '
                                                                   f'got {_clip(repr(x))}')
             if 'strength_ratio' in over:
@@ -466,12 +452,10 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
         stack.extend(j.child for j in reversed(children[order[-1]]))
     if len(order) != len(links):        # a loop beside the tree: name it
         reached = set(order)
-        start = next(n for n in links if n not in reached)
-        path = [start]
+        path = [next(n for n in links if n not in reached)]
         while child_of[path[-1]].parent not in path:
             path.append(child_of[path[-1]].parent)
-        loop = path[path.index(child_of[path[-1]].parent):]
-        loop.reverse()
+        loop = path[path.index(child_of[path[-1]].parent):][::-1]
         names = [child_of[n].name for n in loop]
         chain = ' -> '.join(_clip(n) for n in loop + [loop[0]])
         raise SceneError(f'{source}: the joints {", ".join(map(repr, names))} form a loop '
@@ -482,14 +466,9 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
     for name in opt.lock:
         if joints[name].type == 'fixed':
             raise SceneError(f'{source}: robot.lock: joint {name!r} is fixed already')
-    refused = []            # every joint that cannot be simulated, in one error
-    for j in joints.values():
-        if j.name in opt.lock or j.type == 'fixed':
-            continue
-        if j.type not in MOVABLE:
-            refused.append((j.name, j.type, None))
-        elif j.mimic is not None:
-            refused.append((j.name, j.type, j.mimic))
+    refused = [(j.name, j.type, j.mimic if j.type in MOVABLE else None)   # in one error
+               for j in joints.values() if j.name not in opt.lock and j.type != 'fixed'
+               and (j.type not in MOVABLE or j.mimic is not None)]
     if len(refused) == 1:
         name, jtype, mimic = refused[0]
         why = (f'is {jtype}: only revolute, continuous and prismatic joints are simulated' if mimic is None
@@ -527,8 +506,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
                  + (' (a continuous joint)' if unit == 'rad' else ''))
             j.lower = j.upper = None
 
-    # lower > upper is no limit, lower == upper holds the joint (docs/decisions.md): each
-    # said once per file, naming the joints and the way out
+    # lower > upper is no limit, lower == upper holds the joint (docs/decisions.md): said once
     def shown(js):
         return _few([f'{j.name!r} [{j.lower:g}, {j.upper:g}]' for j in js])
     ranged = [j for j in joints.values() if j.type in LIMITED and moving(j) and opt.limits
@@ -547,8 +525,7 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
              f'{shown(held)}; `joints: {{name: {{limit: false}}}}` frees it, `joints: {{name: '
              '{limit: {lower: a, upper: b}}}` sets a range')
 
-    # Coulomb friction and joint speed limits are no terms of this simulator: said once per
-    # file rather than dropped silently.
+    # Coulomb friction and speed limits are not simulated: said once per file, not dropped.
     for names, what in (
             ([j.name for j in joints.values() if moving(j) and j.friction > 0.0],
              '<dynamics friction> is not simulated (no Coulomb friction term): ignored on {} '
@@ -686,22 +663,17 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
 
     movable = [j for j in joints.values() if moving(j)]
     actuated = set(opt.actuated if opt.actuated is not None else [j.name for j in movable])
-    for name in actuated:
+    checks = [(n, 'actuated', '; only moving {} joints can be actuated') for n in actuated]
+    for name, field, tail in checks + [(n, f'joints.{n}', ', not a moving {} joint')
+                                       for n in opt.overrides]:
         if not moving(joints[name]):
-            raise SceneError(f'{source}: robot.actuated: joint {name!r} is '
-                             f'{"locked" if name in opt.lock else joints[name].type}; only '
-                             'moving revolute/continuous/prismatic joints can be actuated')
-    for name in opt.overrides:
-        if not moving(joints[name]):
-            raise SceneError(f'{source}: robot.joints.{name}: joint {name!r} is '
-                             f'{"locked" if name in opt.lock else joints[name].type}, not a '
-                             'moving revolute/continuous/prismatic joint')
+            raise SceneError(f'{source}: robot.{field}: joint {name!r} is '
+                             f'{"locked" if name in opt.lock else joints[name].type}'
+                             + tail.format('revolute/continuous/prismatic'))
     scene_joints = []
     for j in movable:
-        F = joint_frame[j.name]
-        p0 = F[:3, 3]
-        axis = F[:3, :3] @ j.axis
-        q0 = q_init[j.name]
+        F, q0 = joint_frame[j.name], q_init[j.name]
+        p0, axis = F[:3, 3], F[:3, :3] @ j.axis
         sliding = j.type == 'prismatic'
         aim_key, effort_key, value_key = (('aim_distance', 'external_force', 'force') if sliding
                                           else ('aim_angle', 'external_torque', 'torque'))
@@ -744,11 +716,9 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
 
 def _decode(raw: bytes, name: str) -> str:
     """URDF bytes as text: the encoding its XML declaration names (UTF-8 by default)."""
-    encoding = 'utf-8'
     head = re.match(rb'\s*<\?xml[^>]*?encoding\s*=\s*["\']([A-Za-z0-9._-]+)["\']',
                     raw.lstrip(b'\xef\xbb\xbf')[:200])
-    if head:
-        encoding = head.group(1).decode('ascii')
+    encoding = head.group(1).decode('ascii') if head else 'utf-8'
     try:
         text = raw.decode(encoding)
     except LookupError:
@@ -817,8 +787,7 @@ def resolve_package_uri(uri: str, base_dir: str) -> str:
 
 
 def _finite_number(value) -> bool:
-    """An int or float (not a bool) that is finite as a float: an integer too large for a float
-    (10**400) is not, rather than an OverflowError out of math.isfinite."""
+    """An int or float (not a bool), finite as a float (10**400 is not: no OverflowError)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return False
     try:
