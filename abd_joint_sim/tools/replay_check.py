@@ -117,6 +117,7 @@ class _Comparer(LoopOutput):
         self.recorded = recorded          # list per segment: {t_ns: [RecordedState]}
         self.sim = sim
         self.names = list(sim.world.joint_names)
+        self.index = {n: i for i, n in enumerate(self.names)}
         self.seen: set[tuple[int, int]] = set()
         self.due: list[tuple[int, int]] = []     # (segment, stamp) the schedule published
 
@@ -130,10 +131,8 @@ class _Comparer(LoopOutput):
         if not states:
             return
         self.seen.add((segment, t_ns))
-        names = self.names
-        index = {n: i for i, n in enumerate(names)}
+        names, index, res = self.names, self.index, self.result
         values = {'position': position, 'velocity': velocity, 'effort': effort}
-        res = self.result
         for rec in states:
             res.compared += 1
             res.joints = max(res.joints, len(rec.names))
