@@ -390,13 +390,12 @@ def _set_path(data: dict, path: str, value: Any) -> None:
             if last:
                 raise SceneError(f'{path}: names a whole item; name one of its fields')
             cur = items[0]
+        elif isinstance(cur, dict) and last:
+            cur[part] = copy.deepcopy(value)
         elif isinstance(cur, dict):
-            if last:
-                cur[part] = copy.deepcopy(value)
-            else:
-                if cur.get(part) is None:
-                    cur[part] = {}
-                cur = cur[part]
+            if cur.get(part) is None:
+                cur[part] = {}
+            cur = cur[part]
         else:
             raise SceneError(f'{path}: unknown path: {".".join(parts[:k])} is a value '
                              f'({cur!r}), not a mapping or list')
