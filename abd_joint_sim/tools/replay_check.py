@@ -23,7 +23,6 @@ PROG = 'replay_check'
 DEFAULT_ATOL = {'position': 1e-6, 'velocity': 1e-5, 'effort': 1e-9}
 UNITS = {'position': 'rad', 'velocity': 'rad/s', 'effort': 'N m'}
 FIELDS = ('position', 'velocity', 'effort')
-ReplayInputError = cli.InputError       # unusable input (exit status 2)
 
 
 @dataclass
@@ -160,7 +159,7 @@ class _Comparer(LoopOutput):
 
 
 def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
-    """Re-simulate `bag` and compare; :class:`ReplayInputError` if the bag is unusable."""
+    """Re-simulate `bag` and compare; cli.InputError (exit status 2) if the bag is unusable."""
     from abd_joint_sim.errors import SceneError, SimulationError
 
     from .bagrun import BagInputError, config_for, load_bag, scene_from_text
@@ -180,14 +179,14 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
         except ValueError:
             ok = False
         if not ok:
-            raise ReplayInputError(
+            raise cli.InputError(
                 f'{bag}: stored time step {stored_dt} differs from the one the stored scene '
                 f'and parameters give ({sim.world.dt!r})')
     with cli.input_errors(ScheduleError,
                           prefix=f'{bag}: recorded command does not fit the stored scene: '):
         check_plan(run.plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
     if run.state_count == 0:
-        raise ReplayInputError(f'{bag}: no /joint_states messages to compare')
+        raise cli.InputError(f'{bag}: no /joint_states messages to compare')
     result = ReplayResult(bag=bag, scene_name=scene.name or run.scene_path, dt=sim.world.dt,
                           segments=len(run.plan.segments), steps=0,
                           commands=run.command_count, recorded=run.state_count)
