@@ -30,16 +30,13 @@ class RealTimePacer:
     def __init__(self, loop: Any, speed: float = 1.0, end_ns: Optional[int] = None):
         self.loop = loop
         self.speed = float(speed)
-        self.end_ns = end_ns
-        self.seekable = end_ns is not None
+        self.end_ns = end_ns            # None: not seekable
         self.live = None
         self._lock = threading.Lock()
-        self._paused = False
+        self._paused = self._restart = self.ended = False
         self._steps_allowed = 0
         self._anchor: Optional[tuple[float, float]] = None     # (wall, simulated time)
         self.seek_ns: Optional[int] = None
-        self._restart = False
-        self.ended = False
 
     def services(self) -> dict:
         return {'pause': self._pause, 'unpause': self._unpause, 'step': self._step,
@@ -68,7 +65,7 @@ class RealTimePacer:
         return True, f'one step from t={self.loop.world.time:.6f} s'
 
     def _reset(self):
-        if not self.seekable:
+        if self.end_ns is None:
             return False, 'a headless run records one run into its bag: no reset (run it again)'
         self.seek(0)
         return True, 'replaying from t=0'
@@ -106,7 +103,7 @@ class RealTimePacer:
 
     def _broadcast(self, did_seek: bool = False) -> None:
         server = getattr(self.live, '_server', None)
-        if self.seekable and server is not None:
+        if self.end_ns is not None and server is not None:
             server.broadcast_playback_state(self.playback_state(None, did_seek))
 
     # --------------------------------------------------------------------- pacing ----

@@ -68,8 +68,7 @@ class LiveServer:
                  playback_end_ns: int = 0):
         self.port = check_port(port)
         self.host = (host or DEFAULT_HOST).strip()
-        self.name = name
-        self.source = source
+        self.name, self.source = name, source
         self.log = log or (lambda level, text: None)
         self.joint_names = list(joint_names)
         self.frames = FrameBuilder(scene, world_frame)
@@ -85,14 +84,11 @@ class LiveServer:
         self._subscriptions = 0
         self._sub_lock = threading.Lock()
         self._scene_due = True
-        self._scene_wall = -math.inf
-        self._last_wall = -math.inf
-        self._period = 1.0 / LIVE_RATE_HZ
+        self._scene_wall = self._last_wall = -math.inf
         self._rtf = 0.0
         self._rtf_anchor: Optional[tuple[float, float]] = None
         self._names_json = json.dumps(self.joint_names)
-        self._server = None
-        self._http = None
+        self._server = self._http = None
 
     # ------------------------------------------------------------------ start/stop ----
     def start(self) -> 'LiveServer':
@@ -200,7 +196,7 @@ class LiveServer:
             self.refresh_due = False
             return False
         now = time.monotonic()
-        if not force and now - self._last_wall < self._period:
+        if not force and now - self._last_wall < 1.0 / LIVE_RATE_HZ:
             return False
         self.refresh_due = False
         self._last_wall = now

@@ -134,15 +134,12 @@ def load_bag(path: str | os.PathLike[str]) -> RecordedRun:
     ends: list[int] = [0]
     offset = [0]            # log time - simulated time in the current segment
 
-    def new_segment() -> None:
-        segments.append(Segment())
-        states.append({})
-        ends.append(0)
-        last.clear()
-
     def step_marker(kind: str, t_ns: int, log_ns: int) -> None:
-        if kind in last and t_ns <= last[kind]:
-            new_segment()
+        if kind in last and t_ns <= last[kind]:     # a new segment
+            segments.append(Segment())
+            states.append({})
+            ends.append(0)
+            last.clear()
         if not last:        # the segment's first step: its log-time offset
             offset[0] = log_ns - t_ns
         last[kind] = t_ns

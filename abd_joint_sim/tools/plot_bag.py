@@ -131,6 +131,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
     they were written. Log time is simulated time since the recording began (it runs on
     across a reset); a reset is where the simulation's own stamps (joint states, markers)
     go back. (Bags whose log times restart at 0 at a reset are laid end to end.)"""
+    from abd_joint_sim.ros.convert import time_msg_to_ns
     from abd_joint_sim.tools.bagrun import _iter_file_order, _STATES, BagInputError
     run = Run()
     offset = 0.0          # simulated time of earlier segments (log times restarting at 0)
@@ -144,8 +145,7 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
             # simulated time: the stamp of a JointState or of a MarkerArray's first marker
             header = msg.header if is_state else \
                 msg.markers[0].header if kind and msg.markers else None
-            stamp = None if header is None else header.stamp.sec * 1_000_000_000 + \
-                header.stamp.nanosec
+            stamp = None if header is None else time_msg_to_ns(header.stamp)
             restarted = log_ns < last       # log time restarted from 0 at a reset
             if restarted:
                 offset += last * 1e-9
@@ -185,6 +185,11 @@ def read_run(bag: str | os.PathLike[str]) -> Run:
     return run
 
 
+def _position(marker) -> list[float]:
+    p = marker.pose.position
+    return [p.x, p.y, p.z]
+
+
 def body_styles(run: Run) -> dict[str, tuple[Any, bool]]:
     """{body: (colour, fixed)} in the order the bodies' markers first appear: a colour of
     its own for each moving body, FIXED_COLOUR for the fixed ones (from the stored scene; a
@@ -193,8 +198,7 @@ def body_styles(run: Run) -> dict[str, tuple[Any, bool]]:
     for _, arr in run.markers:
         for m in arr.markers:
             if m.ns.startswith('bodies/'):
-                p = m.pose.position
-                where.setdefault(m.ns.split('/', 1)[1], []).append((p.x, p.y, p.z))
+                where.setdefault(m.ns.split('/', 1)[1], []).append(_position(m))
     out = {}
     for name, points in where.items():
         fixed = name in run.fixed_bodies if run.fixed_bodies is not None else \
@@ -216,8 +220,7 @@ def trails(run: Run, k: int) -> dict[tuple[str, int], list[tuple[float, list[flo
             continue
         for m in earlier.markers:
             if m.ns.startswith('bodies/'):
-                p = m.pose.position
-                out.setdefault((m.ns, m.id), []).append((te, [p.x, p.y, p.z]))
+                out.setdefault((m.ns, m.id), []).append((te, _position(m)))
     return out
 
 
@@ -283,8 +286,7 @@ def _outline(marker) -> Optional[np.ndarray]:
         local = np.concatenate([ring + [0, 0, s[2]], ring - [0, 0, s[2]]])
     else:
         return None
-    p = marker.pose.position
-    return local @ _quat_matrix(marker.pose.orientation).T + [p.x, p.y, p.z]
+    return local @ _quat_matrix(marker.pose.orientation).T + _position(marker)
 
 
 def _hull(points: np.ndarray) -> np.ndarray:
@@ -296,17 +298,14 @@ def _hull(points: np.ndarray) -> np.ndarray:
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
-    lower: list = []
-    upper: list = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    return np.array(lower[:-1] + upper[:-1])
+    def chain(ordered) -> list:     # the lower (upper) half, without its last point
+        out: list = []
+        for p in ordered:
+            while len(out) >= 2 and cross(out[-2], out[-1], p) <= 0:
+                out.pop()
+            out.append(p)
+        return out[:-1]
+    return np.array(chain(pts) + chain(reversed(pts)))
 
 
 def _mesh_box_points(run: Run, marker) -> Optional[np.ndarray]:
@@ -318,10 +317,8 @@ def _mesh_box_points(run: Run, marker) -> Optional[np.ndarray]:
         return None
     origins, sides, com, axes = entry
     t_v, R_v = origins[marker.id]
-    R_m = _quat_matrix(marker.pose.orientation)
-    p = marker.pose.position
-    R_b = R_m @ R_v.T
-    p_b = np.array([p.x, p.y, p.z]) - R_b @ t_v
+    R_b = _quat_matrix(marker.pose.orientation) @ R_v.T
+    p_b = np.array(_position(marker)) - R_b @ t_v
     local = _CORNERS * (sides / 2.0)
     return (local @ axes.T + com) @ R_b.T + p_b
 
@@ -329,8 +326,7 @@ def _mesh_box_points(run: Run, marker) -> Optional[np.ndarray]:
 def choose_view(run: Run) -> str:
     """The plane ('xy', 'xz', 'yz') normal to the axis the marker positions vary least
     along: the plane the bodies move in."""
-    pos = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
-                    for _, arr in run.markers for m in arr.markers
+    pos = np.array([_position(m) for _, arr in run.markers for m in arr.markers
                     if m.ns.startswith('bodies/')])
     if len(pos) == 0:
         return 'xy'
@@ -368,8 +364,7 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
                 pts = _mesh_box_points(run, m)
             if pts is not None:
                 all_pts.append(pts[:, [i, j]])
-            p = m.pose.position
-            all_pts.append(np.array([[p.x, p.y, p.z]])[:, [i, j]])
+            all_pts.append(np.array([_position(m)])[:, [i, j]])
     all_pts = np.concatenate(all_pts)
     lo, hi = all_pts.min(axis=0), all_pts.max(axis=0)
     pad = 0.05 * max(hi - lo) + 1e-3
@@ -384,14 +379,11 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
                              squeeze=False, constrained_layout=True)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
-    drawn = []
-    labelled: set = set()
-    boxed: set = set()
+    drawn, labelled, boxed = [], set(), set()
     for ax, k in zip(axes.ravel(), chosen):
         t, arr = run.markers[k]
         drawn.append(t)
-        # Thin trail: where each moving body's markers were over the last TRAIL_SECONDS (in
-        # this segment), in the body's colour.
+        # each moving body's trail (see trails()) as a thin line in its colour
         for (ns, _), path_pts in trails(run, k).items():
             xy = np.array([p for _, p in path_pts])[:, [i, j]]
             colour, fixed = styles.get(ns.split('/', 1)[1], ('0.35', False))
@@ -402,7 +394,7 @@ def plot_poses(plt, run: Run, path: Path, title: str, view: str,
             colour, fixed = styles.get(name, ('k', False))
             label = None if not name or name in labelled else \
                 (f'{name} (fixed)' if fixed else name)
-            p = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+            p = _position(m)
             if m.type == Marker.ARROW and len(m.points) == 2:
                 a, b = ([q.x, q.y, q.z] for q in m.points)
                 ax.annotate('', xy=(b[i], b[j]), xytext=(a[i], a[j]),

@@ -23,7 +23,6 @@ PROG = 'replay_check'
 DEFAULT_ATOL = {'position': 1e-6, 'velocity': 1e-5, 'effort': 1e-9}
 UNITS = {'position': 'rad', 'velocity': 'rad/s', 'effort': 'N m'}
 FIELDS = ('position', 'velocity', 'effort')
-ReplayInputError = cli.InputError       # unusable input (exit status 2)
 
 
 @dataclass
@@ -117,6 +116,7 @@ class _Comparer(LoopOutput):
         self.recorded = recorded          # list per segment: {t_ns: [RecordedState]}
         self.sim = sim
         self.names = list(sim.world.joint_names)
+        self.index = {n: i for i, n in enumerate(self.names)}
         self.seen: set[tuple[int, int]] = set()
         self.due: list[tuple[int, int]] = []     # (segment, stamp) the schedule published
 
@@ -130,10 +130,8 @@ class _Comparer(LoopOutput):
         if not states:
             return
         self.seen.add((segment, t_ns))
-        names = self.names
-        index = {n: i for i, n in enumerate(names)}
+        names, index, res = self.names, self.index, self.result
         values = {'position': position, 'velocity': velocity, 'effort': effort}
-        res = self.result
         for rec in states:
             res.compared += 1
             res.joints = max(res.joints, len(rec.names))
@@ -161,7 +159,7 @@ class _Comparer(LoopOutput):
 
 
 def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
-    """Re-simulate `bag` and compare; :class:`ReplayInputError` if the bag is unusable."""
+    """Re-simulate `bag` and compare; cli.InputError (exit status 2) if the bag is unusable."""
     from abd_joint_sim.errors import SceneError, SimulationError
 
     from .bagrun import BagInputError, config_for, load_bag, scene_from_text
@@ -181,14 +179,14 @@ def replay(bag: str, atol: Optional[dict[str, float]] = None) -> ReplayResult:
         except ValueError:
             ok = False
         if not ok:
-            raise ReplayInputError(
+            raise cli.InputError(
                 f'{bag}: stored time step {stored_dt} differs from the one the stored scene '
                 f'and parameters give ({sim.world.dt!r})')
     with cli.input_errors(ScheduleError,
                           prefix=f'{bag}: recorded command does not fit the stored scene: '):
         check_plan(run.plan, sim.actuated, sim.commands.order, sim.fresh_buffer())
     if run.state_count == 0:
-        raise ReplayInputError(f'{bag}: no /joint_states messages to compare')
+        raise cli.InputError(f'{bag}: no /joint_states messages to compare')
     result = ReplayResult(bag=bag, scene_name=scene.name or run.scene_path, dt=sim.world.dt,
                           segments=len(run.plan.segments), steps=0,
                           commands=run.command_count, recorded=run.state_count)

@@ -157,8 +157,7 @@ def _run(args) -> int:
     try:
         sim.run(plan, recorder, pace=pace)
     except (SimulationError, ArithmeticError, ValueError) as exc:
-        # ArithmeticError/ValueError (LinAlgError is one): a solver failure the world did not
-        # wrap; still one line, and the bag stays readable.
+        # a solver failure the world did not wrap (LinAlgError is a ValueError): one line
         what = str(exc) if isinstance(exc, SimulationError) else f'{type(exc).__name__}: {exc}'
         print(f'{PROG}: error: step at t={sim.world.time:.6f} s failed: {what}; the bag '
               f'ends there', file=sys.stderr)

@@ -117,7 +117,9 @@ class HeadlessSim:
 
 class BagRecorder(LoopOutput):
     """Loop output writing sim_node's bag layout (:class:`~abd_joint_sim.ros.recording.
-    Recording`, as the node does), plus ``/diagnostics`` once per simulated second."""
+    Recording`, as the node does), plus ``/diagnostics`` once per simulated second.
+    `reproducible`: the same bytes on every run (attachment time 0, the padding of the
+    messages it serialises zeroed, no wall-clock value: real_time_factor_achieved 0)."""
 
     markers_wanted = True
     # /clock, the joint states and the markers as the node records them: the same checked
@@ -126,16 +128,16 @@ class BagRecorder(LoopOutput):
 
     def __init__(self, path: str, sim: HeadlessSim, scene_path: str, scene_text: str,
                  extra_custom: Optional[dict[str, str]] = None, urdf_text: str = '',
-                 attachment_time_ns: Optional[int] = None, zero_padding: bool = False):
-        self.sim = sim
+                 reproducible: bool = False):
+        self.sim, self.reproducible = sim, reproducible
         self._clock = convert.ClockEncoder()
         self._joint_state = convert.JointStateEncoder(sim.loop.joint_names, sim.config.frame_id)
         bag_data = bag_custom_data(sim.config, scene_path, scene_text, sim.world.dt,
                                    sim.commands.order, extra_custom, urdf_text)
         self.recording = Recording.open(path, bag_data, sim.actuated, resolve_root, NODE_FQN,
                                         markers=sim.loop.markers is not None,
-                                        attachment_time_ns=attachment_time_ns,
-                                        zero_padding=zero_padding)
+                                        attachment_time_ns=0 if reproducible else None,
+                                        zero_padding=reproducible)
         self.counts = self.recording.counts
         rec = self.recording        # what the loop hands on unchanged
         self.batch_begin, self.batch_end, self.markers = rec.batch_begin, rec.batch_end, rec.markers
@@ -157,9 +159,10 @@ class BagRecorder(LoopOutput):
 
     def diagnostics(self, t_ns: int) -> None:
         wall = max(time.monotonic() - self._wall0, 1e-9)
+        rtf = 0.0 if self.reproducible else float(self.sim.world.time) / wall
         self.recording.write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
             t_ns, f'{NODE_NAME}: solver', real_time_factor_requested=0.0,
-            real_time_factor_achieved=float(self.sim.world.time) / wall, recording=True))
+            real_time_factor_achieved=rtf, recording=True))
 
     def close(self) -> None:
         self.recording.close()

@@ -39,8 +39,6 @@ RANDOM_KINDS = ('uniform', 'normal', 'choice')
 STATUSES = ('ok', 'fault', 'error', 'died')
 INSTALL_HINT = ("Ray is not installed: pip install -r requirements-sweep.txt (or "
                 "pip install 'abd_joint_sim[sweep]'), or run serially with --in-process")
-ATTACHMENT_TIME_NS = 0
-"""The bags' attachment time: fixed, so a case's bag is the same bytes on every worker."""
 
 
 class SpecError(cli.InputError):
@@ -375,11 +373,6 @@ def case_name(index: int, total: int) -> str:
     return f'case_{index:0{max(4, len(str(total - 1)))}d}'
 
 
-def _describe(index: int, values: dict) -> str:
-    shown = ', '.join(f'{p} = {v!r}' for p, v in values.items())
-    return f'case {index}' + (f' ({shown})' if shown else '')
-
-
 def _set_path(data: dict, path: str, value: Any) -> None:
     """data[path] = value: mapping keys by name, list items (bodies, joints) by their name.
     Missing mapping keys are created (the scene format decides whether they are allowed)."""
@@ -397,13 +390,12 @@ def _set_path(data: dict, path: str, value: Any) -> None:
             if last:
                 raise SceneError(f'{path}: names a whole item; name one of its fields')
             cur = items[0]
+        elif isinstance(cur, dict) and last:
+            cur[part] = copy.deepcopy(value)
         elif isinstance(cur, dict):
-            if last:
-                cur[part] = copy.deepcopy(value)
-            else:
-                if cur.get(part) is None:
-                    cur[part] = {}
-                cur = cur[part]
+            if cur.get(part) is None:
+                cur[part] = {}
+            cur = cur[part]
         else:
             raise SceneError(f'{path}: unknown path: {".".join(parts[:k])} is a value '
                              f'({cur!r}), not a mapping or list')
@@ -457,12 +449,12 @@ def check_case(setup: Setup, index: int, values: dict) -> None:
                                driven=[j.name for j in scene.joints if j.driving is not None])
         check_plan(setup.plan, actuated, buffer.order, buffer)
     except ((ValueError, KeyError, TypeError) if setup.runner else ValueError) as exc:
-        raise SpecError(f'{_describe(index, values)}: {exc}') from None   # (SceneError too)
+        shown = ', '.join(f'{p} = {v!r}' for p, v in values.items())   # (SceneError too)
+        raise SpecError(f'case {index}' + (f' ({shown})' if shown else '') + f': {exc}') from None
 
 
 def _outputs():
-    """The loop outputs of a case, defined when used (they import the ROS messages; not
-    lru_cache'd: that would not reach a Ray worker when this module runs as __main__)."""
+    """The loop outputs of a case, defined when used (they import the ROS messages)."""
     from abd_joint_sim.ros.loop import LoopOutput
     from .sim import BagRecorder
 
@@ -492,22 +484,12 @@ def _outputs():
             pass
 
     class CaseBag(BagRecorder, Metrics):
-        """run_headless's bag with the statistics, the same bytes on every worker and run:
-        diagnostics carry no wall-clock value (real_time_factor_achieved 0), the messages
-        it serialises have their padding zeroed."""
+        """run_headless's bag with the statistics, the same bytes on every worker and run."""
 
         def __init__(self, path, sim, scene_path, scene_text, extra_custom, urdf_text):
             Metrics.__init__(self, sim)
             BagRecorder.__init__(self, path, sim, scene_path, scene_text, extra_custom,
-                                 urdf_text=urdf_text, attachment_time_ns=ATTACHMENT_TIME_NS,
-                                 zero_padding=True)
-
-        def diagnostics(self, t_ns: int) -> None:
-            from abd_joint_sim.ros.params import NODE_NAME
-            from abd_joint_sim.ros.topics import TOPIC_DIAGNOSTICS
-            self.recording.write(TOPIC_DIAGNOSTICS, t_ns, self.sim.loop.diagnostics_msg(
-                t_ns, f'{NODE_NAME}: solver', real_time_factor_requested=0.0,
-                real_time_factor_achieved=0.0, recording=True))
+                                 urdf_text=urdf_text, reproducible=True)
 
     return Metrics, CaseBag
 
@@ -885,10 +867,9 @@ def run_spec(data: dict, out: str | Path, *, workers: Optional[int] = None,
 
 
 def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
-    if args.workers is not None and args.workers < 1:
-        raise SpecError(f'--workers {args.workers}: must be >= 1')
-    if args.max_cases is not None and args.max_cases < 1:
-        raise SpecError(f'--max-cases {args.max_cases}: must be >= 1')
+    for flag, value in (('--workers', args.workers), ('--max-cases', args.max_cases)):
+        if value is not None and value < 1:
+            raise SpecError(f'{flag} {value}: must be >= 1')
     if args.in_process and args.address:
         raise SpecError('--in-process and --address exclude each other')
     if not args.in_process:
@@ -911,8 +892,7 @@ def _run(args, argv, make_spec: Optional[Callable[[], Spec]] = None) -> int:
             rows[name] = row
         else:
             jobs.append(Job(k, name, values, bag))
-    engine = None
-    engine_name = 'in-process (serial)'
+    engine, engine_name = None, 'in-process (serial)'
     if jobs and not args.in_process:            # connect before anything is written
         _export_pythonpath()
         _probe_address(args.address)
