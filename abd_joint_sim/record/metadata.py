@@ -9,15 +9,13 @@ from typing import Any
 
 import yaml
 
-VERSION = 9
-"""rosbag2 metadata version written by Jazzy."""
+VERSION = 9     #: rosbag2 metadata version written by Jazzy
 
 ROS_DISTRO = 'jazzy'
 STORAGE_IDENTIFIER = 'mcap'
 SERIALIZATION_FORMAT = 'cdr'
 
-INFINITE = {'sec': 9223372036, 'nsec': 854775807}
-"""``RMW_DURATION_INFINITE`` as rosbag2 serialises it."""
+INFINITE = {'sec': 9223372036, 'nsec': 854775807}    #: ``RMW_DURATION_INFINITE`` in rosbag2
 
 RELIABILITIES = ('reliable', 'best_effort')
 
