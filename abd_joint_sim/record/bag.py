@@ -324,15 +324,14 @@ class BagWriter:
             raise self._error(f"topic '{topic}': {exc}") from None
         type_hash = type_description_hash(full_type)
         record = md.TopicRecord(topic, full_type, [profile], type_hash)
-        channel_meta = {'offered_qos_profiles': md.dump_qos_profiles(record.qos_profiles),
-                        'topic_type_hash': type_hash}
         try:
             if full_type not in self._schema_ids:
                 self._schema_ids[full_type] = self._writer.register_schema(
                     name=full_type, encoding='ros2msg', data=schema_text.encode('utf-8'))
             channel_id = self._writer.register_channel(
                 topic=topic, message_encoding=md.SERIALIZATION_FORMAT,
-                schema_id=self._schema_ids[full_type], metadata=channel_meta)
+                schema_id=self._schema_ids[full_type],
+                metadata=md.channel_metadata(record.qos_profiles, type_hash))
         except OSError as exc:
             raise self._fail(f"registering topic '{topic}' failed: {exc}") from None
         self._topics[topic] = _Topic(record, channel_id, cls)

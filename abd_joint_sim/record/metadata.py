@@ -54,9 +54,11 @@ def dump_yaml(data: Any) -> str:
                      allow_unicode=True, width=100)
 
 
-def dump_qos_profiles(profiles: list[dict[str, Any]]) -> str:
-    """Return the channel-metadata string of ``profiles`` (no trailing newline, as yaml-cpp)."""
-    return dump_yaml(profiles).rstrip('\n') if profiles else ''
+def channel_metadata(profiles: list[dict[str, Any]], type_hash: str) -> dict[str, str]:
+    """Return a channel's MCAP metadata: its QoS ``profiles`` (no trailing newline, as
+    yaml-cpp) and its type hash."""
+    return {'offered_qos_profiles': dump_yaml(profiles).rstrip('\n') if profiles else '',
+            'topic_type_hash': type_hash}
 
 
 def load_qos_profiles(text: str) -> list[dict[str, Any]]:

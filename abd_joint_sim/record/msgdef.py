@@ -58,12 +58,6 @@ def _share_file(msg_type: str, suffix: str) -> Path:
     return path
 
 
-@functools.cache
-def msg_text(msg_type: str) -> str:
-    """Return the installed ``.msg`` text of ``msg_type``, byte for byte."""
-    return _share_file(msg_type, '.msg').read_text(encoding='utf-8')
-
-
 def msg_dependencies(text: str, package: str) -> list[str]:
     """Return the message types a ``.msg`` text uses, sorted, as written (``pkg/Type``);
     unqualified names are resolved in ``package``, as in ``rosidl_adapter``."""
@@ -88,7 +82,7 @@ def message_definition(msg_type: str) -> str:
     def expand(name: str, depth: int) -> str:
         if depth <= 0:
             raise MessageTypeError(f"message type '{msg_type}': dependency cycle at '{name}'")
-        out = text = msg_text(name)
+        out = text = _share_file(name, '.msg').read_text(encoding='utf-8')
         for dep in msg_dependencies(text, split_type(name)[0]):
             if dep not in seen:
                 seen.add(dep)

@@ -182,10 +182,8 @@ def _rebuild_channels(found: _Found, info: dict[str, Any]) -> list[str]:
             next_schema += 1
         found.channels[cid] = Channel(
             id=cid, topic=name, message_encoding=md.SERIALIZATION_FORMAT,
-            schema_id=schema.id, metadata={
-                'offered_qos_profiles': md.dump_qos_profiles(qos if isinstance(qos, list)
-                                                             else []),
-                'topic_type_hash': type_hash})
+            schema_id=schema.id,
+            metadata=md.channel_metadata(qos if isinstance(qos, list) else [], type_hash))
         rebuilt.append(name)
     return rebuilt
 
