@@ -112,13 +112,11 @@ def scan(file: str | os.PathLike[str]) -> list[Damage]:
     """The damage found in `file`, in file order (none: it is intact and complete)."""
     path = Path(file)
     try:
-        with open(path, 'rb') as handle:
-            size = os.fstat(handle.fileno()).st_size
-            if size == 0:
-                return [Damage('file', 0, 'it is empty (0 bytes)')]
-            data = handle.read()
+        data = path.read_bytes()
     except OSError as exc:
         raise BagError(f"bag file '{path}': {exc.strerror or exc}") from None
+    if not data:
+        return [Damage('file', 0, 'it is empty (0 bytes)')]
     return _scan(memoryview(data), len(data))
 
 
