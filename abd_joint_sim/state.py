@@ -57,17 +57,13 @@ class State:
                    np.zeros(model.joint_count))
 
     def copy(self) -> 'State':
+        """A deep copy; the warm starts that are the same array stay one array."""
+        w = self.warm_start.copy()
+        p1 = w if self.warm_start_prev is self.warm_start else self.warm_start_prev.copy()
+        p2 = p1 if self.warm_start_prev2 is self.warm_start_prev else self.warm_start_prev2.copy()
         return State(self.time, self.q.copy(), self.v.copy(), self.q_prev.copy(), self.v_prev.copy(),
                      self.joint_angle.copy(), self.joint_velocity.copy(), self.step_count,
-                     self.history_dt, *_copy_history(self))
-
-
-def _copy_history(s: State):
-    """Copies of the three warm starts that keep which of them are the same array."""
-    w = s.warm_start.copy()
-    p1 = w if s.warm_start_prev is s.warm_start else s.warm_start_prev.copy()
-    p2 = p1 if s.warm_start_prev2 is s.warm_start_prev else s.warm_start_prev2.copy()
-    return w, p1, p2
+                     self.history_dt, w, p1, p2)
 
 
 @dataclass

@@ -116,9 +116,8 @@ class World:
     def applied_torques(self) -> np.ndarray:
         """Torque applied at the next step per joint; 0 where disabled or not actuated, and on
         prismatic joints (applied_efforts has their forces). [N m] (J,)"""
-        out = np.zeros(self.model.joint_count)
-        c, T = self.control, len(self.model.torque_joints)
-        out[self.model.torque_joints] = np.where(c.torque_enabled[:T], c.torque_value[:T], 0.0)
+        out = self.applied_efforts()
+        out[self.model.prismatic_force_joints] = 0.0
         return out
 
     def applied_efforts(self) -> np.ndarray:
@@ -152,13 +151,13 @@ class World:
         distance). Values beyond the joint's effort_limit are clamped; the applied value is
         returned. A value that is not a number or not finite raises ValueError naming the joint
         and unit, and changes nothing."""
-        k = self._effort_slot.get(joint) if type(joint) is str else None
-        if k is None:
-            self._slot(self._effort_slot, joint, 'external effort (external_torque or '
-                                                 'external_force: not actuated)')   # raises
+        k = self._slot(self._effort_slot, joint, 'external effort (external_torque or '
+                                                 'external_force: not actuated)')
         kind = self._types[self._joint_index[joint]]
-        value = torque.clamp_command(_number(value, joint, f'effort ({EFFORT_UNIT[kind]})'),
-                                     self._effort_limit[k])
+        return self._set_effort(k, value, joint, f'effort ({EFFORT_UNIT[kind]})')
+
+    def _set_effort(self, k: int, value, joint: str, what: str) -> float:
+        value = torque.clamp_command(_number(value, joint, what), self._effort_limit[k])
         self.control.torque_value[k] = value
         return value
 
@@ -173,15 +172,11 @@ class World:
     def set_torque(self, joint: str, value: float) -> float:
         """Set the UID 668 torque of a revolute joint, applied from the next step; as
         `set_effort` (a prismatic joint's force), but refuses a prismatic joint."""
-        k = self._torque_slot.get(joint) if type(joint) is str else None
-        if k is None:
-            if type(joint) is str and joint in self._effort_slot:
-                raise ValueError(f'joint {joint!r} is prismatic: its effort is a force (UID 667, N); '
-                                 'set it with set_effort')
-            self._slot(self._torque_slot, joint, 'external_torque (not actuated)')   # raises
-        value = torque.clamp_command(_number(value, joint, 'torque'), self._effort_limit[k])
-        self.control.torque_value[k] = value
-        return value
+        if type(joint) is str and joint in self._effort_slot and joint not in self._torque_slot:
+            raise ValueError(f'joint {joint!r} is prismatic: its effort is a force (UID 667, N); '
+                             'set it with set_effort')
+        k = self._slot(self._torque_slot, joint, 'external_torque (not actuated)')
+        return self._set_effort(k, value, joint, 'torque')
 
     def set_torques(self, values) -> np.ndarray:
         """Set the effort of every actuated joint at once (UID 668 torque [N m], UID 667 force
@@ -233,12 +228,11 @@ class World:
                              f'|aim| <= {MAX_ABS_AIM:g} {unit}; rejected')
         enabled = None if enabled is None else _flag(enabled, joint, 'enabled')
         passive = None if passive is None else _flag(passive, joint, 'passive')
-        if aim is not None:
-            self.control.drive_aim[k] = aim
-        if enabled is not None:
-            self.control.drive_enabled[k] = enabled
-        if passive is not None:
-            self.control.drive_passive[k] = passive
+        c = self.control
+        for values, value in ((c.drive_aim, aim), (c.drive_enabled, enabled),
+                              (c.drive_passive, passive)):
+            if value is not None:
+                values[k] = value
 
     def reset(self) -> None:
         """Back to the initial state and the scene's initial commands; time 0."""

@@ -9,14 +9,5 @@ from .integrity import BagDamageError
 from .read import read_attachments, read_custom_data, read_messages
 from .recover import recover, RecoveryReport
 
-__all__ = [
-    'BagDamageError',
-    'BagError',
-    'BagWriter',
-    'DEFAULT_CHUNK_SIZE',
-    'read_attachments',
-    'read_custom_data',
-    'read_messages',
-    'recover',
-    'RecoveryReport',
-]
+__all__ = ['BagDamageError', 'BagError', 'BagWriter', 'DEFAULT_CHUNK_SIZE', 'read_attachments',
+           'read_custom_data', 'read_messages', 'recover', 'RecoveryReport']

@@ -28,8 +28,7 @@ from . import cdr, metadata as md
 from .msgdef import (full_type_name, message_class, message_definition, MessageTypeError,
                      type_description_hash)
 
-DEFAULT_CHUNK_SIZE = 64 * 1024
-"""Bytes of (uncompressed) messages per MCAP chunk: at most this much is lost on SIGKILL."""
+DEFAULT_CHUNK_SIZE = 64 * 1024    #: bytes of messages per MCAP chunk: the most a SIGKILL loses
 
 PROFILE = 'ros2'
 LIBRARY = f"abd_joint_sim.record; mcap-python/{version('mcap')}"
@@ -66,7 +65,7 @@ class _FdSink:
         return self.position
 
     def flush(self) -> None:
-        """Nothing is buffered here; ``os.write`` already handed the bytes to the kernel."""
+        """Nothing is buffered here."""
 
 
 _MESSAGE_HEAD = struct.Struct('<BQHIQQ')   # opcode, record length, channel, seq, log, publish
@@ -131,6 +130,16 @@ class _FastMessageIndex(MessageIndex):
         stream.finish_record()
 
 
+def _add_messages(writer: Writer, fast: _FastMessages | None, channel_id: int, stamps,
+                  datas) -> None:
+    if fast is not None:
+        fast.add_many(channel_id, stamps, datas)
+        return
+    for t, data in zip(stamps, datas):
+        writer.add_message(channel_id=channel_id, log_time=t, data=data, publish_time=t,
+                           sequence=0)
+
+
 _FAST_MESSAGES_OK: bool | None = None
 
 
@@ -150,18 +159,11 @@ def fast_messages_work() -> bool:
                 sid = w.register_schema(name='s', encoding='ros2msg', data=b'int32 a')
                 ch = [w.register_channel(topic=f'/t{k}', message_encoding='cdr',
                                          schema_id=sid) for k in range(2)]
-                runs = [(ch[k % 2], (t,), (bytes(range(k % 3 + 10)),)) for k, t in
-                        enumerate((5, 3, 9, 9, 1, 20, 7, 30, 2, 40, 41, 42))]
-                stamps = [50, 49, 60, 61, 62, 63, 70, 71, 72]   # one run across chunks
-                runs.append((ch[1], stamps, [bytes(range(k % 4 + 8)) for k in range(9)]))
                 adder = _FastMessages(w) if fast else None
-                for channel, stamps, datas in runs:
-                    if adder:
-                        adder.add_many(channel, stamps, datas)
-                        continue
-                    for t, data in zip(stamps, datas):
-                        w.add_message(channel_id=channel, log_time=t, data=data,
-                                      publish_time=t, sequence=0)
+                for k, t in enumerate((5, 3, 9, 9, 1, 20, 7, 30, 2, 40, 41, 42)):
+                    _add_messages(w, adder, ch[k % 2], (t,), (bytes(range(k % 3 + 10)),))
+                _add_messages(w, adder, ch[1], [50, 49, 60, 61, 62, 63, 70, 71, 72],
+                              [bytes(range(k % 4 + 8)) for k in range(9)])  # across chunks
                 w.finish()
                 files.append(out.getvalue())
             _FAST_MESSAGES_OK = files[0] == files[1]
@@ -210,13 +212,13 @@ class BagWriter:
         self._attachment_time_ns = attachment_time_ns
         for name, data in self._attachments.items():
             if not isinstance(name, str) or not isinstance(data, (bytes, bytearray)):
-                raise BagError(f"bag '{self.path}': attachment {name!r} must map a str name "
-                               f'to bytes, got {type(data).__name__}')
+                raise self._error(f'attachment {name!r} must map a str name to bytes, got '
+                                  f'{type(data).__name__}')
         if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
-            raise BagError(f"bag '{self.path}': chunk_size {chunk_size!r} is not an int >= 1")
+            raise self._error(f'chunk_size {chunk_size!r} is not an int >= 1')
         if compression not in _COMPRESSION:
-            raise BagError(f"bag '{self.path}': compression '{compression}' is not one of "
-                           f'{sorted(_COMPRESSION)}')
+            raise self._error(f"compression '{compression}' is not one of "
+                              f'{sorted(_COMPRESSION)}')
         self._chunk_size = chunk_size
         self._compression = _COMPRESSION[compression]
         self._summary = md.BagSummary(file_name=self.mcap_path.name)
@@ -239,7 +241,7 @@ class BagWriter:
         except FileExistsError:
             raise BagError(f"bag '{self.path}' exists already, not overwriting") from None
         except OSError as exc:
-            raise BagError(f"bag '{self.path}': cannot create the directory: {exc}") from None
+            raise self._error(f'cannot create the directory: {exc}') from None
         try:
             self._fd = os.open(self.mcap_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL
                                | getattr(os, 'O_CLOEXEC', 0), 0o644)
@@ -260,8 +262,7 @@ class BagWriter:
         except OSError as exc:
             self._release()
             self._state = 'failed'
-            raise BagError(f"bag '{self.path}': cannot write {self.mcap_path.name}: {exc}") \
-                from None
+            raise self._error(f'cannot write {self.mcap_path.name}: {exc}') from None
         self._writer = writer
         self._state = 'open'
         try:
@@ -285,7 +286,7 @@ class BagWriter:
             os.fsync(self._fd)
         except OSError as exc:
             self._fail(f'finishing {self.mcap_path.name} failed: {exc}')
-            raise BagError(f"bag '{self.path}': {self.error}") from None
+            raise self._error(self.error) from None
         finally:
             self._release()
             self._state = 'closed'
@@ -309,29 +310,28 @@ class BagWriter:
         """
         self._require_open(topic)
         if not isinstance(topic, str) or not topic.startswith('/'):
-            raise BagError(f"bag '{self.path}': topic {topic!r} is not a fully qualified name "
-                           "(it must start with '/')")
+            raise self._error(f"topic {topic!r} is not a fully qualified name (it must start "
+                              "with '/')")
         if topic in self._topics:
-            raise BagError(f"bag '{self.path}': topic '{topic}' is registered already "
-                           f"(as {self._topics[topic].record.msg_type})")
+            raise self._error(f"topic '{topic}' is registered already (as "
+                              f'{self._topics[topic].record.msg_type})')
         try:
             profile = md.qos_profile(qos, depth)
             full_type = full_type_name(msg_type)
             schema_text = message_definition(full_type)  # names the package if it is missing
             cls = message_class(full_type)
         except (ValueError, MessageTypeError) as exc:
-            raise BagError(f"bag '{self.path}': topic '{topic}': {exc}") from None
+            raise self._error(f"topic '{topic}': {exc}") from None
         type_hash = type_description_hash(full_type)
         record = md.TopicRecord(topic, full_type, [profile], type_hash)
-        channel_meta = {'offered_qos_profiles': md.dump_qos_profiles(record.qos_profiles),
-                        'topic_type_hash': type_hash}
         try:
             if full_type not in self._schema_ids:
                 self._schema_ids[full_type] = self._writer.register_schema(
                     name=full_type, encoding='ros2msg', data=schema_text.encode('utf-8'))
             channel_id = self._writer.register_channel(
                 topic=topic, message_encoding=md.SERIALIZATION_FORMAT,
-                schema_id=self._schema_ids[full_type], metadata=channel_meta)
+                schema_id=self._schema_ids[full_type],
+                metadata=md.channel_metadata(record.qos_profiles, type_hash))
         except OSError as exc:
             raise self._fail(f"registering topic '{topic}' failed: {exc}") from None
         self._topics[topic] = _Topic(record, channel_id, cls)
@@ -351,71 +351,61 @@ class BagWriter:
         if the bytes cannot be written stops the recording."""
         entry = self._entry(topic)
         if type(msg) is not entry.cls:
-            raise BagError(f"bag '{self.path}': topic '{topic}' records "
-                           f'{entry.record.msg_type}, got {type(msg).__module__}.'
-                           f'{type(msg).__name__}')
+            raise self._error(f"topic '{topic}' records {entry.record.msg_type}, got "
+                              f'{type(msg).__module__}.{type(msg).__name__}')
         try:
             data = cdr.trimmed(serialize_message(msg), msg)   # the stream, not rmw's slack
         except Exception as exc:  # rclpy raises TypeError/ValueError/RuntimeError variants
-            raise BagError(f"bag '{self.path}': topic '{topic}': cannot serialise: {exc}") \
-                from None
-        self._add(topic, entry, stamp_ns, data)
+            raise self._error(f"topic '{topic}': cannot serialise: {exc}") from None
+        self._add(topic, entry, (self._stamp(topic, stamp_ns),), (data,))
 
     def write_serialized(self, topic: str, stamp_ns: int, data: bytes) -> None:
         """Record CDR bytes already serialised for ``topic``'s type (what a publisher sent,
         e.g. sim_node's /clock, convert.ClockEncoder). Same checks and errors as write()."""
         entry = self._entry(topic)
         if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise BagError(f"bag '{self.path}': topic '{topic}': serialized data must be bytes, "
-                           f'got {type(data).__name__}')
-        self._add(topic, entry, stamp_ns, data)
+            raise self._error(f"topic '{topic}': serialized data must be bytes, got "
+                              f'{type(data).__name__}')
+        self._add(topic, entry, (self._stamp(topic, stamp_ns),), (data,))
 
     def write_serialized_many(self, topic: str, stamps: list, datas: list) -> None:
         """``write_serialized(topic, t, data)`` for each pair in order, in one call: the same
         bytes in the bag (sim_node's /clock of a batch of steps, `ros.recording.Recording`)."""
         entry = self._entry(topic)
         if len(stamps) != len(datas):
-            raise BagError(f"bag '{self.path}': topic '{topic}': {len(stamps)} stamps for "
-                           f'{len(datas)} messages')
-        if self._fast is None or not all(type(t) is int and t >= 0 for t in stamps) \
+            raise self._error(f"topic '{topic}': {len(stamps)} stamps for {len(datas)} messages")
+        if not all(type(t) is int and t >= 0 for t in stamps) \
                 or not all(isinstance(d, (bytes, bytearray, memoryview)) for d in datas):
             for t, data in zip(stamps, datas):      # one by one: the same checks and errors
                 self.write_serialized(topic, t, data)
             return
-        if self._log_offset:
-            stamps = [t + self._log_offset for t in stamps]
-        try:
-            self._fast.add_many(entry.channel_id, stamps, datas)
-        except OSError as exc:
-            raise self._fail(f"writing messages on '{topic}' failed: {exc}") from None
-        if stamps:
-            entry.record.message_count += len(stamps)
-            self._summary.add_stamp(min(stamps))
-            self._summary.add_stamp(max(stamps))
+        self._add(topic, entry, stamps, datas)
 
     def _entry(self, topic: str) -> _Topic:
         entry = self._topics.get(topic) if self._state == 'open' else None
         if entry is None:
             self._require_open(topic)
-            raise BagError(f"bag '{self.path}': topic '{topic}' was not added (add_topic)")
+            raise self._error(f"topic '{topic}' was not added (add_topic)")
         return entry
 
-    def _add(self, topic: str, entry, stamp_ns: int, data) -> None:
-        if (type(stamp_ns) is not int and (isinstance(stamp_ns, bool)
-                                           or not isinstance(stamp_ns, int))) or stamp_ns < 0:
-            raise BagError(f"bag '{self.path}': topic '{topic}': stamp_ns {stamp_ns!r} is not "
-                           'an int >= 0 (nanoseconds)')
-        stamp_ns += self._log_offset
+    def _stamp(self, topic: str, stamp_ns: Any) -> int:
+        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
+            raise self._error(f"topic '{topic}': stamp_ns {stamp_ns!r} is not an int >= 0 "
+                              '(nanoseconds)')
+        return stamp_ns
+
+    def _add(self, topic: str, entry: _Topic, stamps, datas) -> None:
+        """Add messages of checked stamps and bytes, in order, at log time stamp + offset."""
+        if self._log_offset:
+            stamps = [t + self._log_offset for t in stamps]
         try:
-            if self._fast is not None:
-                self._fast.add_many(entry.channel_id, (stamp_ns,), (data,))
-            else:
-                self._writer.add_message(channel_id=entry.channel_id, log_time=stamp_ns,
-                                         data=data, publish_time=stamp_ns, sequence=0)
+            _add_messages(self._writer, self._fast, entry.channel_id, stamps, datas)
         except OSError as exc:
-            raise self._fail(f"writing a message on '{topic}' failed: {exc}") from None
-        entry.record.message_count += 1
-        self._summary.add_stamp(stamp_ns)
+            raise self._fail(f"writing on '{topic}' failed: {exc}") from None
+        if stamps:
+            entry.record.message_count += len(stamps)
+            self._summary.add_stamp(min(stamps))
+            self._summary.add_stamp(max(stamps))
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the kernel (e.g. when the simulation pauses)."""
@@ -439,10 +429,13 @@ class BagWriter:
         """Messages written so far."""
         return self._summary.message_count
 
+    def _error(self, what: str) -> BagError:
+        return BagError(f"bag '{self.path}': {what}")
+
     def _check_custom(self, key: Any, value: Any) -> None:
         if not isinstance(key, str) or not isinstance(value, str):
-            raise BagError(f"bag '{self.path}': custom_data {key!r}: {value!r} must map str to "
-                           'str (rosbag2 stores strings only)')
+            raise self._error(f'custom_data {key!r}: {value!r} must map str to str (rosbag2 '
+                              'stores strings only)')
 
     def _require_open(self, topic: str | None = None) -> None:
         if self._state == 'open':
@@ -456,8 +449,8 @@ class BagWriter:
         """Stop recording (no further writes) and return the error to raise."""
         self._state = 'failed'
         self.error = reason
-        return BagError(f"bag '{self.path}': {reason}; recording stopped (the chunks written "
-                        'before are kept; see recover())')
+        return self._error(f'{reason}; recording stopped (the chunks written before are kept; '
+                           'see recover())')
 
     def _release(self) -> None:
         self._writer = None
@@ -479,4 +472,4 @@ class BagWriter:
         except OSError as exc:
             if self._state == 'open':
                 raise self._fail(f'writing metadata.yaml failed: {exc}') from None
-            raise BagError(f"bag '{self.path}': writing metadata.yaml failed: {exc}") from None
+            raise self._error(f'writing metadata.yaml failed: {exc}') from None

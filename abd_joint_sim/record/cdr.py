@@ -15,8 +15,7 @@ import importlib
 import struct
 from typing import Any, Iterable, Sequence
 
-HEADER = 4
-"""Bytes of the encapsulation header before the CDR stream."""
+HEADER = 4      #: bytes of the encapsulation header before the CDR stream
 
 _PRIMITIVE = {
     'boolean': 1, 'octet': 1, 'char': 1, 'uint8': 1, 'int8': 1,
@@ -61,9 +60,10 @@ def _plan(cls: type) -> list:
     return plan
 
 
-def message_end(msg: Any, pos: int = 0) -> int:
-    """Position (from the start of the stream) after `msg` serialised from `pos`: :func:`_walk`
-    without its bookkeeping, 2.4 times faster (5 µs for a JointState; BagWriter.write)."""
+def stream_length(msg: Any, pos: int = 0) -> int:
+    """Bytes of the CDR stream of `msg` (without the encapsulation header); the position
+    after it when serialised from `pos`. :func:`_walk` without its bookkeeping, 2.4 times
+    faster (5 µs for a JointState; BagWriter.write)."""
     for attr, kind, n, sub, counted in _plan(type(msg)):
         value = getattr(msg, attr)
         if kind == _PRIM:
@@ -71,7 +71,7 @@ def message_end(msg: Any, pos: int = 0) -> int:
         elif kind == _STR:
             pos += (-pos) % 4 + 5 + len(value.encode('utf-8'))
         elif kind == _MSG:
-            pos = message_end(value, pos)
+            pos = stream_length(value, pos)
         else:
             if counted:
                 pos += (-pos) % 4 + 4
@@ -84,13 +84,8 @@ def message_end(msg: Any, pos: int = 0) -> int:
                     pos += (-pos) % 4 + 5 + len(item.encode('utf-8'))
             else:
                 for item in value:
-                    pos = message_end(item, pos)
+                    pos = stream_length(item, pos)
     return pos
-
-
-def stream_length(msg: Any) -> int:
-    """Bytes of the CDR stream of `msg` (without the encapsulation header)."""
-    return message_end(msg, 0)
 
 
 def trimmed(data: bytes, msg: Any) -> bytes:
@@ -127,7 +122,7 @@ def without_padding(data: bytes, msg: Any) -> bytes:
 
 
 def _walk(msg: Any, pos: int, path: tuple, out: dict, pads: list) -> int:
-    """:func:`message_end` that also notes field offsets (`out`) and padding (`pads`)."""
+    """:func:`stream_length` that also notes field offsets (`out`) and padding (`pads`)."""
     def align(pos: int, n: int) -> int:
         pad = (-pos) % n
         if pad:

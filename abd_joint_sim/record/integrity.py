@@ -1,14 +1,8 @@
-"""Check an MCAP file's framing and every CRC before anything of it is trusted.
-
-:func:`scan` walks the file record by record (no summary needed) and checks the magic at
-both ends, that every record fits in the file, each chunk (it decompresses to
-``uncompressed_size`` bytes matching ``uncompressed_crc`` that frame exactly into records),
-each attachment's CRC, the data-section CRC in DataEnd and the summary CRC in the Footer. A
-stored CRC of 0 ("not computed") is not checked. :func:`check` raises
-:class:`BagDamageError` naming the file, the first damaged record, its byte offset and the
-``bag_recover`` command; its result is cached per file identity (docs/bag-format.md,
-"Damage: what our readers check").
-"""
+"""Check an MCAP file's framing and every CRC before anything of it is trusted, record by
+record (no summary needed): the magic at both ends, every record inside the file and inside
+each chunk, each chunk's size and CRC, each attachment's CRC, the data-section and summary
+CRCs; a stored CRC of 0 ("not computed") is not checked (docs/bag-format.md, "Damage: what
+our readers check")."""
 
 from __future__ import annotations
 
@@ -115,17 +109,14 @@ def _check_attachment(content) -> tuple[str, str]:
 
 
 def scan(file: str | os.PathLike[str]) -> list[Damage]:
-    """Walk `file` record by record and check framing and CRCs (see the module doc); returns
-    the damage found, in file order (none: the file is intact and complete)."""
+    """The damage found in `file`, in file order (none: it is intact and complete)."""
     path = Path(file)
     try:
-        with open(path, 'rb') as handle:
-            size = os.fstat(handle.fileno()).st_size
-            if size == 0:
-                return [Damage('file', 0, 'it is empty (0 bytes)')]
-            data = handle.read()
+        data = path.read_bytes()
     except OSError as exc:
         raise BagError(f"bag file '{path}': {exc.strerror or exc}") from None
+    if not data:
+        return [Damage('file', 0, 'it is empty (0 bytes)')]
     return _scan(memoryview(data), len(data))
 
 
@@ -204,8 +195,9 @@ _checked: dict[tuple, list[Damage]] = {}
 
 
 def check(file: str | os.PathLike[str], bag: str | os.PathLike[str] | None = None) -> None:
-    """Raise :class:`BagDamageError` if `file` is damaged; `bag` (default: the file's
-    directory) is named in the ``bag_recover`` hint."""
+    """Raise :class:`BagDamageError` naming the first damaged record, its byte offset and the
+    ``bag_recover`` command for `bag` (default: the file's directory) if `file` is damaged;
+    the result is cached per file identity."""
     path = Path(file)
     try:
         st = path.stat()

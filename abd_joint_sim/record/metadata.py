@@ -9,15 +9,13 @@ from typing import Any
 
 import yaml
 
-VERSION = 9
-"""rosbag2 metadata version written by Jazzy."""
+VERSION = 9     #: rosbag2 metadata version written by Jazzy
 
 ROS_DISTRO = 'jazzy'
 STORAGE_IDENTIFIER = 'mcap'
 SERIALIZATION_FORMAT = 'cdr'
 
-INFINITE = {'sec': 9223372036, 'nsec': 854775807}
-"""``RMW_DURATION_INFINITE`` as rosbag2 serialises it."""
+INFINITE = {'sec': 9223372036, 'nsec': 854775807}    #: ``RMW_DURATION_INFINITE`` in rosbag2
 
 RELIABILITIES = ('reliable', 'best_effort')
 
@@ -56,9 +54,11 @@ def dump_yaml(data: Any) -> str:
                      allow_unicode=True, width=100)
 
 
-def dump_qos_profiles(profiles: list[dict[str, Any]]) -> str:
-    """Return the channel-metadata string of ``profiles`` (no trailing newline, as yaml-cpp)."""
-    return dump_yaml(profiles).rstrip('\n') if profiles else ''
+def channel_metadata(profiles: list[dict[str, Any]], type_hash: str) -> dict[str, str]:
+    """Return a channel's MCAP metadata: its QoS ``profiles`` (no trailing newline, as
+    yaml-cpp) and its type hash."""
+    return {'offered_qos_profiles': dump_yaml(profiles).rstrip('\n') if profiles else '',
+            'topic_type_hash': type_hash}
 
 
 def load_qos_profiles(text: str) -> list[dict[str, Any]]:

@@ -13,8 +13,7 @@ from typing import Any
 
 from ament_index_python.packages import get_package_share_directory, PackageNotFoundError
 
-DELIMITER = '=' * 80
-"""Line that separates the definitions of the dependencies in a ``ros2msg`` schema."""
+DELIMITER = '=' * 80    #: separates the dependencies' definitions in a ``ros2msg`` schema
 
 # Field types the .msg grammar treats as builtins (rosidl_adapter's PRIMITIVE_TYPES plus the
 # ROS 1 aliases rosbag2's regex also knows). Everything else names a message.
@@ -59,12 +58,6 @@ def _share_file(msg_type: str, suffix: str) -> Path:
     return path
 
 
-@functools.cache
-def msg_text(msg_type: str) -> str:
-    """Return the installed ``.msg`` text of ``msg_type``, byte for byte."""
-    return _share_file(msg_type, '.msg').read_text(encoding='utf-8')
-
-
 def msg_dependencies(text: str, package: str) -> list[str]:
     """Return the message types a ``.msg`` text uses, sorted, as written (``pkg/Type``);
     unqualified names are resolved in ``package``, as in ``rosidl_adapter``."""
@@ -89,7 +82,7 @@ def message_definition(msg_type: str) -> str:
     def expand(name: str, depth: int) -> str:
         if depth <= 0:
             raise MessageTypeError(f"message type '{msg_type}': dependency cycle at '{name}'")
-        out = text = msg_text(name)
+        out = text = _share_file(name, '.msg').read_text(encoding='utf-8')
         for dep in msg_dependencies(text, split_type(name)[0]):
             if dep not in seen:
                 seen.add(dep)
@@ -122,16 +115,8 @@ def full_type_name(msg_type: str) -> str:
 @functools.cache
 def message_class(msg_type: str) -> Any:
     """Return the rclpy message class of ``msg_type`` (e.g. ``sensor_msgs.msg.JointState``)."""
+    package, name = split_type(msg_type)
     try:
-        from rosidl_runtime_py.utilities import get_message  # type: ignore[import-not-found]
-    except ImportError:     # not in the PyPI wheels: import the class directly
-        package, name = split_type(msg_type)
-        try:
-            return getattr(importlib.import_module(f'{package}.msg'), name)
-        except (ImportError, AttributeError) as exc:
-            raise MessageTypeError(f"message type '{msg_type}': no Python class ({exc})") \
-                from None
-    try:
-        return get_message(full_type_name(msg_type))
-    except (AttributeError, ModuleNotFoundError, ValueError) as exc:
-        raise MessageTypeError(f"message type '{msg_type}': {exc}") from None
+        return getattr(importlib.import_module(f'{package}.msg'), name)
+    except (ImportError, AttributeError) as exc:
+        raise MessageTypeError(f"message type '{msg_type}': no Python class ({exc})") from None

@@ -30,38 +30,30 @@ from .read import _metadata, mcap_file
 class DroppedChunk:
     """A chunk left out of the recovered bag."""
 
-    index: int
-    """Its number in the file (0 = the first chunk)."""
-    offset: int
-    """Byte offset of its record in the damaged file."""
+    index: int                  #: its number in the file (0 = the first chunk)
+    offset: int                 #: byte offset of its record in the damaged file
     why: str
-    messages: Optional[int]
-    """Messages it held, from its message indexes (None: not known)."""
+    messages: Optional[int]     #: messages it held, from its message indexes (None: not known)
 
 
 @dataclass(frozen=True)
 class RecoveryReport:
     """What ``recover()`` found, kept and dropped."""
 
-    messages: int
-    """Messages in the recovered bag."""
-    chunks: int
-    """Intact chunks kept."""
+    messages: int               #: messages in the recovered bag
+    chunks: int                 #: intact chunks kept
+    #: bytes after the last readable record (a partial record, or damage that breaks the
+    #: record framing)
     bytes_dropped: int
-    """Bytes after the last readable record (a partial record, or damage that breaks the
-    record framing)."""
-    was_complete: bool
-    """The MCAP was intact and complete; only metadata.yaml was rewritten."""
-    stopped_because: str
-    """Why the scan stopped (``'end of data'`` for a complete file)."""
-    dropped_chunks: tuple[DroppedChunk, ...] = ()
-    """Damaged chunks skipped."""
+    was_complete: bool          #: the MCAP was intact and complete; only metadata.yaml rewritten
+    stopped_because: str        #: why the scan stopped (``'end of data'`` for a complete file)
+    dropped_chunks: tuple[DroppedChunk, ...] = ()       #: damaged chunks skipped
+    #: other damaged records skipped (an attachment whose CRC fails)
     dropped_records: tuple[str, ...] = ()
-    """Other damaged records skipped (an attachment whose CRC fails)."""
+    #: topics whose channel record was lost with a damaged chunk, rebuilt from metadata.yaml
     rebuilt_channels: tuple[str, ...] = ()
-    """Topics whose channel record was lost with a damaged chunk, rebuilt from metadata.yaml."""
-    backups: tuple[str, ...] = field(default=())
-    """Copies of the replaced files (the damaged MCAP, the previous metadata.yaml)."""
+    #: copies of the replaced files (the damaged MCAP, the previous metadata.yaml)
+    backups: tuple[str, ...] = ()
 
     @property
     def messages_dropped(self) -> int:
@@ -190,10 +182,8 @@ def _rebuild_channels(found: _Found, info: dict[str, Any]) -> list[str]:
             next_schema += 1
         found.channels[cid] = Channel(
             id=cid, topic=name, message_encoding=md.SERIALIZATION_FORMAT,
-            schema_id=schema.id, metadata={
-                'offered_qos_profiles': md.dump_qos_profiles(qos if isinstance(qos, list)
-                                                             else []),
-                'topic_type_hash': type_hash})
+            schema_id=schema.id,
+            metadata=md.channel_metadata(qos if isinstance(qos, list) else [], type_hash))
         rebuilt.append(name)
     return rebuilt
 
