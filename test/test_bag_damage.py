@@ -118,6 +118,60 @@ def test_recover_skips_a_damaged_chunk_and_keeps_every_intact_one(tmp_path):
     assert again.returncode == 0 and 'intact and complete already' in again.stdout, again
 
 
+def damage_qos(file: Path, topic: bytes) -> None:
+    """Makes the offered_qos_profiles text of `topic`'s channel record in the summary
+    unparsable YAML (an opening quote never closed), in place, its length kept."""
+    data = bytearray(file.read_bytes())
+    damaged = 0
+    for pos, op, length in records(bytes(data)):
+        record = bytes(data[pos:pos + 9 + length])
+        if op == 0x04 and topic in record:
+            key = record.index(b'offered_qos_profiles')
+            value = pos + key + len(b'offered_qos_profiles') + 4     # (uint32 length first)
+            assert data[value:value + 2] == b'- '
+            data[value] = ord('"')
+            damaged += 1
+    assert damaged == 1, 'the summary holds the channel once (the data section, in a chunk)'
+    file.write_bytes(bytes(data))
+
+
+@pytest.mark.broken_bags
+@pytest.mark.parametrize('with_metadata', [True, False])
+def test_recover_a_channel_whose_qos_text_is_damaged(tmp_path, with_metadata):
+    """A channel whose QoS text is damaged (in the summary, its copy in the first chunk lost
+    with that chunk) is one line of the report at most: the profiles come back from
+    metadata.yaml, or the topic keeps none and the report names it."""
+    bag = tmp_path / 'b'
+    write_bag(bag)
+    file = bag / 'b_0.mcap'
+    times = chunk_times(file)
+    kept = [float(k) for k in range(1000) if not times[0][0] <= k * 1_000_000 <= times[0][1]]
+    flip(file, chunk_offsets(file.read_bytes())[0] + 120)
+    before = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    qos = {t['topic_metadata']['name']: t['topic_metadata']['offered_qos_profiles']
+           for t in before['topics_with_message_count']}
+    assert qos['/e']
+    damage_qos(file, b'/e')
+    if not with_metadata:
+        (bag / 'metadata.yaml').unlink()
+    report = recover(bag)
+    assert values_of(bag) == kept
+    with open(file, 'rb') as f:
+        channels = {c.topic: c for c in make_reader(f).get_summary().channels.values()}
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    after = {t['topic_metadata']['name']: t['topic_metadata']['offered_qos_profiles']
+             for t in info['topics_with_message_count']}
+    got = yaml.safe_load(channels['/e'].metadata['offered_qos_profiles'] or '[]')
+    if with_metadata:
+        assert after['/e'] == qos['/e'] and got == qos['/e']
+        assert report.dropped_records == ()
+    else:
+        assert after['/e'] == [] and got == []
+        assert report.dropped_records == ("the QoS profiles of topic '/e' (damaged, and not "
+                                          'in metadata.yaml)',)
+    assert after['/f'] == qos['/f']
+
+
 @pytest.mark.broken_bags
 def test_recover_never_overwrites_a_backup(tmp_path):
     """An existing ``.orig`` (an earlier backup, or a file of the user's) stays as it is:

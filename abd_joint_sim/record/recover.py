@@ -188,6 +188,31 @@ def _rebuild_channels(found: _Found, info: dict[str, Any]) -> list[str]:
     return rebuilt
 
 
+def _readable_qos(found: _Found, info: dict[str, Any]) -> None:
+    """A channel whose offered_qos_profiles text no longer parses (a damaged byte outside any
+    CRC) takes the profiles metadata.yaml lists for its topic; without those it keeps none,
+    and found.dropped_records says so."""
+    listed = {}
+    for topic in info.get('topics_with_message_count') or []:
+        meta = topic.get('topic_metadata') if isinstance(topic, dict) else None
+        if isinstance(meta, dict) and isinstance(meta.get('offered_qos_profiles'), list):
+            listed[str(meta.get('name'))] = meta['offered_qos_profiles']
+    for cid, channel in found.channels.items():
+        try:
+            md.load_qos_profiles(channel.metadata.get('offered_qos_profiles', ''))
+            continue
+        except yaml.YAMLError:
+            qos = listed.get(channel.topic, [])
+        if not qos:
+            found.dropped_records.append(f"the QoS profiles of topic '{channel.topic}' "
+                                         '(damaged, and not in metadata.yaml)')
+        metadata = {**channel.metadata, **md.channel_metadata(
+            qos, channel.metadata.get('topic_type_hash', ''))}
+        found.channels[cid] = Channel(id=cid, topic=channel.topic, schema_id=channel.schema_id,
+                                      message_encoding=channel.message_encoding,
+                                      metadata=metadata)
+
+
 def _write(fd: int, found: _Found, summary: md.BagSummary,
            custom_data: dict[str, str]) -> None:
     writer = Writer(_FdSink(fd), chunk_size=1024 * 1024, compression=CompressionType.ZSTD,
@@ -277,6 +302,7 @@ def recover(path: str | os.PathLike[str]) -> RecoveryReport:
     if not info.get('custom_data') and found.record_custom:
         custom_data = found.record_custom
     rebuilt = _rebuild_channels(found, info)
+    _readable_qos(found, info)
     tmp = file.with_name(file.name + '.recovering')
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
