@@ -663,7 +663,8 @@ def robot_scene_dict(text: str, source: str, options: dict) -> tuple[dict, list[
 
     movable = [j for j in joints.values() if moving(j)]
     actuated = set(opt.actuated if opt.actuated is not None else [j.name for j in movable])
-    checks = [(n, 'actuated', '; only moving {} joints can be actuated') for n in actuated]
+    checks = [(n, 'actuated', '; only moving {} joints can be actuated')
+              for n in opt.actuated or ()]          # (the first wrong one as listed)
     for name, field, tail in checks + [(n, f'joints.{n}', ', not a moving {} joint')
                                        for n in opt.overrides]:
         if not moving(joints[name]):

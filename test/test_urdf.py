@@ -2,6 +2,8 @@
 checked against hand-computed values, real-world quirks, and errors."""
 import math
 import os
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -247,6 +249,23 @@ def test_mimic_joint_refused_naming_it():
 def test_bad_options_name_what_is_wrong(opts, match):
     with pytest.raises(SceneError, match=match):
         Scene.from_urdf(ARM, **opts)
+
+
+def test_the_first_wrong_actuated_joint_as_listed_is_named():
+    """Two joints that cannot be actuated: the error names the first one listed, whatever
+    Python's string hashing (PYTHONHASHSEED) of that run."""
+    code = ('import sys; from abd_joint_sim import Scene\n'
+            'try:\n'
+            '    Scene.from_urdf(sys.argv[1], lock=["shoulder"], actuated=sys.argv[2:])\n'
+            'except Exception as e:\n'
+            '    print(e)\n')
+    for order in (['tool_mount', 'shoulder'], ['shoulder', 'tool_mount']):
+        for seed in ('0', '1', '2', '3'):
+            env = dict(os.environ, PYTHONHASHSEED=seed)
+            out = subprocess.run([sys.executable, '-c', code, str(ARM), *order], env=env,
+                                 capture_output=True, text=True, timeout=120,
+                                 cwd=str(Path(__file__).resolve().parents[1]))
+            assert f'robot.actuated: joint {order[0]!r} is' in out.stdout, (seed, out)
 
 
 def test_non_physical_inertias_repaired_with_one_warning_each():
