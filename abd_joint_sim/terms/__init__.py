@@ -10,7 +10,11 @@ Every term module holds:
   `accumulate(q, m, ctx, grad, diag, pair, project)`, which returns E(q) with `energy`'s
   bits; CONSTANT_HESSIAN (Newton then adds only `accumulate_gradient`, the Hessian being in
   the constant blocks) and STORED (E/h² is stored energy, World.mechanical_energy);
-- forces without energy, which enter only the prediction q̃: `add_acceleration`.
+- forces without energy, which enter only the prediction q̃: `add_acceleration`;
+- a joint term: EXAMPLE, the scene joint keys that put it on a joint (the warm-up's scene,
+  jit/warmup.py); ANGLE_BUDGET where its Hessian on the joint angle shares the bodies'
+  inertia (model_data.joint_angle_budget); `references` and REFERENCE_COLUMNS where it keeps
+  rows of StepContext.angle_ref per step.
 
 `m` is the compiled model (solver/model_data.py), `ctx` the step's `StepContext`
 (terms/context.py). Hessians go into 12x12 blocks: `diag` (B,12,12) per body, `pair`
