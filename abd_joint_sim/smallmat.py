@@ -18,16 +18,10 @@ JACOBI_TOL = 1e-30
 
 
 @kernel
-def svd3(A, U, S, V):
-    """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
-    AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
-    keep full absolute accuracy. ~50x cheaper than a LAPACK call for a 3x3."""
-    svd3_in(A, U, S, V, np.empty((2, 3, 3)))
-
-
-@kernel
 def svd3_in(A, U, S, V, work):
-    """svd3 with its work array (2,3,3) given (a per-body loop allocates it once)."""
+    """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal), work (2,3,3)
+    scratch: cyclic Jacobi on AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2),
+    so tiny singular values keep full absolute accuracy. ~50x cheaper than LAPACK on a 3x3."""
     Bm = work[0]
     for r in range(3):
         for c in range(3):
@@ -228,17 +222,10 @@ def product3(a, b):
 
 
 @kernel
-def eigh_ql(S, w, V):
-    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
-    EISPACK tred2/tql2 (~n³ flops against Jacobi's ~6 sweeps of 3n³); False, after
-    jacobi_eigh on a copy, if QL does not converge in 30 iterations per eigenvalue."""
-    return eigh_ql_in(S, w, V, np.empty(S.shape[0]))
-
-
-@kernel
 def eigh_ql_in(S, w, V, e):
-    """eigh_ql with its scratch vector e (n,) from the caller: no allocation (the angle
-    terms' 4x4 eigenproblem, once per joint and Newton iteration)."""
+    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix, e (n,) scratch:
+    EISPACK tred2/tql2 (~n³ flops against Jacobi's ~6 sweeps of 3n³); False, after
+    jacobi_eigh on S, if QL does not converge in 30 iterations per eigenvalue."""
     n = S.shape[0]
     for r in range(n):
         for c in range(n):
@@ -314,7 +301,8 @@ def eigh_ql_in(S, w, V, e):
                 break
             it += 1
             if it > 30:
-                return _eigh_fallback(S, w, V)
+                jacobi_eigh(S, w, V)
+                return False
             g = (d[l + 1] - d[l]) / (2.0 * e[l])
             r = math.hypot(g, 1.0)
             g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
@@ -351,12 +339,6 @@ def eigh_ql_in(S, w, V, e):
             e[l] = g
             e[m] = 0.0
     return True
-
-
-@kernel
-def _eigh_fallback(S, w, V):
-    jacobi_eigh(S, w, V)
-    return False
 
 
 @kernel
