@@ -154,23 +154,6 @@ def solve_dense(m, diag, pair, grad, dq, ws):
             dq[free_idx[s], r] = x[12 * s + r]
 
 
-@kernel(inline='always')
-def _factor_entry(W, inv_d, i, j):
-    """Entry (i, j ≤ i) of factor_block's row-by-row loop; False if a pivot is not > 0."""
-    s = W[i, j]
-    for k in range(j):
-        s -= W[i, k] * W[j, k]
-    if j < i:
-        W[i, j] = s * inv_d[j]
-    elif not s > 0.0:
-        return False
-    else:
-        d = math.sqrt(s)
-        W[i, i] = d
-        inv_d[i] = 1.0 / d
-    return True
-
-
 @kernel
 def factor_block(blocks, b, inv_ds, slot):
     """Lower Cholesky factor of the 12x12 W = blocks[b] in place, inv_d = inv_ds[slot] =
@@ -181,15 +164,36 @@ def factor_block(blocks, b, inv_ds, slot):
     W, inv_d = blocks[b], inv_ds[slot]
     for i in range(3):
         for j in range(i + 1):
-            if not _factor_entry(W, inv_d, i, j):
+            s = W[i, j]
+            for k in range(j):
+                s -= W[i, k] * W[j, k]
+            if j < i:
+                W[i, j] = s * inv_d[j]
+            elif not s > 0.0:
                 return False
+            else:
+                d = math.sqrt(s)
+                W[i, i] = d
+                inv_d[i] = 1.0 / d
     for i in range(3, 12):
         for j in range(3):
-            _factor_entry(W, inv_d, i, j)
+            s = W[i, j]
+            for k in range(j):
+                s -= W[i, k] * W[j, k]
+            W[i, j] = s * inv_d[j]
     for i in range(3, 12):
         for j in range(3, i + 1):
-            if not _factor_entry(W, inv_d, i, j):
+            s = W[i, j]
+            for k in range(j):
+                s -= W[i, k] * W[j, k]
+            if j < i:
+                W[i, j] = s * inv_d[j]
+            elif not s > 0.0:
                 return False
+            else:
+                d = math.sqrt(s)
+                W[i, i] = d
+                inv_d[i] = 1.0 / d
     return True
 
 
