@@ -20,44 +20,13 @@ JACOBI_TOL = 1e-30
 @kernel
 def svd3_in(A, U, S, V, work):
     """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal), work (2,3,3)
-    scratch: cyclic Jacobi on AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2),
+    scratch: jacobi_eigh of AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2),
     so tiny singular values keep full absolute accuracy. ~50x cheaper than LAPACK on a 3x3."""
     Bm = work[0]
     for r in range(3):
         for c in range(3):
             Bm[r, c] = A[0, r] * A[0, c] + A[1, r] * A[1, c] + A[2, r] * A[2, c]
-            V[r, c] = 1.0 if r == c else 0.0
-    for sweep in range(12):
-        off = Bm[0, 1] * Bm[0, 1] + Bm[0, 2] * Bm[0, 2] + Bm[1, 2] * Bm[1, 2]
-        dia = Bm[0, 0] * Bm[0, 0] + Bm[1, 1] * Bm[1, 1] + Bm[2, 2] * Bm[2, 2]
-        if off <= JACOBI_TOL * dia:
-            break
-        for pq in range(3):
-            p = 0 if pq < 2 else 1
-            qq = 1 if pq == 0 else 2
-            apq = Bm[p, qq]
-            if apq == 0.0:
-                continue
-            tau = (Bm[qq, qq] - Bm[p, p]) / (2.0 * apq)
-            t = 1.0 / (abs(tau) + math.sqrt(1.0 + tau * tau))
-            if tau < 0.0:
-                t = -t
-            c = 1.0 / math.sqrt(1.0 + t * t)
-            sn = t * c
-            for k in range(3):                       # B <- Jᵀ B J, V <- V J
-                bkp, bkq = Bm[k, p], Bm[k, qq]
-                Bm[k, p] = c * bkp - sn * bkq
-                Bm[k, qq] = sn * bkp + c * bkq
-            for k in range(3):
-                bpk, bqk = Bm[p, k], Bm[qq, k]
-                Bm[p, k] = c * bpk - sn * bqk
-                Bm[qq, k] = sn * bpk + c * bqk
-            for k in range(3):
-                vkp, vkq = V[k, p], V[k, qq]
-                V[k, p] = c * vkp - sn * vkq
-                V[k, qq] = sn * vkp + c * vkq
-            Bm[p, qq] = 0.0
-            Bm[qq, p] = 0.0
+    jacobi_eigh(Bm, S, V, 12)                       # V; S is scratch until the end
     # order by decreasing eigenvalue (insertion sort of 3, columns of V follow)
     for i in range(1, 3):
         k = i
@@ -111,14 +80,14 @@ def svd3_in(A, U, S, V, work):
 
 
 @kernel
-def jacobi_eigh(S, w, V):
-    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi
-    (S is destroyed). Accurate to round-off like LAPACK's syevd, and cheap to compile."""
+def jacobi_eigh(S, w, V, sweeps):
+    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi, at
+    most `sweeps` sweeps (S is left diagonal). Accurate to round-off like LAPACK's syevd."""
     n = S.shape[0]
     for r in range(n):
         for c in range(n):
             V[r, c] = 1.0 if r == c else 0.0
-    for sweep in range(50):
+    for sweep in range(sweeps):
         off = 0.0
         dia = 0.0
         for p in range(n):
@@ -301,7 +270,7 @@ def eigh_ql_in(S, w, V, e):
                 break
             it += 1
             if it > 30:
-                jacobi_eigh(S, w, V)
+                jacobi_eigh(S, w, V, 50)
                 return False
             g = (d[l + 1] - d[l]) / (2.0 * e[l])
             r = math.hypot(g, 1.0)
