@@ -18,52 +18,15 @@ JACOBI_TOL = 1e-30
 
 
 @kernel
-def svd3(A, U, S, V):
-    """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal): cyclic Jacobi on
-    AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2), so tiny singular values
-    keep full absolute accuracy. ~50x cheaper than a LAPACK call for a 3x3."""
-    svd3_in(A, U, S, V, np.empty((2, 3, 3)))
-
-
-@kernel
 def svd3_in(A, U, S, V, work):
-    """svd3 with its work array (2,3,3) given (a per-body loop allocates it once)."""
+    """A = U diag(S) Vᵀ for a 3x3 A (S ≥ 0 descending, U, V orthonormal), work (2,3,3)
+    scratch: jacobi_eigh of AᵀA for V, then U from a Gram-Schmidt QR of A V (u3 = u1 × u2),
+    so tiny singular values keep full absolute accuracy. ~50x cheaper than LAPACK on a 3x3."""
     Bm = work[0]
     for r in range(3):
         for c in range(3):
             Bm[r, c] = A[0, r] * A[0, c] + A[1, r] * A[1, c] + A[2, r] * A[2, c]
-            V[r, c] = 1.0 if r == c else 0.0
-    for sweep in range(12):
-        off = Bm[0, 1] * Bm[0, 1] + Bm[0, 2] * Bm[0, 2] + Bm[1, 2] * Bm[1, 2]
-        dia = Bm[0, 0] * Bm[0, 0] + Bm[1, 1] * Bm[1, 1] + Bm[2, 2] * Bm[2, 2]
-        if off <= JACOBI_TOL * dia:
-            break
-        for pq in range(3):
-            p = 0 if pq < 2 else 1
-            qq = 1 if pq == 0 else 2
-            apq = Bm[p, qq]
-            if apq == 0.0:
-                continue
-            tau = (Bm[qq, qq] - Bm[p, p]) / (2.0 * apq)
-            t = 1.0 / (abs(tau) + math.sqrt(1.0 + tau * tau))
-            if tau < 0.0:
-                t = -t
-            c = 1.0 / math.sqrt(1.0 + t * t)
-            sn = t * c
-            for k in range(3):                       # B <- Jᵀ B J, V <- V J
-                bkp, bkq = Bm[k, p], Bm[k, qq]
-                Bm[k, p] = c * bkp - sn * bkq
-                Bm[k, qq] = sn * bkp + c * bkq
-            for k in range(3):
-                bpk, bqk = Bm[p, k], Bm[qq, k]
-                Bm[p, k] = c * bpk - sn * bqk
-                Bm[qq, k] = sn * bpk + c * bqk
-            for k in range(3):
-                vkp, vkq = V[k, p], V[k, qq]
-                V[k, p] = c * vkp - sn * vkq
-                V[k, qq] = sn * vkp + c * vkq
-            Bm[p, qq] = 0.0
-            Bm[qq, p] = 0.0
+    jacobi_eigh(Bm, S, V, 12)                       # V; S is scratch until the end
     # order by decreasing eigenvalue (insertion sort of 3, columns of V follow)
     for i in range(1, 3):
         k = i
@@ -117,14 +80,14 @@ def svd3_in(A, U, S, V, work):
 
 
 @kernel
-def jacobi_eigh(S, w, V):
-    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi
-    (S is destroyed). Accurate to round-off like LAPACK's syevd, and cheap to compile."""
+def jacobi_eigh(S, w, V, sweeps):
+    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix by cyclic Jacobi, at
+    most `sweeps` sweeps (S is left diagonal). Accurate to round-off like LAPACK's syevd."""
     n = S.shape[0]
     for r in range(n):
         for c in range(n):
             V[r, c] = 1.0 if r == c else 0.0
-    for sweep in range(50):
+    for sweep in range(sweeps):
         off = 0.0
         dia = 0.0
         for p in range(n):
@@ -228,17 +191,10 @@ def product3(a, b):
 
 
 @kernel
-def eigh_ql(S, w, V):
-    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix (S is destroyed):
-    EISPACK tred2/tql2 (~n³ flops against Jacobi's ~6 sweeps of 3n³); False, after
-    jacobi_eigh on a copy, if QL does not converge in 30 iterations per eigenvalue."""
-    return eigh_ql_in(S, w, V, np.empty(S.shape[0]))
-
-
-@kernel
 def eigh_ql_in(S, w, V, e):
-    """eigh_ql with its scratch vector e (n,) from the caller: no allocation (the angle
-    terms' 4x4 eigenproblem, once per joint and Newton iteration)."""
+    """Eigen-decomposition S = V diag(w) Vᵀ of a small symmetric matrix, e (n,) scratch:
+    EISPACK tred2/tql2 (~n³ flops against Jacobi's ~6 sweeps of 3n³); False, after
+    jacobi_eigh on S, if QL does not converge in 30 iterations per eigenvalue."""
     n = S.shape[0]
     for r in range(n):
         for c in range(n):
@@ -314,7 +270,8 @@ def eigh_ql_in(S, w, V, e):
                 break
             it += 1
             if it > 30:
-                return _eigh_fallback(S, w, V)
+                jacobi_eigh(S, w, V, 50)
+                return False
             g = (d[l + 1] - d[l]) / (2.0 * e[l])
             r = math.hypot(g, 1.0)
             g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
@@ -351,12 +308,6 @@ def eigh_ql_in(S, w, V, e):
             e[l] = g
             e[m] = 0.0
     return True
-
-
-@kernel
-def _eigh_fallback(S, w, V):
-    jacobi_eigh(S, w, V)
-    return False
 
 
 @kernel

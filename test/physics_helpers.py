@@ -10,6 +10,7 @@ from numba import njit
 
 from abd_joint_sim import Scene, World
 from abd_joint_sim.builders import chain_scene
+from abd_joint_sim.jit import subnormals
 from abd_joint_sim.scene import load_yaml
 from abd_joint_sim.smallmat import nearest_rotation_in, quaternion_in
 from abd_joint_sim.terms import angle, prismatic, prismatic_force, torque
@@ -109,6 +110,12 @@ def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
 
 
 # -- test-side kernels over the compiled terms' pieces ---------------------------------------
+@njit
+def mxcsr():
+    """The SSE control and status register (x86-64: jit/subnormals.py sets its FTZ and DAZ)."""
+    return subnormals._read_mxcsr()
+
+
 @njit
 def generalized_force(q, m, torque_value, torque_enabled, F, skipped):
     """Adds F_k of every enabled joint to F (B,12). Bodies skipped by the singular guard are

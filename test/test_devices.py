@@ -59,9 +59,13 @@ def read(m):
 read.compile((typeof(w.solver.data),))
 types = [t for cres in read.overloads.values() for t in cres.type_annotation.typemap.values()]
 borrowed = any('Borrowed' in str(t) for t in types)
-before = subnormals.flags()
+
+@njit
+def flags():
+    return subnormals._read_mxcsr()
+before = flags()
 saved = subnormals.enter()
-flushing = bool(subnormals.flags() & subnormals.FTZ_DAZ) and not before & subnormals.FTZ_DAZ
+flushing = bool(flags() & subnormals.FTZ_DAZ) and not before & subnormals.FTZ_DAZ
 subnormals.leave(saved)
 print('borrowed' if borrowed else 'counted', 'flushing' if flushing else 'not-flushing')
 '''

@@ -1,7 +1,7 @@
 """The compiled-kernel cache loads only what this user compiled, and survives damage.
 
 A cache entry is a pickle: loading one runs whatever it says. Each test runs a small
-kernel (``smallmat.svd3``, a few seconds to compile) in a fresh process with its own
+kernel (``smallmat.svd3_in``, a few seconds to compile) in a fresh process with its own
 ``ABD_KERNEL_CACHE``; a planted entry would create a marker directory when unpickled.
 """
 
@@ -18,7 +18,8 @@ import sys
 REPO = Path(__file__).resolve().parents[1]
 CODE = ('import numpy as np; from abd_joint_sim import smallmat, cache; '
         'U, S, V = np.zeros((3, 3)), np.zeros(3), np.zeros((3, 3)); '
-        'smallmat.svd3(np.diag([2.0, 3.0, 1.0]), U, S, V); print(S.tolist()); '
+        'smallmat.svd3_in(np.diag([2.0, 3.0, 1.0]), U, S, V, np.zeros((2, 3, 3))); '
+        'print(S.tolist()); '
         'print(cache.directory())')
 
 
@@ -40,7 +41,7 @@ class _Planted:
 
 
 def compiled_cache(tmp_path: Path) -> tuple[Path, str]:
-    """A cache with svd3 compiled into it, and the first run's output."""
+    """A cache with svd3_in compiled into it, and the first run's output."""
     cache = tmp_path / 'good'
     first = run({'ABD_KERNEL_CACHE': str(cache)})
     assert first.returncode == 0 and first.stderr == '', first.stderr[-2000:]
@@ -48,8 +49,8 @@ def compiled_cache(tmp_path: Path) -> tuple[Path, str]:
 
 
 def plant(cache: Path, marker: Path) -> list[Path]:
-    """Replace every compiled svd3 data file of `cache` by the planted pickle."""
-    files = list(cache.rglob('smallmat.svd3-*.nbc'))
+    """Replace every compiled svd3_in data file of `cache` by the planted pickle."""
+    files = list(cache.rglob('smallmat.svd3_in-*.nbc'))
     assert files
     for f in files:
         f.write_bytes(pickle.dumps(_Planted(str(marker))))
@@ -110,7 +111,7 @@ def test_the_default_cache_is_created_private(tmp_path):
 
 def test_a_truncated_cache_entry_is_discarded_and_compiled_again(tmp_path):
     good, expected = compiled_cache(tmp_path)
-    files = list(good.rglob('smallmat.svd3-*.nbc'))
+    files = list(good.rglob('smallmat.svd3_in-*.nbc'))
     assert files
     for f in files:
         f.write_bytes(f.read_bytes()[:len(f.read_bytes()) // 2])

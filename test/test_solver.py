@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from abd_joint_sim import Scene, SimulationError, World
-from abd_joint_sim.smallmat import eigh_ql, jacobi_eigh, svd3
+from abd_joint_sim.smallmat import eigh_ql_in, jacobi_eigh, svd3_in
 from abd_joint_sim.solver import linsolve
 
 from physics_helpers import box, chain_dict, forward_block, hinge_dict, random_rotation, scene_dict
@@ -193,7 +193,7 @@ def test_svd3_matches_lapack():
              -random_rotation(rng)] + [rng.normal(size=(3, 3)) for _ in range(20)]
     for A in cases:
         U, S, V = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
-        svd3(A, U, S, V)
+        svd3_in(A, U, S, V, np.empty((2, 3, 3)))
         assert np.abs(S - np.linalg.svd(A, compute_uv=False)).max() <= 1e-13 * max(1.0, np.abs(A).max())
         assert np.abs(U * S @ V.T - A).max() <= 1e-13 * max(1.0, np.abs(A).max())
         assert np.abs(U.T @ U - np.eye(3)).max() < 1e-13 and np.abs(V.T @ V - np.eye(3)).max() < 1e-13
@@ -205,13 +205,13 @@ def test_jacobi_eigh_matches_lapack():
         X = rng.normal(size=(n, n))
         S = X + X.T
         w, V = np.empty(n), np.empty((n, n))
-        jacobi_eigh(S.copy(), w, V)
+        jacobi_eigh(S.copy(), w, V, 50)
         assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * np.abs(S).max()
         assert np.abs(V * w @ V.T - S).max() <= 1e-13 * np.abs(S).max()
 
 
 def test_ql_eigh_matches_lapack_on_general_degenerate_and_rank_deficient_matrices():
-    """smallmat.eigh_ql (the angle terms' 12x12 projection) against LAPACK."""
+    """smallmat.eigh_ql_in (the angle terms' 12x12 projection) against LAPACK."""
     rng = np.random.default_rng(7)
     for n in (3, 12):
         for kind in range(3):
@@ -223,7 +223,7 @@ def test_ql_eigh_matches_lapack_on_general_degenerate_and_rank_deficient_matrice
             elif kind == 2:                     # two clusters of equal eigenvalues
                 S = np.diag(np.r_[np.ones(n // 2), -np.ones(n - n // 2)]) + 1e-9 * S
             w, V = np.empty(n), np.empty((n, n))
-            assert eigh_ql(S.copy(), w, V)      # converged without the Jacobi fallback
+            assert eigh_ql_in(S.copy(), w, V, np.empty(n))  # converged, no Jacobi fallback
             scale = np.abs(S).max()
             assert np.abs(np.sort(w) - np.linalg.eigvalsh(S)).max() <= 1e-13 * scale
             assert np.abs(V * w @ V.T - S).max() <= 1e-13 * scale
@@ -802,11 +802,11 @@ def test_an_unreadable_kernel_cache_index_is_compiled_over(tmp_path):
     as another version's index did; or truncated) costs a compile, not a traceback."""
     env = dict(os.environ, PYTHONPATH=str(REPO), ABD_KERNEL_CACHE=str(tmp_path / 'cache'))
     code = ('import numpy as np; from abd_joint_sim import smallmat; U, S, V = np.zeros((3, 3)), '
-            'np.zeros(3), np.zeros((3, 3)); smallmat.svd3(np.diag([2.0, 3.0, 1.0]), U, S, V); '
-            'print(S.tolist())')
+            'np.zeros(3), np.zeros((3, 3)); smallmat.svd3_in(np.diag([2.0, 3.0, 1.0]), U, S, V, '
+            'np.zeros((2, 3, 3))); print(S.tolist())')
     first = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300, env=env)
     assert first.returncode == 0, first.stderr[-2000:]
-    indexes = list((tmp_path / 'cache').rglob('smallmat.svd3-*.nbi'))
+    indexes = list((tmp_path / 'cache').rglob('smallmat.svd3_in-*.nbi'))
     assert indexes
     import pickle
     # a pickle of a global from a module that does not exist (hand-written opcodes: protocol 0
@@ -1110,17 +1110,18 @@ def test_a_long_chain_under_torque_holds_no_subnormal_numbers():
     runs: numpy after a step still keeps a subnormal."""
     from abd_joint_sim.builders import chain_scene
     from abd_joint_sim.jit import subnormals
+    from physics_helpers import mxcsr
     if not subnormals.X86:
         pytest.skip('FTZ/DAZ are set on x86-64 only')      # pragma: no cover
     w = World(Scene.from_dict(chain_scene(600)))
-    before = subnormals.flags()
+    before = mxcsr()
     w.step(4)
     s = w.state
     assert _subnormal_count(s.q, s.v, s.q_prev, s.v_prev, s.warm_start) == 0
     # the disturbance reached far enough down the chain to have made subnormals
     moved = np.abs(s.q - w.model.body_q0).max(axis=1)
     assert np.any((moved > 0.0) & (moved < 1e-290)) and np.any(moved > 1e-4)
-    assert subnormals.flags() & subnormals.FTZ_DAZ == before & subnormals.FTZ_DAZ
+    assert mxcsr() & subnormals.FTZ_DAZ == before & subnormals.FTZ_DAZ
     assert np.array([1e-310])[0] * 1.0 == 1e-310
 
 

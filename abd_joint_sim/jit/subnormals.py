@@ -73,11 +73,6 @@ if X86:
         raised stay raised, as they would without `enter`."""
         mask = types.uint32(FTZ_DAZ)
         _write_mxcsr((_read_mxcsr() & ~mask) | (types.uint32(saved) & mask))
-
-    @kernel
-    def flags():
-        """The current MXCSR (for the tests)."""
-        return _read_mxcsr()
 else:                                                       # pragma: no cover (x86-64 here)
     @kernel
     def enter():
@@ -86,7 +81,3 @@ else:                                                       # pragma: no cover (
     @kernel
     def leave(saved):
         pass
-
-    @kernel
-    def flags():
-        return types.uint32(0)

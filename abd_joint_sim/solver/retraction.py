@@ -43,13 +43,9 @@ def floating_groups_and_shares(model):
     """(group (B,), share (B,), group count): the floating group of each free body (-1 for
     fixed bodies and those jointed to one) and its mass share m_b / Σ m of the group."""
     group = floating_groups(model)
-    group[model.body_fixed] = -1
-    groups = int(group.max()) + 1 if len(group) and group.max() >= 0 else 0
+    groups, on, mass = int(group.max(initial=-1)) + 1, group >= 0, model.body_mass
     share = np.zeros(model.body_count)
-    on = group >= 0
-    if groups:
-        total = np.bincount(group[on], model.body_mass[on], groups)
-        share[on] = model.body_mass[on] / total[group[on]]
+    share[on] = mass[on] / np.bincount(group[on], mass[on], groups)[group[on]]
     return group, share, groups
 
 

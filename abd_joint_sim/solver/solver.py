@@ -11,7 +11,7 @@ warning (sim_node). `World.step()` runs `step.step_resident` through `_step_resi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +41,8 @@ BATCH_BYTES = 1 << 20
 _CONVERGED, _new_tuple = Status.CONVERGED, tuple.__new__
 _OUT_ROTATION, _OUT_SEPARATION = compiled.OUT_ROTATION, compiled.OUT_SEPARATION
 _KEPT_WITH_WARNINGS = compiled.KEPT_WITH_WARNINGS
+_NONFINITE = {compiled.FAIL_NEWTON_NONFINITE: 'Newton produced a non-finite state',
+              compiled.FAIL_STEP_NONFINITE: 'step produced a non-finite state'}
 
 #: dtypes of Control's arrays as the compiled entries are called with them
 CONTROL_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.float64), np.dtype(np.bool_),
@@ -74,24 +76,24 @@ class Steps:
     q: np.ndarray               #: (count, B, 12) body states after each step (read only)
 
 
+@dataclass(slots=True)
 class _Tally:
     """A StepReport being filled over the sub-steps of one step."""
 
-    __slots__ = ('status', 'converged', 'newton_iterations', 'line_search_iterations', 'substeps',
-                 'max_step_rotation', 'max_joint_separation', 'overloaded', 'warnings')
-
-    def __init__(self):
-        self.status, self.converged, self.substeps, self.warnings = Status.CONVERGED, True, 1, []
-        self.newton_iterations = self.line_search_iterations = 0
-        self.max_step_rotation = self.max_joint_separation = 0.0
-        self.overloaded = False         #: a joint beyond its warning separation
+    status: Status = Status.CONVERGED
+    converged: bool = True
+    newton_iterations: int = 0
+    line_search_iterations: int = 0
+    substeps: int = 1
+    max_joint_separation: float = 0.0
+    max_step_rotation: float = 0.0
+    warnings: list = field(default_factory=list)
+    overloaded: bool = False        #: a joint beyond its warning separation
 
     def freeze(self, time) -> StepReport:
-        return StepReport(time=time, status=self.status, converged=self.converged,
-                          newton_iterations=self.newton_iterations,
-                          line_search_iterations=self.line_search_iterations,
-                          substeps=self.substeps, max_joint_separation=self.max_joint_separation,
-                          max_step_rotation=self.max_step_rotation, warnings=tuple(self.warnings))
+        return StepReport(time, self.status, self.converged, self.newton_iterations,
+                          self.line_search_iterations, self.substeps, self.max_joint_separation,
+                          self.max_step_rotation, tuple(self.warnings))
 
 
 def _history(s: State, h: float, new_warm_start):
@@ -168,9 +170,7 @@ class Solver:
         clean = self._clean_report(computed[2], state.time + h)      # (a few µs less)
         if clean is not None:
             return self._state(state, h, computed[0], computed[1]), clean
-        tally = _Tally()
-        state = self._recover(state, control, h, 0, tally, computed)
-        return state, self._finish(state, tally)
+        return self._recovered(state, control, computed)
 
     def _step_resident(self, r: Resident, control: Control) -> StepReport:
         """`step` on the state a Resident holds (World.step()), the same bits: a clean step
@@ -196,10 +196,9 @@ class Solver:
         state, k = r.state(), (r.cur + 1) % 4
         computed = ((r.ring[k, 0].copy(), r.ring[k, 1].copy(), r.ring[k, 2].copy()),
                     (r.angles[k, 0].copy(), r.angles[k, 1].copy()), self._outcome)
-        tally = _Tally()
-        new = self._recover(state, control, self._dt, 0, tally, computed)
+        new, report = self._recovered(state, control, computed)
         r.set(new)
-        return self._finish(new, tally)
+        return report
 
     def _bind(self, r: Resident, c: Control) -> None:
         """Bind r to c's arrays and this Solver's rows (Resident.bind), and to step_resident's
@@ -218,15 +217,21 @@ class Solver:
 
     def _clean_report(self, out, time):
         """The StepReport of a step whose outcome row `out` is clean (`step.clean`), else None."""
-        if not compiled.clean(out, self._clean_rotation):
-            return None
-        return self._report(out, time)
+        return self._report(out, time) if compiled.clean(out, self._clean_rotation) else None
 
     @staticmethod
     def _report(out, time):
         """The StepReport of a clean step from its outcome row."""
         _, newton_its, halvings, rotation, _, _, separation, _, _ = out.tolist()
         return _clean_report_of(time, int(newton_its), int(halvings), separation, rotation)
+
+    def _recovered(self, state, control, computed) -> tuple[State, StepReport]:
+        """(the State, the report) of a step of dt from `state` whose first try is `computed`
+        (`_compute`), with sub-steps where it needs them, and its end warnings."""
+        tally = _Tally()
+        new = self._recover(state, control, self._dt, 0, tally, computed)
+        tally.warnings += self._end_warnings(new.q, new.time, tally.overloaded, tally.max_step_rotation)
+        return new, tally.freeze(new.time)
 
     def _recover(self, state, control, h, depth, tally, computed=None):
         max_depth = self.model.newton.max_substep_depth
@@ -354,11 +359,28 @@ class Solver:
 
     def _decode(self, s, h, qvw, aw, out, tally):
         """(the new State or None, None or why the step needs sub-steps), counted into tally."""
-        failure = self._count(out, tally, qvw[0])
-        if failure is not None:
-            return None, failure
+        m = self.model
+        skipped = int(out[compiled.OUT_SKIPPED])
+        if skipped:
+            tally.warnings += self._skipped_warnings(skipped)
+        failure = int(out[compiled.OUT_FAILURE])
+        rotation, limit = float(out[compiled.OUT_ROTATION]), m.newton.max_step_rotation
+        if failure == compiled.FAIL_PREDICTED_ROTATION:
+            return None, (f'a joint is predicted to turn {rotation:.3g} rad in one step '
+                          f'(limit {limit:.3g})')
+        tally.newton_iterations += int(out[compiled.OUT_NEWTON])
+        tally.line_search_iterations += int(out[compiled.OUT_LINE_SEARCH])
+        if failure in _NONFINITE:
+            return None, _NONFINITE[failure]
+        if failure == compiled.FAIL_JOINT_APART:
+            j = int(out[compiled.OUT_APART_JOINT])
+            apart = self.joint_separation(qvw[0], j)[0]
+            return None, (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
+                          f"(> {SEPARATION_FAULT:g} x the bodies' size)")
+        tally.max_step_rotation = max(tally.max_step_rotation, rotation)
+        tally.max_joint_separation = float(out[compiled.OUT_SEPARATION])
+        tally.overloaded = bool(out[compiled.OUT_OVERLOADED])
         new = self._state(s, h, qvw, aw)
-        rotation, limit = float(out[compiled.OUT_ROTATION]), self.model.newton.max_step_rotation
         if rotation > limit:
             return new, f'a joint turned {rotation:.3g} rad in one step (limit {limit:.3g})'
         status = STATUS_BY_CODE[int(out[compiled.OUT_STATUS])]
@@ -366,33 +388,6 @@ class Solver:
             tally.status, tally.converged = status, False
             return new, f'Newton stopped: {status.value} after {int(out[compiled.OUT_NEWTON])} iterations'
         return new, None
-
-    def _count(self, out, tally, q):
-        """Add outcome row `out` (new body states q) to tally; why nothing is kept, or None."""
-        m = self.model
-        skipped = int(out[compiled.OUT_SKIPPED])
-        if skipped:
-            tally.warnings += self._skipped_warnings(skipped)
-        failure = int(out[compiled.OUT_FAILURE])
-        rotation = float(out[compiled.OUT_ROTATION])
-        limit = m.newton.max_step_rotation
-        if failure == compiled.FAIL_PREDICTED_ROTATION:
-            return f'a joint is predicted to turn {rotation:.3g} rad in one step (limit {limit:.3g})'
-        tally.newton_iterations += int(out[compiled.OUT_NEWTON])
-        tally.line_search_iterations += int(out[compiled.OUT_LINE_SEARCH])
-        if failure == compiled.FAIL_NEWTON_NONFINITE:
-            return 'Newton produced a non-finite state'
-        if failure == compiled.FAIL_STEP_NONFINITE:
-            return 'step produced a non-finite state'
-        if failure == compiled.FAIL_JOINT_APART:
-            j = int(out[compiled.OUT_APART_JOINT])
-            apart = self.joint_separation(q, j)[0]
-            return (f'joint {m.joint_names[j]!r} came apart: anchors {apart:.3g} m apart '
-                    f"(> {SEPARATION_FAULT:g} x the bodies' size)")
-        tally.max_step_rotation = max(tally.max_step_rotation, rotation)
-        tally.max_joint_separation = float(out[compiled.OUT_SEPARATION])
-        tally.overloaded = bool(out[compiled.OUT_OVERLOADED])
-        return None
 
     def joint_separation(self, q, j) -> tuple:
         """(separation [m], its warning threshold [m]) of joint j at body states q: UID 18's
@@ -424,18 +419,13 @@ class Solver:
         return out
 
     def _kept_report(self, out, time, q) -> StepReport:
-        """The report of a step kept with warnings (step.kept): `_decode` and `_finish`'s."""
+        """The report of a step kept with warnings (step.kept): `_decode` and `_recovered`'s."""
         _, its, halvings, rotation, _, skipped, separation, overloaded, _ = out.tolist()
         rotation = rotation if rotation > 0.0 else 0.0
         warnings = self._skipped_warnings(int(skipped)) if skipped else []
         warnings += self._end_warnings(q, time, overloaded, rotation)
         return _new_tuple(StepReport, (time, _CONVERGED, True, int(its), int(halvings), 1, separation,
                                        rotation, tuple(warnings)))
-
-    def _finish(self, state, tally) -> StepReport:
-        """The accuracy and overloaded-joint warnings of a finished step, then the report."""
-        tally.warnings += self._end_warnings(state.q, state.time, tally.overloaded, tally.max_step_rotation)
-        return tally.freeze(state.time)
 
     # -- several steps -------------------------------------------------------------------
     def steps(self, state: State, control: Control, n: int, clean: bool = False) -> Steps:
@@ -453,17 +443,9 @@ class Solver:
                                    -1.0 if clean else self._keep_rotation, out)
         if count == 0 and not clean:
             return self._one(state, control)
-        return self._result(state, count, qvw, aw, out)
-
-    def _one(self, state, control) -> Steps:
-        new, report = self.step(state, control)
-        return Steps(1, new, report, [new.time], new.joint_angle[None], new.joint_velocity[None], new.q[None])
-
-    def _result(self, s, count, qvw, aw, out) -> Steps:
-        """The Steps of a compiled batch of `count` steps from s."""
         if count == 0:
-            return Steps(0, s, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
-        h = self.model.dt
+            return Steps(0, state, None, [], aw[:0, 0], aw[:0, 1], qvw[:0, 0])
+        s, h = state, self._dt
         acc = np.full(count + 1, h)     # t + h + h ... in order: `step`'s bits, 1/6 of a loop
         acc[0] = s.time
         np.add.accumulate(acc, out=acc)
@@ -487,3 +469,7 @@ class Solver:
         if report is None:          # (kept: it only warns)
             report = self._kept_report(o, t, state.q)
         return Steps(count, state, report, times, aw[:count, 0], aw[:count, 1], qvw[:count, 0])
+
+    def _one(self, state, control) -> Steps:
+        new, report = self.step(state, control)
+        return Steps(1, new, report, [new.time], new.joint_angle[None], new.joint_velocity[None], new.q[None])

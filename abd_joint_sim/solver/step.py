@@ -306,25 +306,19 @@ def steps(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2
             one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_prev2, joint_angle,
                  torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h, bdf2_first,
                  order_first, may_split, ws, new_qvw[0], new_angles[0], skipped, outcome[0])
-        elif k == 1:
-            prev = warm_start if uniform_first else new_qvw[0, 2]
-            prev2 = warm_start_prev if uniform_first and order_first > 0 else prev
-            order = (2 if order_first > 0 else 1) if uniform_first else 0
-            one_step(m, new_qvw[0, 0], new_qvw[0, 1], q, v, new_qvw[0, 2], prev, prev2,
-                 new_angles[0, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
-                 drive_passive, h, bdf2_next, order, may_split, ws, new_qvw[1], new_angles[1],
-                 skipped, outcome[1])
-        elif k == 2:
-            prev2 = warm_start if uniform_first else new_qvw[0, 2]
-            one_step(m, new_qvw[1, 0], new_qvw[1, 1], new_qvw[0, 0], new_qvw[0, 1], new_qvw[1, 2],
-                 new_qvw[0, 2], prev2, new_angles[1, 0], torque_value, torque_enabled, drive_aim,
-                 drive_enabled, drive_passive, h, bdf2_next, 2 if uniform_first else 1, may_split,
-                 ws, new_qvw[2], new_angles[2], skipped, outcome[2])
         else:
-            one_step(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], new_qvw[k - 2, 0], new_qvw[k - 2, 1],
-                 new_qvw[k - 1, 2], new_qvw[k - 2, 2], new_qvw[k - 3, 2], new_angles[k - 1, 0],
-                 torque_value, torque_enabled, drive_aim, drive_enabled, drive_passive, h,
-                 bdf2_next, 2, may_split, ws, new_qvw[k], new_angles[k], skipped, outcome[k])
+            if k == 1:                      # the step before is the input's
+                qp, vp, prev = q, v, warm_start if uniform_first else new_qvw[0, 2]
+                prev2 = warm_start_prev if uniform_first and order_first > 0 else prev
+                order = (2 if order_first > 0 else 1) if uniform_first else 0
+            else:
+                qp, vp, prev = new_qvw[k - 2, 0], new_qvw[k - 2, 1], new_qvw[k - 2, 2]
+                prev2 = new_qvw[k - 3, 2] if k > 2 else (warm_start if uniform_first else prev)
+                order = 2 if k > 2 or uniform_first else 1
+            one_step(m, new_qvw[k - 1, 0], new_qvw[k - 1, 1], qp, vp, new_qvw[k - 1, 2], prev,
+                 prev2, new_angles[k - 1, 0], torque_value, torque_enabled, drive_aim, drive_enabled,
+                 drive_passive, h, bdf2_next, order, may_split, ws, new_qvw[k], new_angles[k],
+                 skipped, outcome[k])
         if clean(outcome[k], clean_rotation):
             done += 1
         elif kept(outcome[k], keep_rotation):
