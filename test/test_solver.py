@@ -357,7 +357,7 @@ def _state_fields(w):
 
 
 @pytest.mark.parametrize('case', sorted(BATCH_CASES))
-def test_step_clean_is_bit_identical_to_single_steps(case):
+def test_n_clean_steps_are_bit_identical_to_single_steps(case):
     """World.step(n, trajectory) (sim_node's clean batches) leaves the same state, bit for bit, as the same
     number of World.step calls, reports each step's joint angles, and stops before a step
     World.step would sub-step or warn on, which the caller then takes with World.step."""

@@ -78,16 +78,12 @@ def node_overhead(steps, scene='default', rounds=7, start_steps=1000):
             node._advance(batch)
         start = node.world.state              # (a World's state is never written in place)
 
-        try:                    # this tree's World: a batch fills a caller-owned Trajectory
-            from abd_joint_sim.world import Trajectory
-            rows = Trajectory()
+        from abd_joint_sim.world import Trajectory     # a batch fills a caller-owned Trajectory
+        rows = Trajectory()
 
-            def clean_batch(n):
-                node.world.step(n, rows)
-                return rows.count
-        except ImportError:     # --other: a checkout whose World has step_clean
-            def clean_batch(n):
-                return node.world.step_clean(n)[0]
+        def clean_batch(n):
+            node.world.step(n, rows)
+            return rows.count
 
         def run(key):
             node.recorder = recorder if key == 'node_recording' else None
