@@ -413,25 +413,12 @@ class SimLoop:
                            recording_error: str = '') -> dict[str, Any]:
         """The ``/diagnostics`` values (:data:`DIAGNOSTIC_KEYS`) of the last step."""
         last = self.world.last_step
-        values = {
-            'sim_time': float(self.world.time),
-            'steps': self.steps,
-            'paused': self.paused,
-            'time_step': float(self.world.dt),
-            'real_time_factor_requested': float(real_time_factor_requested),
-            'real_time_factor_achieved': float(real_time_factor_achieved),
-            'newton_iterations': last.newton_iterations,
-            'line_search_iterations': last.line_search_iterations,
-            'converged': bool(last.converged),
-            'not_converged_steps_total': self.not_converged,
-            'max_joint_separation': float(last.max_joint_separation),
-            'substeps': last.substeps,
-            'recording': bool(recording),
-            'fault': self.fault or '',
-            'recording_error': recording_error or '',
-        }
-        assert tuple(values) == DIAGNOSTIC_KEYS
-        return values
+        return dict(zip(DIAGNOSTIC_KEYS, (
+            float(self.world.time), self.steps, self.paused, float(self.world.dt),
+            float(real_time_factor_requested), float(real_time_factor_achieved),
+            last.newton_iterations, last.line_search_iterations, bool(last.converged),
+            self.not_converged, float(last.max_joint_separation), last.substeps,
+            bool(recording), self.fault or '', recording_error or ''), strict=True))
 
     def diagnostics_msg(self, t_ns: int, name: str, **kwargs) -> Any:
         """A ``DiagnosticArray`` with :meth:`diagnostics_values` (kwargs) for status `name`:

@@ -341,8 +341,17 @@ class SimNode(Node):
             return THREAD_IDLE
         now = time.monotonic()
         dt = self.world.dt
+        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
+                MAX_LAG_WALL * rtf + dt:    # lagging: say so (every 10 s at most), re-anchor
+            self.get_logger().warn(
+                f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
+                f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
+                throttle_duration_sec=10.0)
+            self._reanchor()
+            self._anchor_wall -= dt / rtf   # allow one step now
         # whole steps to real time x rtf (1e-6 of a step to spare)
-        due = int((self._real_time_target(rtf, now) - self.world.time) / dt + 1e-6)
+        due = int((self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time) / dt
+                  + 1e-6)
         if due >= 1:
             self._advance(min(due, BATCH_STEPS))
             return 0.0
@@ -351,25 +360,6 @@ class SimNode(Node):
                                         - self._anchor_sim) / rtf
         return max(due_wall - now, 0.0)
 
-    def _real_time_target(self, rtf: float, now: float) -> float:
-        """The simulated time real time x rtf has reached at wall time `now`; if that is
-        more than MAX_LAG_WALL ahead of the simulation, warn and re-anchor first."""
-        dt = self.world.dt
-        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
-                MAX_LAG_WALL * rtf + dt:
-            self._warn_lagging(rtf, dt)
-        return self._anchor_sim + rtf * (now - self._anchor_wall)
-
-    def _warn_lagging(self, rtf: float, dt: float) -> None:
-        """Real time x rtf ran ahead of the simulation by more than MAX_LAG_WALL: say so
-        (every 10 s at most) and re-anchor, allowing one step now."""
-        self.get_logger().warn(
-            f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
-            f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
-            throttle_duration_sec=10.0)
-        self._reanchor()
-        self._anchor_wall -= dt / rtf   # allow one step now
-
     def _stop_stepping_thread(self) -> None:
         stepper = self._stepper
         if stepper is None or stepper is threading.current_thread():
@@ -377,10 +367,6 @@ class SimNode(Node):
         self._stepper_quit.set()
         self._stepper_wake.set()
         stepper.join(timeout=10.0)
-
-    def _wake_stepper(self) -> None:
-        if self._stepper is not None:
-            self._stepper_wake.set()
 
     def _reanchor(self) -> None:
         self._anchor_wall = time.monotonic()
@@ -485,11 +471,10 @@ class SimNode(Node):
     def _report(self, form: str, rejections, clamps) -> None:
         """Warn of rejections and clamps, throttled per command form, joint and reason;
         entries naming joints the scene does not have are one line per message and reason."""
-        joints = self._scene_joints
         unknown: dict[str, list] = {}
         for r in rejections:
             kind = r.reason.split(' ')[0]
-            if r.joint is not None and r.joint not in joints:
+            if r.joint is not None and r.joint not in self.joint_names:
                 unknown.setdefault(kind, []).append(r)
                 continue
             self._warn_throttled(('reject', form, r.joint, kind), f'{form} command: {r}'
@@ -505,10 +490,6 @@ class SimNode(Node):
                                  f'{more}: {reason}')
         for c in clamps:
             self._warn_throttled(('clamp', form, c.joint, c.applied > 0), str(c))
-
-    @functools.cached_property
-    def _scene_joints(self) -> frozenset:
-        return frozenset(self.world.joint_names)
 
     @_locked
     def _on_torque_array(self, msg: Float64MultiArray) -> None:
@@ -550,7 +531,7 @@ class SimNode(Node):
         was = self.paused
         self.paused = False
         self._reanchor()
-        self._wake_stepper()
+        self._stepper_wake.set()
         return self._answer(response, True, f'running from t={self.world.time:.6f} s'
                             + ('' if was else ' (was not paused)'))
 
@@ -565,7 +546,7 @@ class SimNode(Node):
     def _srv_reset(self, request, response):
         self.loop.reset()
         self._reanchor()
-        self._wake_stepper()
+        self._stepper_wake.set()
         self._live_refresh(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
         return self._answer(response, True, f'reset to t={self.world.time:.6f} s')
@@ -611,17 +592,13 @@ class SimNode(Node):
                 self.world.dt, self.commands.order,
                 urdf_text=getattr(self.scene, 'robot_description', '') or '')
             self.recorder = Recording.open(
-                path, bag_data, self.actuated, self._abs, self.get_fully_qualified_name(),
+                path, bag_data, self.actuated, self.resolve_topic_name, self.get_fully_qualified_name(),
                 markers=self.markers is not None, on_error=self._recording_failed)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
             self.recording_error = str(exc)
             self.recorder = None
             self.config.record = ''
-
-    def _abs(self, topic: str) -> str:
-        """Fully qualified topic name (namespace applied), as it appears on the graph."""
-        return self.resolve_topic_name(topic)
 
     def _recording_failed(self, why: str) -> None:
         self.recording_error = why
@@ -754,14 +731,9 @@ class _NodeOutput(LoopOutput):
         self.node.marker_pub.publish(data)
         self._record('markers', t_ns, data)
 
-    def applied(self, applied) -> None:
-        self._record('applied', applied)
-
-    def restarted(self) -> None:
-        self._record('restarted')           # log times keep increasing
-
-    def parameters(self, t_ns: int, changes) -> None:
-        self._record('parameters', t_ns, changes)   # log time: the current sim time
+    applied = functools.partialmethod(_record, 'applied')
+    restarted = functools.partialmethod(_record, 'restarted')
+    parameters = functools.partialmethod(_record, 'parameters')
 
     def log(self, level: str, text: str, key=None) -> None:
         if key is not None and level == 'warn':

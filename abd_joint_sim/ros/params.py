@@ -92,7 +92,8 @@ def _as_bool(name: str, value: Any) -> bool:
     return value
 
 
-def _check_limits(limits: list[float]) -> list[float]:
+def _as_limits(name: str, value: Any) -> list[float]:
+    limits = _as_float_list(name, value)
     for i, lim in enumerate(limits):
         if not lim > 0.0:
             raise ValueError(
@@ -113,10 +114,6 @@ def _as_port(name: str, value: Any) -> int:
         raise ValueError(f'parameter {name!r}: {int(value)} is outside the TCP ports 1..65535 '
                          '(0 = off)')
     return int(value)
-
-
-def _as_limits(name: str, value: Any) -> list[float]:
-    return _check_limits(_as_float_list(name, value))
 
 
 def _as_host(name: str, value: Any) -> str:
@@ -223,19 +220,9 @@ def _names(folder: str, ext: str) -> list[str]:
         return []
 
 
-def packaged_scenes() -> list[str]:
-    """Names of the packaged scenes (what a bare `scene` value may be)."""
-    return _names(packaged_scenes_dir(), '.yaml')
-
-
 def packaged_robots_dir() -> str:
     """Directory of the packaged URDF robots (``robots/`` beside ``scenes/``)."""
     return os.path.join(os.path.dirname(packaged_scenes_dir()), 'robots')
-
-
-def packaged_robots() -> list[str]:
-    """Names of the packaged URDF robots (a bare `scene` value may name one too)."""
-    return _names(packaged_robots_dir(), '.urdf')
 
 
 def resolve_scene(value: str) -> str:
@@ -255,7 +242,7 @@ def resolve_scene(value: str) -> str:
             return robot
         import difflib
         from abd_joint_sim.errors import SceneError
-        names = packaged_scenes() + packaged_robots()
+        names = _names(packaged_scenes_dir(), '.yaml') + _names(packaged_robots_dir(), '.urdf')
         close = difflib.get_close_matches(value, names, n=1)
         hint = f'did you mean {close[0]!r}? ' if close else ''
         raise SceneError(
