@@ -35,7 +35,7 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from . import convert
-from .loop import LoopOutput, SimLoop
+from .loop import LoopOutput, queue_command, SimLoop
 from .params import (check_live_value, config_from_values, conflicting_parameter_sources,
                      default_scene_path, NODE_NAME, PARAMS, PARAMS_BY_NAME,
                      undeclared_parameters)
@@ -62,6 +62,9 @@ MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anch
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 MAX_LOG_LINE = 500            # characters of a logged warning (the rest is counted)
 THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (a change wakes it)
+COMMAND_FORMS = {'array': 'array', 'torque': 'joint', 'joint_state': 'joint_commands',
+                 'enable': 'enable', 'enable_all': 'enable'}
+"""queue_command kind -> the command form its warnings name and throttle by."""
 
 
 def _locked(method):
@@ -122,18 +125,14 @@ class SimNode(Node):
         self.marker_pub = (None if self.markers is None
                            else self._publisher(MarkerArray, TOPIC_MARKERS))
 
-        # Subscriptions: only actuated joints get command topics.
+        # Subscriptions (queue_command kinds): only actuated joints get command topics.
         self.command_subs = [
-            self._subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY, self._on_torque_array),
-            self._subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all),
-            self._subscription(JointState, TOPIC_JOINT_COMMANDS, self._on_joint_commands),
-        ]
+            self._subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY, 'array'),
+            self._subscription(Bool, TOPIC_ENABLE_ALL, 'enable_all'),
+            self._subscription(JointState, TOPIC_JOINT_COMMANDS, 'joint_state')]
         for joint in self.actuated:
-            self.command_subs += [
-                self._subscription(Float64, TOPIC_TORQUE_JOINT,
-                                   lambda msg, j=joint: self._on_torque_joint(j, msg), joint),
-                self._subscription(Bool, TOPIC_ENABLE_JOINT,
-                                   lambda msg, j=joint: self._on_enable_joint(j, msg), joint)]
+            self.command_subs += [self._subscription(Float64, TOPIC_TORQUE_JOINT, 'torque', joint),
+                                  self._subscription(Bool, TOPIC_ENABLE_JOINT, 'enable', joint)]
 
         # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
         self.service_handles = [
@@ -180,11 +179,13 @@ class SimNode(Node):
         """A publisher for a row of the topic table (its QoS from there)."""
         return self.create_publisher(msg_type, name, _qos(TOPICS_BY_NAME[name]))
 
-    def _subscription(self, msg_type, name: str, callback, joint: Optional[str] = None):
-        """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
+    def _subscription(self, msg_type, name: str, kind: str, joint: Optional[str] = None):
+        """A subscription for a row of the topic table (`joint` fills ``{joint}``) whose
+        messages are commands of `kind` (:func:`.loop.queue_command`)."""
         from rclpy.exceptions import InvalidTopicNameException
         try:
-            return self.create_subscription(msg_type, name.format(joint=joint), callback,
+            return self.create_subscription(msg_type, name.format(joint=joint),
+                                            lambda msg: self._on_command(kind, joint, msg),
                                             _qos(TOPICS_BY_NAME[name]))
         except InvalidTopicNameException:     # (only a joint's name can make one invalid)
             shown = joint if len(joint) <= 80 else f'{joint[:80]}... ({len(joint)} characters)'
@@ -492,25 +493,16 @@ class SimNode(Node):
             self._warn_throttled(('clamp', form, c.joint, c.applied > 0), str(c))
 
     @_locked
-    def _on_torque_array(self, msg: Float64MultiArray) -> None:
-        self._report('array', *self.commands.command_array(convert.array_values(msg)))
-
-    @_locked
-    def _on_torque_joint(self, joint: str, msg: Float64) -> None:
-        self._report('joint', *self.commands.command_torque(joint, msg.data))
-
-    @_locked
-    def _on_joint_commands(self, msg: JointState) -> None:
-        self._report('joint_commands', *self.commands.command_joint_state(
-            msg.name, msg.position, msg.velocity, msg.effort))
-
-    @_locked
-    def _on_enable_joint(self, joint: str, msg: Bool) -> None:
-        self._report('enable', self.commands.command_enable(joint, msg.data), [])
-
-    @_locked
-    def _on_enable_all(self, msg: Bool) -> None:
-        self.commands.command_enable_all(msg.data)
+    def _on_command(self, kind: str, joint: Optional[str], msg) -> None:
+        """Queue a command message of `kind` for its step boundary; warn of what it lost."""
+        if kind == 'array':
+            value = convert.array_values(msg)
+        elif kind == 'joint_state':
+            value = {'name': msg.name, 'position': msg.position, 'velocity': msg.velocity,
+                     'effort': msg.effort}
+        else:
+            value = msg.data
+        self._report(COMMAND_FORMS[kind], *queue_command(self.commands, kind, joint, value))
 
     # ----------------------------------------------------------------- services ----
     @staticmethod
@@ -692,13 +684,8 @@ class _NodeOutput(LoopOutput):
         return node.marker_pub is not None and (
             node.recorder is not None or node.marker_pub.get_subscription_count() > 0)
 
-    def clock(self, t_ns: int) -> None:     # (after every step: no `_record` call)
-        node = self.node
-        clock = node.clock_encoder.encode(t_ns)
-        if self._clock_subscribed:          # (always outside a batch: see batch_begin)
-            node.clock_publish_raw(clock)
-        if node.recorder is not None:
-            node.recorder.clock(t_ns, clock)
+    def clock(self, t_ns: int) -> None:
+        self.clocks([t_ns])
 
     def clocks(self, stamps_ns: list) -> None:
         node = self.node
