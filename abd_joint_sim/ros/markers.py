@@ -101,11 +101,20 @@ class MarkerBuilder:
                     q1 = q0 + length * (q1 - q0) / np.linalg.norm(q1 - q0)
                 self.axes.append((j, joint.name, joint.parent, R0.T @ (q0 - p0),
                                   R0.T @ (q1 - p0)))
-        self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
         self._cdr: Optional[Any] = None    # build_serialized's cdr.Template
-        self._stacked: Optional[tuple] = None   # the parts' bodies, origins, arrows as arrays
         self._packed_ok = False
+        # the parts' bodies and origins, the arrows' bodies and ends, as arrays; the outputs
+        index = {name: k for k, name in enumerate(self.body_names)}
+        ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)
+        self._stacked = (
+            np.array([index[p.body] for p in self.parts], dtype=np.intp),
+            np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3),
+            np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
+            np.repeat(ka, 2),
+            np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
+                     dtype=float).reshape(-1, 3),
+            np.empty((len(self.parts), 7)), np.empty((2 * len(self.axes), 3)))
 
     def _body_parts(self, body: Any, colour) -> list[_Part]:
         M = self.Marker
@@ -227,17 +236,6 @@ class MarkerBuilder:
             poses = [pose(name) for name in self.body_names]
             P = np.asarray([p for p, _ in poses], dtype=float)
             A = np.asarray([a for _, a in poses], dtype=float)
-        if self._stacked is None:
-            index = self._index
-            ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)
-            self._stacked = (
-                np.array([index[p.body] for p in self.parts], dtype=np.intp),
-                np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3),
-                np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
-                np.repeat(ka, 2),
-                np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
-                         dtype=float).reshape(-1, 3),
-                np.empty((len(self.parts), 7)), np.empty((2 * len(self.axes), 3)))
         k, t, Rv, ends_body, ends, poses, points = self._stacked
         if not frame_poses(P, A, k, t, Rv, ends_body, ends, poses, points):
             return None

@@ -339,27 +339,21 @@ def conflicting_parameter_sources(argv: Sequence[str], node_name: str = NODE_NAM
     once with different values (``-p name:=v`` and ``--params-file`` files, in order).
     Which one rcl puts in effect is read back from the node; this only finds the clash."""
     import yaml
-    args = _ros_args(argv)
     given: dict[str, list[tuple[str, Any]]] = {}
-    i = 0
-    while i < len(args):
-        arg = args[i]
-        if arg in ('-p', '--param') and i + 1 < len(args):
-            name, sep, text = args[i + 1].partition(':=')
-            if sep:
-                node, colon, pname = name.rpartition(':')
-                if not colon or node.lstrip('/') in (node_name, '**', '*'):
-                    try:
-                        value = yaml.safe_load(text)
-                    except yaml.YAMLError:
-                        value = text
-                    given.setdefault(pname, []).append((f'-p {args[i + 1]}', value))
-            i += 2
-        elif arg == '--params-file' and i + 1 < len(args):
-            for name, value in _file_parameters(args[i + 1], node_name).items():
-                given.setdefault(name, []).append((f'--params-file {args[i + 1]}', value))
-            i += 2
-        else:
-            i += 1
+    args = iter(_ros_args(argv))
+    for arg in args:
+        operand = next(args, None) if arg in ('-p', '--param', '--params-file') else None
+        if operand is not None and arg == '--params-file':
+            for name, value in _file_parameters(operand, node_name).items():
+                given.setdefault(name, []).append((f'--params-file {operand}', value))
+        elif operand is not None:
+            name, sep, text = operand.partition(':=')
+            node, colon, pname = name.rpartition(':')
+            if sep and (not colon or node.lstrip('/') in (node_name, '**', '*')):
+                try:
+                    value = yaml.safe_load(text)
+                except yaml.YAMLError:
+                    value = text
+                given.setdefault(pname, []).append((f'-p {operand}', value))
     return {n: s for n, s in given.items()
             if len({repr(v if v is not None else '') for _, v in s}) > 1}
