@@ -110,13 +110,9 @@ class CommandBuffer:
             raise ValueError(f'parameter \'joints\': duplicate names in {self.order}')
         self.scene_limits = {j: float(v) for j, v in (scene_limits or {}).items()
                              if math.isfinite(v) and v > 0.0}
-        self.limits: dict[str, float] = {}
         self.set_effort_limits(effort_limits)
         self.command_timeout = float(command_timeout)
-        self._last_command_time: dict[str, float] = {}
-        self._last_value: dict[str, float] = {}
-        self._timed_out: set[str] = set()
-        self._drop_pending()
+        self.clear()
 
     def _drop_pending(self) -> None:
         self._pending_torque: dict[str, tuple[float, str]] = {}
@@ -266,9 +262,9 @@ class CommandBuffer:
     def clear(self) -> None:
         """Drop pending commands and forget command times (used on reset)."""
         self._drop_pending()
-        self._last_command_time.clear()
-        self._last_value.clear()
-        self._timed_out.clear()
+        self._last_command_time: dict[str, float] = {}     # joint -> time [s]
+        self._last_value: dict[str, float] = {}
+        self._timed_out: set[str] = set()
 
     # -- at the step boundary ----------------------------------------------------------
     @property

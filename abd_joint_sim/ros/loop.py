@@ -21,7 +21,7 @@ from . import convert
 from .commands import Applied, CommandBuffer
 from .markers import MarkerBuilder
 from .params import coerce, NODE_NAME, SimConfig, world_dt
-from .recording import markers_due, PublishSchedule, RECORDED_PARAMETERS
+from .recording import PublishSchedule, RECORDED_PARAMETERS
 from .topics import TOPIC_ENABLE_JOINT
 
 DIAGNOSTIC_KEYS = (
@@ -322,7 +322,7 @@ class SimLoop:
             current = position is None or t == self.world.time
         out.clock(t_ns)
         if self.markers is not None and (current or states is not None) and (
-                force or t_ns >= self.marker_schedule.next_ns):   # (markers_due's own test)
+                force or t_ns >= self.marker_schedule.next_ns):   # (PublishSchedule.due's own test)
             self._markers(t_ns, force, states)
         schedule = self.publish_schedule
         # (PublishSchedule.due's own test first: most steps publish no joint state)
@@ -362,9 +362,9 @@ class SimLoop:
         out.joint_state(t_ns, position, velocity, effort)
 
     def _markers(self, t_ns: int, force: bool, states=None) -> None:
-        if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
-            return
-        if not self.output.markers_wanted:
+        rate = self.config.marker_rate      # (0: markers off; due at start and reset)
+        if not (rate > 0.0 and self.marker_schedule.due(t_ns, rate, force)
+                and self.output.markers_wanted):
             return
         build = (self.markers.build_serialized if self.output.markers_serialized
                  else self.markers.build)

@@ -90,13 +90,6 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
         writer.add_topic(resolve(name), spec.type, qos=spec.reliability, depth=spec.depth)
 
 
-def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
-                force: bool = False) -> bool:
-    """True if the body markers are due at `t_ns` (``marker_rate`` Hz on the grid
-    ``k / rate``, and at start and reset); never for rate 0 (markers off)."""
-    return rate > 0.0 and schedule.due(t_ns, rate, force)
-
-
 def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
     """Commands as they took effect (log time = simulated time of the step boundary), in the
     order a replay must apply them: per-joint enables, the array command, per-joint torques
