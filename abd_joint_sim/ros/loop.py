@@ -408,23 +408,19 @@ class SimLoop:
         return values
 
     # ---------------------------------------------------------------- diagnostics ----
-    def diagnostics_values(self, real_time_factor_requested: float,
-                           real_time_factor_achieved: float, recording: bool,
-                           recording_error: str = '') -> dict[str, Any]:
-        """The ``/diagnostics`` values (:data:`DIAGNOSTIC_KEYS`) of the last step."""
+    def diagnostics_msg(self, t_ns: int, name: str, real_time_factor_requested: float,
+                        real_time_factor_achieved: float, recording: bool,
+                        recording_error: str = '') -> Any:
+        """A ``DiagnosticArray`` for status `name` with the values (:data:`DIAGNOSTIC_KEYS`)
+        of the last step: ERROR after a fault, WARN on solver warnings, else OK."""
         last = self.world.last_step
-        return dict(zip(DIAGNOSTIC_KEYS, (
+        values = dict(zip(DIAGNOSTIC_KEYS, (
             float(self.world.time), self.steps, self.paused, float(self.world.dt),
             float(real_time_factor_requested), float(real_time_factor_achieved),
             last.newton_iterations, last.line_search_iterations, bool(last.converged),
             self.not_converged, float(last.max_joint_separation), last.substeps,
             bool(recording), self.fault or '', recording_error or ''), strict=True))
-
-    def diagnostics_msg(self, t_ns: int, name: str, **kwargs) -> Any:
-        """A ``DiagnosticArray`` with :meth:`diagnostics_values` (kwargs) for status `name`:
-        ERROR after a fault, WARN on solver warnings, else OK."""
-        values = self.diagnostics_values(**kwargs)
-        ok = values['converged'] and not self.world.last_step.warnings
+        ok = values['converged'] and not last.warnings
         if self.fault:
             level, message = convert.ERROR, f'stopped: {self.fault}'
         else:

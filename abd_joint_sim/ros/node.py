@@ -753,19 +753,16 @@ def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optio
     key = 'robot_description:='
     out: list[str] = []
     path = None
-    i = 0
-    while i < len(args):
-        if args[i] in ('-p', '--param') and args[i + 1:i + 2] and args[i + 1].startswith(key):
+    for arg in args:
+        if arg.startswith(key) and out[-1:] in (['-p'], ['--param']):
             with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
                                              delete=False) as f:
                 yaml.safe_dump({'/**': {'ros__parameters': {
-                    'robot_description': args[i + 1][len(key):]}}}, f)
+                    'robot_description': arg[len(key):]}}}, f)
             path = f.name
-            out += ['--params-file', path]
-            i += 2
+            out[-1:] = ['--params-file', path]
         else:
-            out.append(args[i])
-            i += 1
+            out.append(arg)
     return out, path
 
 
