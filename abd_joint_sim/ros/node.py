@@ -99,7 +99,6 @@ class SimNode(Node):
         self.commands = self.loop.commands
         self.joint_names = list(self.loop.joint_names)
         self.actuated = list(self.loop.actuated)
-        self.markers = self.loop.markers
         self.live = self._start_live()      # the live view (docs/live.md), live_port > 0
 
         self.recording_error: Optional[str] = None
@@ -122,7 +121,7 @@ class SimNode(Node):
         self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         from visualization_msgs.msg import MarkerArray
-        self.marker_pub = (None if self.markers is None
+        self.marker_pub = (None if self.loop.markers is None
                            else self._publisher(MarkerArray, TOPIC_MARKERS))
 
         # Subscriptions (queue_command kinds): only actuated joints get command topics.
@@ -585,7 +584,7 @@ class SimNode(Node):
                 urdf_text=getattr(self.scene, 'robot_description', '') or '')
             self.recorder = Recording.open(
                 path, bag_data, self.actuated, self.resolve_topic_name, self.get_fully_qualified_name(),
-                markers=self.markers is not None, on_error=self._recording_failed)
+                markers=self.loop.markers is not None, on_error=self._recording_failed)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
             self.recording_error = str(exc)

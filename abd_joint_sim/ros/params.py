@@ -79,11 +79,9 @@ def _as_str_list(name: str, value: Any) -> list[str]:
 
 
 def _as_str(name: str, value: Any) -> str:
-    if value is None:
-        return ''
-    if not isinstance(value, str):
+    if value is not None and not isinstance(value, str):
         raise ValueError(f'parameter {name!r}: expected a string, got {value!r}')
-    return value
+    return value or ''
 
 
 def _as_bool(name: str, value: Any) -> bool:
