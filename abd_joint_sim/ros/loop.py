@@ -322,7 +322,7 @@ class SimLoop:
             current = position is None or t == self.world.time
         out.clock(t_ns)
         if self.markers is not None and (current or states is not None) and (
-                force or t_ns >= self.marker_schedule.next_ns):   # (PublishSchedule.due's own test)
+                force or t_ns >= self.marker_schedule.next_ns):   # (the schedule's own test)
             self._markers(t_ns, force, states)
         schedule = self.publish_schedule
         # (PublishSchedule.due's own test first: most steps publish no joint state)

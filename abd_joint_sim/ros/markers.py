@@ -24,9 +24,10 @@ AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 
 
 def _scale(M, kind: str, size) -> tuple:
-    """(marker type, scale) of a box (sides), sphere (radius) or cylinder (radius, length)."""
-    if kind == 'box':
-        return M.CUBE, tuple(size)
+    """(marker type, scale) of a box (sides), mesh (scale), sphere (radius) or cylinder
+    (radius, length)."""
+    if kind in ('box', 'mesh'):
+        return (M.CUBE if kind == 'box' else M.MESH_RESOURCE), tuple(size)
     if kind == 'sphere':
         return M.SPHERE, (2 * size[0],) * 3
     r, length = size
@@ -118,28 +119,16 @@ class MarkerBuilder:
 
     def _body_parts(self, body: Any, colour) -> list[_Part]:
         M = self.Marker
-        eye = np.eye(3)
         visuals = tuple(getattr(body, 'visuals', ()) or ())
-        if visuals:
-            parts = []
-            for i, v in enumerate(visuals):
-                rgba = v.rgba if v.rgba is not None else colour
-                R_v = rpy_matrix(v.origin_rpy)
-                size = tuple(float(s) for s in v.size)
-                if v.kind in ('box', 'sphere', 'cylinder'):
-                    parts.append(_Part(body.name, i, *_scale(M, v.kind, size), rgba,
-                                       v.origin_xyz, R_v))
-                elif v.kind == 'mesh':
-                    scale = size if len(size) == 3 else (1.0, 1.0, 1.0)
-                    parts.append(_Part(body.name, i, M.MESH_RESOURCE, scale, rgba,
-                                       v.origin_xyz, R_v, mesh_uri=v.mesh_uri))
-                else:
-                    raise ValueError(f"body {body.name!r}: visual {i} has unknown kind "
-                                     f"{v.kind!r} (box, sphere, cylinder or mesh)")
-            return parts
+        if visuals:             # (kinds and sizes as Scene validates them)
+            return [_Part(body.name, i, *_scale(M, v.kind, v.size),
+                          colour if v.rgba is None else v.rgba, v.origin_xyz,
+                          rpy_matrix(v.origin_rpy), v.mesh_uri if v.kind == 'mesh' else '')
+                    for i, v in enumerate(visuals)]
         s = body.shape
         if s.kind in ('box', 'sphere', 'cylinder'):
-            return [_Part(body.name, 0, *_scale(M, s.kind, s.size), colour, (0, 0, 0), eye)]
+            return [_Part(body.name, 0, *_scale(M, s.kind, s.size), colour, (0, 0, 0),
+                          np.eye(3))]
         sides, axes = equal_inertia_box(s.mass, s.inertia)
         return [_Part(body.name, 0, M.CUBE, sides, colour, s.com, axes)]
 

@@ -583,7 +583,8 @@ class SimNode(Node):
                 self.world.dt, self.commands.order,
                 urdf_text=getattr(self.scene, 'robot_description', '') or '')
             self.recorder = Recording.open(
-                path, bag_data, self.actuated, self.resolve_topic_name, self.get_fully_qualified_name(),
+                path, bag_data, self.actuated, self.resolve_topic_name,
+                self.get_fully_qualified_name(),
                 markers=self.loop.markers is not None, on_error=self._recording_failed)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
