@@ -168,7 +168,7 @@ class SimNode(Node):
         # The initial state, so subscribers see t = 0 even when starting paused.
         self.loop.publish_state(force=True)
 
-    # The loop's state, under the names the node has always had.
+    # The loop's state as attributes of the node.
     paused = property(lambda self: self.loop.paused,
                       lambda self, value: setattr(self.loop, 'paused', bool(value)))
     fault = property(lambda self: self.loop.fault)

@@ -270,8 +270,8 @@ class PublishSchedule:
     grid ``k * period`` (0 = every step), and always when forced (start, reset, single step);
     after :meth:`restart` the next call is due at once."""
 
-    def __init__(self) -> None:
-        self.next_ns = 0
+    next_ns = 0
+    """[ns] The earliest time a state is due again (0: at once)."""
 
     def restart(self) -> None:
         self.next_ns = 0
@@ -312,8 +312,7 @@ def parameter_changes(msg: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for p in list(msg.new_parameters) + list(msg.changed_parameters):
         value = parameter_value_to_python(p.value)
-        if isinstance(value, (bytes, bytearray)) or (hasattr(value, 'tolist')
-                                                     and not isinstance(value, str)):
+        if isinstance(value, (bytes, bytearray)) or hasattr(value, 'tolist'):
             value = list(value.tolist() if hasattr(value, 'tolist') else value)
         out[p.name] = value
     return out
