@@ -136,7 +136,6 @@ class SimLoop:
         """Why stepping stopped (a failed step, a non-finite state); None while healthy."""
         self.steps = 0
         self.not_converged = 0
-        self.max_batch = MAX_BATCH
         self._trajectory = Trajectory()     # the rows of each batch (World.step)
         self._warned_disabled: set[str] = set()
 
@@ -172,7 +171,7 @@ class SimLoop:
         """Steps the next batch may take: up to the next command timeout or diagnostics."""
         if remaining < 2 or self.output.world_each_step:
             return 1
-        limit = min(remaining, self.max_batch)
+        limit = min(remaining, MAX_BATCH)
         dt = self.world.dt
         now = self.world.time
         expiry = self.commands.next_timeout()
