@@ -9,6 +9,7 @@ A joint without an effort limit rejects values beyond :data:`MAX_ABS_TORQUE`
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 import math
 from typing import Any, Iterable, Mapping, Optional, Sequence
@@ -109,13 +110,9 @@ class CommandBuffer:
             raise ValueError(f'parameter \'joints\': duplicate names in {self.order}')
         self.scene_limits = {j: float(v) for j, v in (scene_limits or {}).items()
                              if math.isfinite(v) and v > 0.0}
-        self.limits: dict[str, float] = {}
         self.set_effort_limits(effort_limits)
         self.command_timeout = float(command_timeout)
-        self._last_command_time: dict[str, float] = {}
-        self._last_value: dict[str, float] = {}
-        self._timed_out: set[str] = set()
-        self._drop_pending()
+        self.clear()
 
     def _drop_pending(self) -> None:
         self._pending_torque: dict[str, tuple[float, str]] = {}
@@ -218,33 +215,29 @@ class CommandBuffer:
         driving (UID 19) aim. A length mismatch or a non-finite value rejects the message;
         ``velocity``, unknown joints, efforts on unactuated joints and positions on joints
         without driving are refused entry by entry (the rest applies)."""
+        def whole(value, reason):       # a rejection of the message, not of one joint
+            return Rejection(None, value, reason, 'joint_commands')
         names = [str(n) for n in names]
         position, velocity, effort = list(position), list(velocity), list(effort)
-        rejections: list[Rejection] = []
         for field_name, values in (('position', position), ('velocity', velocity),
                                    ('effort', effort)):
             if values and len(values) != len(names):
-                return [Rejection(None, values, f'{len(values)} {field_name} values for '
-                                  f'{len(names)} names; give one per name or none',
-                                  'joint_commands')], []
+                return [whole(values, f'{len(values)} {field_name} values for {len(names)} '
+                              'names; give one per name or none')], []
         for field_name, values in (('position', position), ('effort', effort)):
             bad = [(n, v) for n, v in zip(names, values) if not math.isfinite(float(v))]
             if bad:
                 return [Rejection(bad[0][0], bad[0][1], f'{field_name} must be finite; '
                                   'whole joint_commands message ignored')], []
         if len(set(names)) != len(names):
-            seen: set = set()
-            twice = [n for n in names if n in seen or seen.add(n)]
-            return [Rejection(None, sorted(set(twice))[:5], 'joint name(s) given more than '
-                              'once; whole joint_commands message ignored (which value would '
-                              'apply is not said by a JointState)', 'joint_commands')], []
-        if velocity:
-            rejections.append(Rejection(None, velocity, 'velocity commands are not supported '
-                                        '(use position with driving, or effort); ignored',
-                                        'joint_commands'))
+            twice = sorted(n for n, count in Counter(names).items() if count > 1)[:5]
+            return [whole(twice, 'joint name(s) given more than once; whole joint_commands '
+                          'message ignored (which value would apply is not said by a '
+                          'JointState)')], []
+        rejections = [whole(velocity, 'velocity commands are not supported (use position '
+                            'with driving, or effort); ignored')] if velocity else []
         if not position and not effort:
-            rejections.append(Rejection(None, names, 'neither position nor effort given',
-                                        'joint_commands'))
+            rejections.append(whole(names, 'neither position nor effort given'))
         clamps: list[Clamp] = []
         for k, joint in enumerate(names):
             if effort:
@@ -269,9 +262,9 @@ class CommandBuffer:
     def clear(self) -> None:
         """Drop pending commands and forget command times (used on reset)."""
         self._drop_pending()
-        self._last_command_time.clear()
-        self._last_value.clear()
-        self._timed_out.clear()
+        self._last_command_time: dict[str, float] = {}     # joint -> time [s]
+        self._last_value: dict[str, float] = {}
+        self._timed_out: set[str] = set()
 
     # -- at the step boundary ----------------------------------------------------------
     @property

@@ -90,10 +90,7 @@ class ClockEncoder:
 
     def encode_many(self, stamps_ns: Sequence[int]) -> list[bytes]:
         """``[encode(t) for t in stamps_ns]`` (a run of a batch's steps)."""
-        if not self.checked:
-            return [self.encode(t) for t in stamps_ns]
-        pack = self._template.pack
-        return [pack(divmod(t, NS_PER_S)) for t in stamps_ns]
+        return [self.encode(t) for t in stamps_ns]
 
 
 class JointStateEncoder:

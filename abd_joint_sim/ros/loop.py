@@ -21,7 +21,7 @@ from . import convert
 from .commands import Applied, CommandBuffer
 from .markers import MarkerBuilder
 from .params import coerce, NODE_NAME, SimConfig, world_dt
-from .recording import markers_due, PublishSchedule, RECORDED_PARAMETERS
+from .recording import PublishSchedule, RECORDED_PARAMETERS
 from .topics import TOPIC_ENABLE_JOINT
 
 DIAGNOSTIC_KEYS = (
@@ -136,7 +136,6 @@ class SimLoop:
         """Why stepping stopped (a failed step, a non-finite state); None while healthy."""
         self.steps = 0
         self.not_converged = 0
-        self.max_batch = MAX_BATCH
         self._trajectory = Trajectory()     # the rows of each batch (World.step)
         self._warned_disabled: set[str] = set()
 
@@ -172,7 +171,7 @@ class SimLoop:
         """Steps the next batch may take: up to the next command timeout or diagnostics."""
         if remaining < 2 or self.output.world_each_step:
             return 1
-        limit = min(remaining, self.max_batch)
+        limit = min(remaining, MAX_BATCH)
         dt = self.world.dt
         now = self.world.time
         expiry = self.commands.next_timeout()
@@ -322,7 +321,7 @@ class SimLoop:
             current = position is None or t == self.world.time
         out.clock(t_ns)
         if self.markers is not None and (current or states is not None) and (
-                force or t_ns >= self.marker_schedule.next_ns):   # (markers_due's own test)
+                force or t_ns >= self.marker_schedule.next_ns):   # (the schedule's own test)
             self._markers(t_ns, force, states)
         schedule = self.publish_schedule
         # (PublishSchedule.due's own test first: most steps publish no joint state)
@@ -362,9 +361,9 @@ class SimLoop:
         out.joint_state(t_ns, position, velocity, effort)
 
     def _markers(self, t_ns: int, force: bool, states=None) -> None:
-        if not markers_due(self.marker_schedule, t_ns, self.config.marker_rate, force):
-            return
-        if not self.output.markers_wanted:
+        rate = self.config.marker_rate      # (0: markers off; due at start and reset)
+        if not (rate > 0.0 and self.marker_schedule.due(t_ns, rate, force)
+                and self.output.markers_wanted):
             return
         build = (self.markers.build_serialized if self.output.markers_serialized
                  else self.markers.build)
@@ -408,36 +407,19 @@ class SimLoop:
         return values
 
     # ---------------------------------------------------------------- diagnostics ----
-    def diagnostics_values(self, real_time_factor_requested: float,
-                           real_time_factor_achieved: float, recording: bool,
-                           recording_error: str = '') -> dict[str, Any]:
-        """The ``/diagnostics`` values (:data:`DIAGNOSTIC_KEYS`) of the last step."""
+    def diagnostics_msg(self, t_ns: int, name: str, real_time_factor_requested: float,
+                        real_time_factor_achieved: float, recording: bool,
+                        recording_error: str = '') -> Any:
+        """A ``DiagnosticArray`` for status `name` with the values (:data:`DIAGNOSTIC_KEYS`)
+        of the last step: ERROR after a fault, WARN on solver warnings, else OK."""
         last = self.world.last_step
-        values = {
-            'sim_time': float(self.world.time),
-            'steps': self.steps,
-            'paused': self.paused,
-            'time_step': float(self.world.dt),
-            'real_time_factor_requested': float(real_time_factor_requested),
-            'real_time_factor_achieved': float(real_time_factor_achieved),
-            'newton_iterations': last.newton_iterations,
-            'line_search_iterations': last.line_search_iterations,
-            'converged': bool(last.converged),
-            'not_converged_steps_total': self.not_converged,
-            'max_joint_separation': float(last.max_joint_separation),
-            'substeps': last.substeps,
-            'recording': bool(recording),
-            'fault': self.fault or '',
-            'recording_error': recording_error or '',
-        }
-        assert tuple(values) == DIAGNOSTIC_KEYS
-        return values
-
-    def diagnostics_msg(self, t_ns: int, name: str, **kwargs) -> Any:
-        """A ``DiagnosticArray`` with :meth:`diagnostics_values` (kwargs) for status `name`:
-        ERROR after a fault, WARN on solver warnings, else OK."""
-        values = self.diagnostics_values(**kwargs)
-        ok = values['converged'] and not self.world.last_step.warnings
+        values = dict(zip(DIAGNOSTIC_KEYS, (
+            float(self.world.time), self.steps, self.paused, float(self.world.dt),
+            float(real_time_factor_requested), float(real_time_factor_achieved),
+            last.newton_iterations, last.line_search_iterations, bool(last.converged),
+            self.not_converged, float(last.max_joint_separation), last.substeps,
+            bool(recording), self.fault or '', recording_error or ''), strict=True))
+        ok = values['converged'] and not last.warnings
         if self.fault:
             level, message = convert.ERROR, f'stopped: {self.fault}'
         else:

@@ -24,9 +24,10 @@ AXIS_COLOUR = (0.95, 0.85, 0.10, 1.0)
 
 
 def _scale(M, kind: str, size) -> tuple:
-    """(marker type, scale) of a box (sides), sphere (radius) or cylinder (radius, length)."""
-    if kind == 'box':
-        return M.CUBE, tuple(size)
+    """(marker type, scale) of a box (sides), mesh (scale), sphere (radius) or cylinder
+    (radius, length)."""
+    if kind in ('box', 'mesh'):
+        return (M.CUBE if kind == 'box' else M.MESH_RESOURCE), tuple(size)
     if kind == 'sphere':
         return M.SPHERE, (2 * size[0],) * 3
     r, length = size
@@ -101,36 +102,33 @@ class MarkerBuilder:
                     q1 = q0 + length * (q1 - q0) / np.linalg.norm(q1 - q0)
                 self.axes.append((j, joint.name, joint.parent, R0.T @ (q0 - p0),
                                   R0.T @ (q1 - p0)))
-        self._index = {name: k for k, name in enumerate(self.body_names)}
         self._msg: Optional[Any] = None
         self._cdr: Optional[Any] = None    # build_serialized's cdr.Template
-        self._stacked: Optional[tuple] = None   # the parts' bodies, origins, arrows as arrays
         self._packed_ok = False
+        # the parts' bodies and origins, the arrows' bodies and ends, as arrays; the outputs
+        index = {name: k for k, name in enumerate(self.body_names)}
+        ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)
+        self._stacked = (
+            np.array([index[p.body] for p in self.parts], dtype=np.intp),
+            np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3),
+            np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
+            np.repeat(ka, 2),
+            np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
+                     dtype=float).reshape(-1, 3),
+            np.empty((len(self.parts), 7)), np.empty((2 * len(self.axes), 3)))
 
     def _body_parts(self, body: Any, colour) -> list[_Part]:
         M = self.Marker
-        eye = np.eye(3)
         visuals = tuple(getattr(body, 'visuals', ()) or ())
-        if visuals:
-            parts = []
-            for i, v in enumerate(visuals):
-                rgba = v.rgba if v.rgba is not None else colour
-                R_v = rpy_matrix(v.origin_rpy)
-                size = tuple(float(s) for s in v.size)
-                if v.kind in ('box', 'sphere', 'cylinder'):
-                    parts.append(_Part(body.name, i, *_scale(M, v.kind, size), rgba,
-                                       v.origin_xyz, R_v))
-                elif v.kind == 'mesh':
-                    scale = size if len(size) == 3 else (1.0, 1.0, 1.0)
-                    parts.append(_Part(body.name, i, M.MESH_RESOURCE, scale, rgba,
-                                       v.origin_xyz, R_v, mesh_uri=v.mesh_uri))
-                else:
-                    raise ValueError(f"body {body.name!r}: visual {i} has unknown kind "
-                                     f"{v.kind!r} (box, sphere, cylinder or mesh)")
-            return parts
+        if visuals:             # (kinds and sizes as Scene validates them)
+            return [_Part(body.name, i, *_scale(M, v.kind, v.size),
+                          colour if v.rgba is None else v.rgba, v.origin_xyz,
+                          rpy_matrix(v.origin_rpy), v.mesh_uri if v.kind == 'mesh' else '')
+                    for i, v in enumerate(visuals)]
         s = body.shape
         if s.kind in ('box', 'sphere', 'cylinder'):
-            return [_Part(body.name, 0, *_scale(M, s.kind, s.size), colour, (0, 0, 0), eye)]
+            return [_Part(body.name, 0, *_scale(M, s.kind, s.size), colour, (0, 0, 0),
+                          np.eye(3))]
         sides, axes = equal_inertia_box(s.mass, s.inertia)
         return [_Part(body.name, 0, M.CUBE, sides, colour, s.com, axes)]
 
@@ -227,17 +225,6 @@ class MarkerBuilder:
             poses = [pose(name) for name in self.body_names]
             P = np.asarray([p for p, _ in poses], dtype=float)
             A = np.asarray([a for _, a in poses], dtype=float)
-        if self._stacked is None:
-            index = self._index
-            ka = np.array([index[parent] for _j, _n, parent, _a, _b in self.axes], dtype=np.intp)
-            self._stacked = (
-                np.array([index[p.body] for p in self.parts], dtype=np.intp),
-                np.array([p.t for p in self.parts], dtype=float).reshape(-1, 3),
-                np.array([p.R for p in self.parts], dtype=float).reshape(-1, 3, 3),
-                np.repeat(ka, 2),
-                np.array([np.concatenate([a, b]) for *_, a, b in self.axes],
-                         dtype=float).reshape(-1, 3),
-                np.empty((len(self.parts), 7)), np.empty((2 * len(self.axes), 3)))
         k, t, Rv, ends_body, ends, poses, points = self._stacked
         if not frame_poses(P, A, k, t, Rv, ends_body, ends, poses, points):
             return None

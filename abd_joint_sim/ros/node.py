@@ -35,7 +35,7 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from . import convert
-from .loop import LoopOutput, SimLoop
+from .loop import LoopOutput, queue_command, SimLoop
 from .params import (check_live_value, config_from_values, conflicting_parameter_sources,
                      default_scene_path, NODE_NAME, PARAMS, PARAMS_BY_NAME,
                      undeclared_parameters)
@@ -62,6 +62,9 @@ MAX_LAG_WALL = 0.1            # s; further behind real time than this -> re-anch
 LOG_THROTTLE = 2.0            # s between repeats of a throttled warning
 MAX_LOG_LINE = 500            # characters of a logged warning (the rest is counted)
 THREAD_IDLE = 0.05            # s the stepping thread sleeps while idle (a change wakes it)
+COMMAND_FORMS = {'array': 'array', 'torque': 'joint', 'joint_state': 'joint_commands',
+                 'enable': 'enable', 'enable_all': 'enable'}
+"""queue_command kind -> the command form its warnings name and throttle by."""
 
 
 def _locked(method):
@@ -96,7 +99,6 @@ class SimNode(Node):
         self.commands = self.loop.commands
         self.joint_names = list(self.loop.joint_names)
         self.actuated = list(self.loop.actuated)
-        self.markers = self.loop.markers
         self.live = self._start_live()      # the live view (docs/live.md), live_port > 0
 
         self.recording_error: Optional[str] = None
@@ -119,21 +121,17 @@ class SimNode(Node):
         self.joint_state_publish_raw = self.joint_state_pub.handle.publish_raw   # (as /clock)
         self.diagnostics_pub = self._publisher(DiagnosticArray, TOPIC_DIAGNOSTICS)
         from visualization_msgs.msg import MarkerArray
-        self.marker_pub = (None if self.markers is None
+        self.marker_pub = (None if self.loop.markers is None
                            else self._publisher(MarkerArray, TOPIC_MARKERS))
 
-        # Subscriptions: only actuated joints get command topics.
+        # Subscriptions (queue_command kinds): only actuated joints get command topics.
         self.command_subs = [
-            self._subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY, self._on_torque_array),
-            self._subscription(Bool, TOPIC_ENABLE_ALL, self._on_enable_all),
-            self._subscription(JointState, TOPIC_JOINT_COMMANDS, self._on_joint_commands),
-        ]
+            self._subscription(Float64MultiArray, TOPIC_TORQUE_ARRAY, 'array'),
+            self._subscription(Bool, TOPIC_ENABLE_ALL, 'enable_all'),
+            self._subscription(JointState, TOPIC_JOINT_COMMANDS, 'joint_state')]
         for joint in self.actuated:
-            self.command_subs += [
-                self._subscription(Float64, TOPIC_TORQUE_JOINT,
-                                   lambda msg, j=joint: self._on_torque_joint(j, msg), joint),
-                self._subscription(Bool, TOPIC_ENABLE_JOINT,
-                                   lambda msg, j=joint: self._on_enable_joint(j, msg), joint)]
+            self.command_subs += [self._subscription(Float64, TOPIC_TORQUE_JOINT, 'torque', joint),
+                                  self._subscription(Bool, TOPIC_ENABLE_JOINT, 'enable', joint)]
 
         # Services (std_srvs/Trigger, Gazebo-style pause/unpause pair).
         self.service_handles = [
@@ -170,7 +168,7 @@ class SimNode(Node):
         # The initial state, so subscribers see t = 0 even when starting paused.
         self.loop.publish_state(force=True)
 
-    # The loop's state, under the names the node has always had.
+    # The loop's state as attributes of the node.
     paused = property(lambda self: self.loop.paused,
                       lambda self, value: setattr(self.loop, 'paused', bool(value)))
     fault = property(lambda self: self.loop.fault)
@@ -180,11 +178,13 @@ class SimNode(Node):
         """A publisher for a row of the topic table (its QoS from there)."""
         return self.create_publisher(msg_type, name, _qos(TOPICS_BY_NAME[name]))
 
-    def _subscription(self, msg_type, name: str, callback, joint: Optional[str] = None):
-        """A subscription for a row of the topic table (`joint` fills ``{joint}``)."""
+    def _subscription(self, msg_type, name: str, kind: str, joint: Optional[str] = None):
+        """A subscription for a row of the topic table (`joint` fills ``{joint}``) whose
+        messages are commands of `kind` (:func:`.loop.queue_command`)."""
         from rclpy.exceptions import InvalidTopicNameException
         try:
-            return self.create_subscription(msg_type, name.format(joint=joint), callback,
+            return self.create_subscription(msg_type, name.format(joint=joint),
+                                            lambda msg: self._on_command(kind, joint, msg),
                                             _qos(TOPICS_BY_NAME[name]))
         except InvalidTopicNameException:     # (only a joint's name can make one invalid)
             shown = joint if len(joint) <= 80 else f'{joint[:80]}... ({len(joint)} characters)'
@@ -341,8 +341,17 @@ class SimNode(Node):
             return THREAD_IDLE
         now = time.monotonic()
         dt = self.world.dt
+        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
+                MAX_LAG_WALL * rtf + dt:    # lagging: say so (every 10 s at most), re-anchor
+            self.get_logger().warn(
+                f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
+                f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
+                throttle_duration_sec=10.0)
+            self._reanchor()
+            self._anchor_wall -= dt / rtf   # allow one step now
         # whole steps to real time x rtf (1e-6 of a step to spare)
-        due = int((self._real_time_target(rtf, now) - self.world.time) / dt + 1e-6)
+        due = int((self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time) / dt
+                  + 1e-6)
         if due >= 1:
             self._advance(min(due, BATCH_STEPS))
             return 0.0
@@ -351,25 +360,6 @@ class SimNode(Node):
                                         - self._anchor_sim) / rtf
         return max(due_wall - now, 0.0)
 
-    def _real_time_target(self, rtf: float, now: float) -> float:
-        """The simulated time real time x rtf has reached at wall time `now`; if that is
-        more than MAX_LAG_WALL ahead of the simulation, warn and re-anchor first."""
-        dt = self.world.dt
-        if self._anchor_sim + rtf * (now - self._anchor_wall) - self.world.time > \
-                MAX_LAG_WALL * rtf + dt:
-            self._warn_lagging(rtf, dt)
-        return self._anchor_sim + rtf * (now - self._anchor_wall)
-
-    def _warn_lagging(self, rtf: float, dt: float) -> None:
-        """Real time x rtf ran ahead of the simulation by more than MAX_LAG_WALL: say so
-        (every 10 s at most) and re-anchor, allowing one step now."""
-        self.get_logger().warn(
-            f'cannot keep up with real_time_factor {rtf:g} (a step takes longer than '
-            f'{dt / rtf:.4g} s of wall time); running as fast as possible instead',
-            throttle_duration_sec=10.0)
-        self._reanchor()
-        self._anchor_wall -= dt / rtf   # allow one step now
-
     def _stop_stepping_thread(self) -> None:
         stepper = self._stepper
         if stepper is None or stepper is threading.current_thread():
@@ -377,10 +367,6 @@ class SimNode(Node):
         self._stepper_quit.set()
         self._stepper_wake.set()
         stepper.join(timeout=10.0)
-
-    def _wake_stepper(self) -> None:
-        if self._stepper is not None:
-            self._stepper_wake.set()
 
     def _reanchor(self) -> None:
         self._anchor_wall = time.monotonic()
@@ -485,11 +471,10 @@ class SimNode(Node):
     def _report(self, form: str, rejections, clamps) -> None:
         """Warn of rejections and clamps, throttled per command form, joint and reason;
         entries naming joints the scene does not have are one line per message and reason."""
-        joints = self._scene_joints
         unknown: dict[str, list] = {}
         for r in rejections:
             kind = r.reason.split(' ')[0]
-            if r.joint is not None and r.joint not in joints:
+            if r.joint is not None and r.joint not in self.joint_names:
                 unknown.setdefault(kind, []).append(r)
                 continue
             self._warn_throttled(('reject', form, r.joint, kind), f'{form} command: {r}'
@@ -506,30 +491,17 @@ class SimNode(Node):
         for c in clamps:
             self._warn_throttled(('clamp', form, c.joint, c.applied > 0), str(c))
 
-    @functools.cached_property
-    def _scene_joints(self) -> frozenset:
-        return frozenset(self.world.joint_names)
-
     @_locked
-    def _on_torque_array(self, msg: Float64MultiArray) -> None:
-        self._report('array', *self.commands.command_array(convert.array_values(msg)))
-
-    @_locked
-    def _on_torque_joint(self, joint: str, msg: Float64) -> None:
-        self._report('joint', *self.commands.command_torque(joint, msg.data))
-
-    @_locked
-    def _on_joint_commands(self, msg: JointState) -> None:
-        self._report('joint_commands', *self.commands.command_joint_state(
-            msg.name, msg.position, msg.velocity, msg.effort))
-
-    @_locked
-    def _on_enable_joint(self, joint: str, msg: Bool) -> None:
-        self._report('enable', self.commands.command_enable(joint, msg.data), [])
-
-    @_locked
-    def _on_enable_all(self, msg: Bool) -> None:
-        self.commands.command_enable_all(msg.data)
+    def _on_command(self, kind: str, joint: Optional[str], msg) -> None:
+        """Queue a command message of `kind` for its step boundary; warn of what it lost."""
+        if kind == 'array':
+            value = convert.array_values(msg)
+        elif kind == 'joint_state':
+            value = {'name': msg.name, 'position': msg.position, 'velocity': msg.velocity,
+                     'effort': msg.effort}
+        else:
+            value = msg.data
+        self._report(COMMAND_FORMS[kind], *queue_command(self.commands, kind, joint, value))
 
     # ----------------------------------------------------------------- services ----
     @staticmethod
@@ -550,7 +522,7 @@ class SimNode(Node):
         was = self.paused
         self.paused = False
         self._reanchor()
-        self._wake_stepper()
+        self._stepper_wake.set()
         return self._answer(response, True, f'running from t={self.world.time:.6f} s'
                             + ('' if was else ' (was not paused)'))
 
@@ -565,7 +537,7 @@ class SimNode(Node):
     def _srv_reset(self, request, response):
         self.loop.reset()
         self._reanchor()
-        self._wake_stepper()
+        self._stepper_wake.set()
         self._live_refresh(force=True)
         self.get_logger().info('reset: initial state, t=0, torque commands cleared')
         return self._answer(response, True, f'reset to t={self.world.time:.6f} s')
@@ -611,17 +583,14 @@ class SimNode(Node):
                 self.world.dt, self.commands.order,
                 urdf_text=getattr(self.scene, 'robot_description', '') or '')
             self.recorder = Recording.open(
-                path, bag_data, self.actuated, self._abs, self.get_fully_qualified_name(),
-                markers=self.markers is not None, on_error=self._recording_failed)
+                path, bag_data, self.actuated, self.resolve_topic_name,
+                self.get_fully_qualified_name(),
+                markers=self.loop.markers is not None, on_error=self._recording_failed)
         except Exception as exc:  # noqa: BLE001 - BagError, ImportError, OSError, ...
             self.get_logger().error(f'recording to {path!r} disabled: {exc}')
             self.recording_error = str(exc)
             self.recorder = None
             self.config.record = ''
-
-    def _abs(self, topic: str) -> str:
-        """Fully qualified topic name (namespace applied), as it appears on the graph."""
-        return self.resolve_topic_name(topic)
 
     def _recording_failed(self, why: str) -> None:
         self.recording_error = why
@@ -715,13 +684,8 @@ class _NodeOutput(LoopOutput):
         return node.marker_pub is not None and (
             node.recorder is not None or node.marker_pub.get_subscription_count() > 0)
 
-    def clock(self, t_ns: int) -> None:     # (after every step: no `_record` call)
-        node = self.node
-        clock = node.clock_encoder.encode(t_ns)
-        if self._clock_subscribed:          # (always outside a batch: see batch_begin)
-            node.clock_publish_raw(clock)
-        if node.recorder is not None:
-            node.recorder.clock(t_ns, clock)
+    def clock(self, t_ns: int) -> None:
+        self.clocks([t_ns])
 
     def clocks(self, stamps_ns: list) -> None:
         node = self.node
@@ -754,14 +718,9 @@ class _NodeOutput(LoopOutput):
         self.node.marker_pub.publish(data)
         self._record('markers', t_ns, data)
 
-    def applied(self, applied) -> None:
-        self._record('applied', applied)
-
-    def restarted(self) -> None:
-        self._record('restarted')           # log times keep increasing
-
-    def parameters(self, t_ns: int, changes) -> None:
-        self._record('parameters', t_ns, changes)   # log time: the current sim time
+    applied = functools.partialmethod(_record, 'applied')
+    restarted = functools.partialmethod(_record, 'restarted')
+    parameters = functools.partialmethod(_record, 'parameters')
 
     def log(self, level: str, text: str, key=None) -> None:
         if key is not None and level == 'warn':
@@ -794,19 +753,16 @@ def _robot_description_to_params_file(args: list[str]) -> tuple[list[str], Optio
     key = 'robot_description:='
     out: list[str] = []
     path = None
-    i = 0
-    while i < len(args):
-        if args[i] in ('-p', '--param') and args[i + 1:i + 2] and args[i + 1].startswith(key):
+    for arg in args:
+        if arg.startswith(key) and out[-1:] in (['-p'], ['--param']):
             with tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='robot_description_',
                                              delete=False) as f:
                 yaml.safe_dump({'/**': {'ros__parameters': {
-                    'robot_description': args[i + 1][len(key):]}}}, f)
+                    'robot_description': arg[len(key):]}}}, f)
             path = f.name
-            out += ['--params-file', path]
-            i += 2
+            out[-1:] = ['--params-file', path]
         else:
-            out.append(args[i])
-            i += 1
+            out.append(arg)
     return out, path
 
 

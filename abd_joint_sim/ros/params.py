@@ -79,11 +79,9 @@ def _as_str_list(name: str, value: Any) -> list[str]:
 
 
 def _as_str(name: str, value: Any) -> str:
-    if value is None:
-        return ''
-    if not isinstance(value, str):
+    if value is not None and not isinstance(value, str):
         raise ValueError(f'parameter {name!r}: expected a string, got {value!r}')
-    return value
+    return value or ''
 
 
 def _as_bool(name: str, value: Any) -> bool:
@@ -92,7 +90,8 @@ def _as_bool(name: str, value: Any) -> bool:
     return value
 
 
-def _check_limits(limits: list[float]) -> list[float]:
+def _as_limits(name: str, value: Any) -> list[float]:
+    limits = _as_float_list(name, value)
     for i, lim in enumerate(limits):
         if not lim > 0.0:
             raise ValueError(
@@ -113,10 +112,6 @@ def _as_port(name: str, value: Any) -> int:
         raise ValueError(f'parameter {name!r}: {int(value)} is outside the TCP ports 1..65535 '
                          '(0 = off)')
     return int(value)
-
-
-def _as_limits(name: str, value: Any) -> list[float]:
-    return _check_limits(_as_float_list(name, value))
 
 
 def _as_host(name: str, value: Any) -> str:
@@ -223,19 +218,9 @@ def _names(folder: str, ext: str) -> list[str]:
         return []
 
 
-def packaged_scenes() -> list[str]:
-    """Names of the packaged scenes (what a bare `scene` value may be)."""
-    return _names(packaged_scenes_dir(), '.yaml')
-
-
 def packaged_robots_dir() -> str:
     """Directory of the packaged URDF robots (``robots/`` beside ``scenes/``)."""
     return os.path.join(os.path.dirname(packaged_scenes_dir()), 'robots')
-
-
-def packaged_robots() -> list[str]:
-    """Names of the packaged URDF robots (a bare `scene` value may name one too)."""
-    return _names(packaged_robots_dir(), '.urdf')
 
 
 def resolve_scene(value: str) -> str:
@@ -255,7 +240,7 @@ def resolve_scene(value: str) -> str:
             return robot
         import difflib
         from abd_joint_sim.errors import SceneError
-        names = packaged_scenes() + packaged_robots()
+        names = _names(packaged_scenes_dir(), '.yaml') + _names(packaged_robots_dir(), '.urdf')
         close = difflib.get_close_matches(value, names, n=1)
         hint = f'did you mean {close[0]!r}? ' if close else ''
         raise SceneError(
@@ -352,27 +337,21 @@ def conflicting_parameter_sources(argv: Sequence[str], node_name: str = NODE_NAM
     once with different values (``-p name:=v`` and ``--params-file`` files, in order).
     Which one rcl puts in effect is read back from the node; this only finds the clash."""
     import yaml
-    args = _ros_args(argv)
     given: dict[str, list[tuple[str, Any]]] = {}
-    i = 0
-    while i < len(args):
-        arg = args[i]
-        if arg in ('-p', '--param') and i + 1 < len(args):
-            name, sep, text = args[i + 1].partition(':=')
-            if sep:
-                node, colon, pname = name.rpartition(':')
-                if not colon or node.lstrip('/') in (node_name, '**', '*'):
-                    try:
-                        value = yaml.safe_load(text)
-                    except yaml.YAMLError:
-                        value = text
-                    given.setdefault(pname, []).append((f'-p {args[i + 1]}', value))
-            i += 2
-        elif arg == '--params-file' and i + 1 < len(args):
-            for name, value in _file_parameters(args[i + 1], node_name).items():
-                given.setdefault(name, []).append((f'--params-file {args[i + 1]}', value))
-            i += 2
-        else:
-            i += 1
+    args = iter(_ros_args(argv))
+    for arg in args:
+        operand = next(args, None) if arg in ('-p', '--param', '--params-file') else None
+        if operand is not None and arg == '--params-file':
+            for name, value in _file_parameters(operand, node_name).items():
+                given.setdefault(name, []).append((f'--params-file {operand}', value))
+        elif operand is not None:
+            name, sep, text = operand.partition(':=')
+            node, colon, pname = name.rpartition(':')
+            if sep and (not colon or node.lstrip('/') in (node_name, '**', '*')):
+                try:
+                    value = yaml.safe_load(text)
+                except yaml.YAMLError:
+                    value = text
+                given.setdefault(pname, []).append((f'-p {operand}', value))
     return {n: s for n, s in given.items()
             if len({repr(v if v is not None else '') for _, v in s}) > 1}

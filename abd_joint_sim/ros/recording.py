@@ -90,13 +90,6 @@ def add_node_topics(writer: Any, resolve: Resolve, actuated: Iterable[str],
         writer.add_topic(resolve(name), spec.type, qos=spec.reliability, depth=spec.depth)
 
 
-def markers_due(schedule: 'PublishSchedule', t_ns: int, rate: float,
-                force: bool = False) -> bool:
-    """True if the body markers are due at `t_ns` (``marker_rate`` Hz on the grid
-    ``k / rate``, and at start and reset); never for rate 0 (markers off)."""
-    return rate > 0.0 and schedule.due(t_ns, rate, force)
-
-
 def record_applied(write: Write, resolve: Resolve, applied: Applied) -> None:
     """Commands as they took effect (log time = simulated time of the step boundary), in the
     order a replay must apply them: per-joint enables, the array command, per-joint torques
@@ -180,50 +173,45 @@ class Recording:
         """One message (`serialized`: its CDR bytes) on the resolved `topic`."""
         if self._held_stamps:
             self._write_held()              # first: the bag keeps the order of the steps
-        writer = self.writer
-        if writer is None:
-            return
-        try:
-            if not serialized and self.zero_padding:
-                from rclpy.serialization import serialize_message
-                from abd_joint_sim.record.cdr import without_padding
-                msg, serialized = without_padding(serialize_message(msg), msg), True
-            if serialized:
-                writer.write_serialized(topic, stamp_ns, msg)
-            else:
-                writer.write(topic, stamp_ns, msg)
-        except Exception as exc:  # noqa: BLE001 - BagError, OSError, ...
-            self._failed(f'writing {topic} failed: {exc}')
-            return
-        self.counts[topic] = self.counts.get(topic, 0) + 1
+        if self.writer is not None and self._try(f'writing {topic}', self._write, topic,
+                                                 stamp_ns, msg, serialized):
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def _write(self, topic: str, stamp_ns: int, msg: Any, serialized: bool) -> None:
+        if not serialized and self.zero_padding:
+            from rclpy.serialization import serialize_message
+            from abd_joint_sim.record.cdr import without_padding
+            msg, serialized = without_padding(serialize_message(msg), msg), True
+        if serialized:
+            self.writer.write_serialized(topic, stamp_ns, msg)
+        else:
+            self.writer.write(topic, stamp_ns, msg)
 
     def _write_held(self) -> None:
         """The /clock messages a batch held back, in one call (dropped once the bag failed)."""
         stamps, datas = self._held_stamps, self._held_datas
         self._held_stamps, self._held_datas = [], []
-        if not stamps or self.writer is None:
-            return
-        try:
-            self.writer.write_serialized_many(self._clock, stamps, datas)
-        except Exception as exc:  # noqa: BLE001
-            self._failed(f'writing {self._clock} failed: {exc}')
-            return
-        self.counts[self._clock] = self.counts.get(self._clock, 0) + len(stamps)
+        if stamps and self.writer is not None and self._try(
+                f'writing {self._clock}', self.writer.write_serialized_many, self._clock,
+                stamps, datas):
+            self.counts[self._clock] = self.counts.get(self._clock, 0) + len(stamps)
 
-    def _failed(self, why: str) -> None:
-        """Called in an `except` block: re-raises what it caught when there is no on_error."""
-        if self.on_error is None:
-            raise                                               # noqa: PLE0704
-        self.on_error(why)
+    def _try(self, what: str, call: Callable, *args) -> bool:
+        """`call(*args)`; False if it failed: ``on_error(f'{what} failed: {exc}')``, or the
+        exception raised again when there is no on_error."""
+        try:
+            call(*args)
+        except Exception as exc:  # noqa: BLE001 - BagError, OSError, ...
+            if self.on_error is None:
+                raise
+            self.on_error(f'{what} failed: {exc}')
+            return False
+        return True
 
     # -- what the loop hands over -----------------------------------------------------
     def clock(self, t_ns: int, data: bytes) -> None:
         """/clock as CDR bytes; held back in a batch."""
-        if self._batching:
-            self._held_stamps.append(t_ns)
-            self._held_datas.append(data)
-        else:
-            self.write(self._clock, t_ns, data, serialized=True)
+        self.clocks([t_ns], [data])
 
     def clocks(self, stamps_ns: list, datas: list) -> None:
         """`clock` for each pair, in order."""
@@ -257,12 +245,8 @@ class Recording:
         increasing from the last one written (``BagWriter.restart_time``)."""
         if self._held_stamps:
             self._write_held()
-        if self.writer is None:
-            return
-        try:
-            self.writer.restart_time()
-        except Exception as exc:  # noqa: BLE001
-            self._failed(f'restarting the log time failed: {exc}')
+        if self.writer is not None:
+            self._try('restarting the log time', self.writer.restart_time)
 
     def parameters(self, t_ns: int, changes: Mapping[str, Any]) -> None:
         """Live changes, in force from `t_ns` (the current simulated time) on."""
@@ -271,12 +255,8 @@ class Recording:
 
     def flush(self) -> None:
         """Close the chunk in progress (a SIGKILL then loses at most the next one)."""
-        if self.writer is None:
-            return
-        try:
-            self.writer.flush()
-        except Exception as exc:  # noqa: BLE001
-            self._failed(f'flushing failed: {exc}')
+        if self.writer is not None:
+            self._try('flushing', self.writer.flush)
 
     def close(self) -> None:
         """Finalise the bag (idempotent); held messages are dropped once the bag failed."""
@@ -290,8 +270,8 @@ class PublishSchedule:
     grid ``k * period`` (0 = every step), and always when forced (start, reset, single step);
     after :meth:`restart` the next call is due at once."""
 
-    def __init__(self) -> None:
-        self.next_ns = 0
+    next_ns = 0
+    """[ns] The earliest time a state is due again (0: at once)."""
 
     def restart(self) -> None:
         self.next_ns = 0
@@ -332,8 +312,7 @@ def parameter_changes(msg: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for p in list(msg.new_parameters) + list(msg.changed_parameters):
         value = parameter_value_to_python(p.value)
-        if isinstance(value, (bytes, bytearray)) or (hasattr(value, 'tolist')
-                                                     and not isinstance(value, str)):
+        if isinstance(value, (bytes, bytearray)) or hasattr(value, 'tolist'):
             value = list(value.tolist() if hasattr(value, 'tolist') else value)
         out[p.name] = value
     return out
