@@ -313,7 +313,7 @@ def eigh_ql_in(S, w, V, e):
 @kernel
 def nearest_rotation_in(A, R, work):
     """R = the rotation nearest the 3x3 A (Frobenius norm), det +1: U diag(1, 1, det(U Vᵀ)) Vᵀ
-    from svd3. work: (5, 3, 3) scratch."""
+    from svd3_in. work: (5, 3, 3) scratch."""
     U, V = work[0], work[1]
     S = work[2, 0]
     svd3_in(A, U, S, V, work[3:5])
