@@ -277,7 +277,7 @@ class Solver:
         m = self.model
         out = np.empty((2, m.joint_count))
         compiled.joint_rates(self.data, state.q, state.v, self.work.zero,
-                           state.joint_angle - m.joint_init_angle, m.dt, out)
+                             state.joint_angle - m.joint_init_angle, m.dt, out, self.work.angle_work)
         return out[1].copy()
 
     def axis_inertia(self, j: int) -> float:

@@ -74,10 +74,11 @@ def forces(m, q, q_prev, bdf2, torque_value, torque_enabled, ws, skipped):
 
 
 @kernel
-def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
+def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles, work):
     """Section 4's joint angles: new_angles (2,J) = unwrapped θ + init_angle, θ̇ = ∇θ·v (a
     prismatic joint: d + init_distance, ḋ = ∇d·v); returns (the largest |θ − θ_start| or
-    |θ̇| h over the revolute joints, NaN wins; whether every θ and d is finite)."""
+    |θ̇| h over the revolute joints, NaN wins; whether every θ and d is finite). work: (≥ 16,
+    ≥ 3) scratch (the step's angle_work)."""
     parent, child, nbar, bbar = m.joint_parent, m.joint_child, m.joint_nbar, m.joint_bbar
     init_angle = m.joint_init_angle
     slot = m.prismatic_slot
@@ -86,7 +87,7 @@ def joint_rates(m, q_new, v_new, zero, angle_start, h, new_angles):
     for j in range(parent.size):
         if slot[j] >= 0:
             d, rate = prismatic.distance_and_rate(q_new, v_new, parent[j], child[j], m.prismatic_frame,
-                                                  slot[j], np.empty((16, 3)))
+                                                  slot[j], work)
             new_angles[0, j] = d + init_angle[j]
             new_angles[1, j] = rate
             if not (math.isfinite(d) and math.isfinite(rate)):
@@ -200,7 +201,8 @@ def one_step(m, q, v, q_prev, v_prev, warm_start, warm_start_prev, warm_start_pr
             return
         # 4. velocities, joint angles, checks
         v_finite = bdf.velocity(m, q_new, q, q_prev, h, bdf2, v_new)
-        rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles)
+        rotation, finite = joint_rates(m, q_new, v_new, ws.zero, angle_start, h, new_angles,
+                                       ws.angle_work)
         if not finite or not v_finite:
             outcome[OUT_FAILURE] = FAIL_STEP_NONFINITE
             return

@@ -107,7 +107,7 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
             c2 += C[r] * C[r]
         E += weight[b] * c2
         if project and not hh * math.sqrt(c2) <= ctx.scale * exact_bound[b]:
-            _add_projected_hessian(q, b, w, diag)
+            _add_projected_hessian(q, b, w, diag, ctx.angle_work)
             continue
         AtA = (_ata(q, b, 0, 0), _ata(q, b, 0, 1), _ata(q, b, 0, 2),
                _ata(q, b, 1, 0), _ata(q, b, 1, 1), _ata(q, b, 1, 2),
@@ -149,11 +149,10 @@ def accumulate(q, m, ctx, grad, diag, pair, project):
 
 
 @kernel
-def _add_projected_hessian(q, b, w, diag):
+def _add_projected_hessian(q, b, w, diag, work):
     """The PSD projection of body b's Hessian (w = 4h²κv̄; module docstring) added to diag[b],
-    from the SVD of A."""
-    # one allocation, cut into named views
-    buf = np.empty(9 + 9 + 81 + 9 + 9 + 3 + 18)
+    from the SVD of A; work: scratch of ≥ 138 floats, C-contiguous (the step's angle_work)."""
+    buf = work.reshape(work.size)[:9 + 9 + 81 + 9 + 9 + 3 + 18]     # cut into named views
     A = buf[0:9].reshape((3, 3))
     U = buf[9:18].reshape((3, 3))
     vecs = buf[18:99].reshape((9, 9))

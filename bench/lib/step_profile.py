@@ -87,7 +87,7 @@ def _outside(which, m, ctx, q, v, q_prev, v_prev, start, tv, te, ws, qvw, aw, sk
         elif which == 3:
             bdf.velocity(m, ws.q_new, q, q_prev, h, False, qvw[1])
         elif which == 4:
-            acc += kernel.joint_rates(m, ws.q_new, qvw[1], ws.zero, ctx.angle_start, h, aw)[0]
+            acc += kernel.joint_rates(m, ws.q_new, qvw[1], ws.zero, ctx.angle_start, h, aw, ws.angle_work)[0]
         elif which == 5:
             acc += revolute.check_separations(ws.q_new, m)[0]
         elif which == 6:
