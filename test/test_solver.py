@@ -570,22 +570,31 @@ def test_a_failed_one_step_call_keeps_the_last_good_state():
         assert np.array_equal(x, y)
 
 
-@pytest.mark.parametrize('case', ['chain', 'drive_limit'])
+@pytest.mark.parametrize('case', ['chain', 'drive_limit', 'every_term', 'swinging_hinge'])
 def test_the_compiled_step_allocates_nothing_per_step(case):
     """The arrays a step works in live in the Solver's Workspace (docs/decisions.md):
     an allocation inside the step costs a malloc. Counted by numba's NRT
     statistics: a batch of 200 steps allocates what one of 20 does (the call's own
     arguments), on a chain under torque, with the screw retraction and the torque axes at
-    work, and with gravity; and on a hinge whose drive holds it in its limit (the angle
-    terms' work array)."""
+    work, and with gravity; on a hinge whose drive holds it in its limit (the angle
+    terms' work array); on the warm-up's scene with every term (the prismatic joints'
+    rates); and on a hinge swinging under gravity (the shape term's projected Hessian)."""
     from numba.core.runtime import _nrt_python as nrt      # (numba is pinned)
+    from abd_joint_sim.jit.warmup import _scene, _terms_scene
     if case == 'chain':
         w = _world(chain_dict(4, torque=0.8, gravity=(0.0, 0.0, -9.81)))
         w.step(5)
-    else:
+    elif case == 'drive_limit':
         w = _world(_drive_limit_hinge())
         w.step(60)
         assert w.state.joint_angle[0] > 0.3 + 0.05          # past the upper limit: it is active
+    else:
+        hinge = dict(name='j', parent='base', child='b0', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05])
+        w = World(_terms_scene() if case == 'every_term' else
+                  _scene(['b0'], [hinge], gravity=[0.0, -9.81, 0.0]))
+        for j in w.actuated_joint_names:
+            w.set_effort(j, 0.5)
+        w.step(5)
     was_on = nrt.memsys_stats_enabled()
     nrt.memsys_enable_stats()
     try:
@@ -1264,35 +1273,3 @@ def test_every_kernel_is_compiled_by_the_one_decorator():
         assert k.targetoptions['error_model'] == 'numpy' and k._cache.__class__.__name__ != 'NullCache'
         assert k.compile.__qualname__ == slp.vectorized.__qualname__ + '.<locals>.compile', k
 
-
-_ALLOC_PROBE = r'''
-from numba.core.runtime import rtsys
-from abd_joint_sim import World
-from abd_joint_sim.jit.warmup import _scene, _terms_scene
-hinge = dict(name='j', parent='base', child='b0', p0=[0.1, 0, -0.05], p1=[0.1, 0, 0.05])
-for name, scene in (('every term', _terms_scene()),
-                    ('hinge under gravity', _scene(['b0'], [hinge], gravity=[0, -9.81, 0]))):
-    w = World(scene)
-    for j in w.actuated_joint_names:
-        w.set_effort(j, 0.5)
-    w.step(5)
-    counts = []
-    for n in (50, 150):
-        before = rtsys.get_allocation_stats().alloc
-        w.step(n)
-        counts.append(rtsys.get_allocation_stats().alloc - before)
-    print(name, counts[1] - counts[0])
-'''
-
-
-@pytest.mark.slow
-def test_steps_allocate_nothing_per_step():
-    """Compiled stepping allocates no memory per step (numba's runtime counts every
-    allocation with NUMBA_NRT_STATS=1): 150 steps in one call allocate what 50 do, on the
-    scene with every term (prismatic joints' rates) and on a hinge swinging under gravity
-    (the shape term's projected Hessian)."""
-    out = subprocess.run([sys.executable, '-c', _ALLOC_PROBE], capture_output=True, text=True,
-                         env=dict(os.environ, NUMBA_NRT_STATS='1'), timeout=600, cwd=str(REPO))
-    assert out.returncode == 0, out.stderr[-3000:]
-    lines = [line for line in out.stdout.splitlines() if line.strip()]
-    assert lines == ['every term 0', 'hinge under gravity 0'], lines
