@@ -144,6 +144,9 @@ def test_the_helpers_kernels_are_the_ones_the_step_loads(tmp_path):
     proc = subprocess.run([sys.executable, '-m', 'abd_joint_sim.jit.warmup'], env=env, cwd=tmp_path,
                           capture_output=True, text=True, timeout=1200)
     assert proc.returncode == 0 and 'compiled in' in proc.stdout, proc.stderr[-3000:]
+    from abd_joint_sim.jit import warmup
+    stored = sum(1 for _ in (tmp_path / 'kc2').rglob('*.nbc'))
+    assert stored == warmup.EXPECTED_KERNELS, (stored, 'the progress line\'s estimate')
     env['ABD_COMPILE_JOBS'] = '1'
     again = LISTENER + textwrap.dedent('''
         from abd_joint_sim.jit import cache, warmup
